@@ -1,0 +1,135 @@
+"""The ClaraVid dataset on disk: every fact of its layout and label set, in one place.
+
+``<root>/<mission>/<modality>/<altitude>_<direction>/<stem>.<ext>``, for example
+``003_urban_1/left_rgb/45deg_low_h/000123.jpg``. The keys (``urban_1``, ``low``, ``h``,
+``rgb``...) are those of the official ClaraVid SDK, so code written for it reads the same.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: SDK mission key -> mission folder, in the SDK's (and the dataset's) order.
+MISSIONS: dict[str, str] = {
+    "rural_1": "001_rural_1",
+    "rural_2": "002_rural_2",
+    "urban_1": "003_urban_1",
+    "highway_1": "004_highway_1",
+    "highway_2": "005_highway_2",
+    "urban_2": "006_urban_2",
+    "nature_1": "007_nature_1",
+    "urban_high_1": "008_urban_dense_1",
+}
+#: Older SDK releases call the last mission ``urban_high``; accepted as a synonym.
+MISSION_ALIASES: dict[str, str] = {"urban_high": "urban_high_1"}
+
+#: Altitude key -> folder prefix. Flight heights: low 45-55 m, mid 55-65 m, high 65-75 m.
+ALTITUDES: dict[str, str] = {"low": "45deg_low", "mid": "55deg_mid", "high": "90deg_high"}
+
+#: Grid direction key -> folder suffix (horizontal / vertical passes of a regular grid).
+DIRECTIONS: dict[str, str] = {"h": "h", "v": "v"}
+
+
+@dataclass(frozen=True)
+class Modality:
+    """One field of a frame: its SDK key, folder and file extension (None: no files)."""
+
+    key: str
+    folder: str | None
+    ext: str | None
+
+
+#: SDK field key -> modality, in the SDK's default field order.
+MODALITIES: dict[str, Modality] = {
+    m.key: m
+    for m in (
+        Modality("rgb", "left_rgb", "jpg"),
+        Modality("depth", "depth", "png"),
+        Modality("seg_color", "semantic_colormap", "png"),
+        Modality("pan_seg", "panoptic_seg", "png"),
+        Modality("dynamic_mask", "dynamic_mask", "png"),
+        Modality("extrinsics", "extrinsics", "json"),
+        Modality("intrinsics", None, None),
+    )
+}
+
+#: Native frame size (width, height) of every image modality.
+IMAGE_SIZE: tuple[int, int] = (4032, 3024)
+
+#: Pinhole intrinsics of the left camera at native size (HFoV 75 degrees).
+FOCAL_PX: float = 2627.3023516478706
+INTRINSICS: np.ndarray = np.array(
+    [[FOCAL_PX, 0.0, 2016.0], [0.0, FOCAL_PX, 1512.0], [0.0, 0.0, 1.0]], dtype=np.float32
+)
+INTRINSICS.setflags(write=False)
+
+#: Depth PNGs store metres as a 24-bit integer over three channels (CARLA's encoding).
+DEPTH_MAX_M: float = 1000.0
+DEPTH_SCALE: int = 256**3 - 1
+
+#: Dynamic mask values.
+DYNAMIC_MASK_STATIC: int = 255
+DYNAMIC_MASK_DYNAMIC: int = 0
+
+#: The label id for pixels without a class.
+UNLABELED_ID: int = 255
+
+
+@dataclass(frozen=True)
+class SemanticClass:
+    """A ClaraVid semantic class as stored in the R channel of ``panoptic_seg``."""
+
+    id: int
+    name: str
+    color: tuple[int, int, int]
+    has_instances: bool = False
+
+
+#: The 19 classes plus Unlabeled; ids 11, 12, 20 and 21 are unused.
+CLASSES: tuple[SemanticClass, ...] = (
+    SemanticClass(0, "Building", (70, 70, 70), has_instances=True),
+    SemanticClass(1, "Fence", (100, 40, 40)),
+    SemanticClass(2, "Wire", (55, 90, 80)),
+    SemanticClass(3, "Pedestrian", (220, 20, 60), has_instances=True),
+    SemanticClass(4, "Pole", (153, 153, 153)),
+    SemanticClass(5, "RoadLine", (157, 234, 50)),
+    SemanticClass(6, "Road", (128, 64, 128)),
+    SemanticClass(7, "SideWalk", (244, 35, 232)),
+    SemanticClass(8, "Vegetation", (107, 142, 35)),
+    SemanticClass(9, "Vehicles", (0, 0, 142), has_instances=True),
+    SemanticClass(10, "TrafficSign", (220, 220, 0)),
+    SemanticClass(13, "GreenEnergy", (230, 150, 140)),
+    SemanticClass(14, "GuardRail", (180, 165, 180)),
+    SemanticClass(15, "Urban props", (110, 190, 160)),
+    SemanticClass(16, "Water", (45, 60, 150)),
+    SemanticClass(17, "Terrain", (145, 170, 100)),
+    SemanticClass(18, "Tent", (0, 60, 100)),
+    SemanticClass(19, "Constr props", (170, 120, 50)),
+    SemanticClass(22, "Bridge", (150, 100, 100)),
+    SemanticClass(UNLABELED_ID, "Unlabeled", (0, 0, 0)),
+)
+CLASS_BY_NAME: dict[str, SemanticClass] = {c.name: c for c in CLASSES}
+CLASS_BY_ID: dict[int, SemanticClass] = {c.id: c for c in CLASSES}
+
+
+def canonical_mission(key: str) -> str:
+    """Return the SDK key of a mission given its key, an alias or its folder name.
+
+    Raises:
+        ValueError: the name is not a ClaraVid mission; the message lists the valid keys.
+    """
+    if key in MISSIONS:
+        return key
+    if key in MISSION_ALIASES:
+        return MISSION_ALIASES[key]
+    by_folder = {folder: k for k, folder in MISSIONS.items()}
+    if key in by_folder:
+        return by_folder[key]
+    raise ValueError(f"unknown ClaraVid mission {key!r}; valid missions: {', '.join(MISSIONS)}")
+
+
+def viewpoint_folder(altitude: str, direction: str) -> str:
+    """Folder name of a viewpoint, e.g. ``viewpoint_folder('low', 'h') == '45deg_low_h'``."""
+    return f"{ALTITUDES[altitude]}_{DIRECTIONS[direction]}"

@@ -1,0 +1,206 @@
+"""Read and write every ClaraVid modality, value for value as the official SDK does.
+
+Decoding goes through OpenCV (`cv2.imdecode`), which is faster than the SDK's PIL path;
+the results are identical for the lossless PNG/JSON modalities, and the JPEG RGB may differ
+only by decoder rounding. Every reader raises :class:`CorruptFileError` naming the file
+when it is truncated or undecodable (OpenCV alone would hand back a partly grey image for a
+truncated JPEG) and ``FileNotFoundError`` naming it when it is missing.
+
+The writers produce the exact on-disk encodings (used by the scene generator and tests).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from claravid.errors import CorruptFileError
+from claravid.layout import DEPTH_MAX_M, DEPTH_SCALE, INTRINSICS
+
+_JPEG_SOI, _JPEG_EOI = b"\xff\xd8", b"\xff\xd9"
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_IEND = b"IEND\xaeB`\x82"
+
+
+def read_bytes(path: str | Path) -> np.ndarray:
+    """Read a whole file into a uint8 array (no copy on the way to ``cv2.imdecode``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"file not found: {path}")
+    return np.fromfile(path, dtype=np.uint8)
+
+
+def _check_complete(data: np.ndarray, path: Path) -> None:
+    """Reject truncated JPEG and PNG files, which decoders may otherwise half-decode."""
+    if data.size == 0:
+        raise CorruptFileError(path, "the file is empty")
+    head, tail = data[:8].tobytes(), data[-16:].tobytes()
+    if head.startswith(_JPEG_SOI):
+        # Some encoders pad after the end-of-image marker; look at the last bytes only.
+        if _JPEG_EOI not in tail:
+            raise CorruptFileError(path, "the JPEG is truncated (no end-of-image marker)")
+    elif head.startswith(_PNG_SIGNATURE) and not tail.endswith(_PNG_IEND):
+        raise CorruptFileError(path, "the PNG is truncated (no IEND chunk)")
+
+
+def decode_image(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
+    """Decode an image file with OpenCV, raising errors that name the file.
+
+    EXIF orientation is ignored, as PIL (and so the official SDK) ignores it.
+    """
+    path = Path(path)
+    data = read_bytes(path)
+    _check_complete(data, path)
+    if flags != cv2.IMREAD_UNCHANGED:
+        flags |= cv2.IMREAD_IGNORE_ORIENTATION
+    image = cv2.imdecode(data, flags)
+    if image is None:
+        raise CorruptFileError(path, "not a decodable image")
+    return image
+
+
+def _read_color(path: str | Path) -> np.ndarray:
+    """uint8 H×W×3 in RGB order, like PIL's ``Image.open(p).convert('RGB')``."""
+    return cv2.cvtColor(decode_image(path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+def read_rgb(path: str | Path) -> np.ndarray:
+    """The RGB photo: uint8 H×W×3, RGB order."""
+    return _read_color(path)
+
+
+def read_seg_color(path: str | Path) -> np.ndarray:
+    """The semantic colour map (for viewing): uint8 H×W×3, RGB order."""
+    return _read_color(path)
+
+
+def read_depth(path: str | Path) -> np.ndarray:
+    """Metric depth: float32 H×W metres = (R + 256·G + 65536·B) / (2^24 − 1) × 1000.
+
+    Computed in float32 in the SDK's order (sum, divide, multiply) so values are bit-equal.
+    """
+    bgr = decode_image(path, cv2.IMREAD_COLOR).astype(np.int32)
+    code = bgr[..., 2] + (bgr[..., 1] << 8) + (bgr[..., 0] << 16)
+    depth = code.astype(np.float32)  # < 2^24: exact in float32, as the SDK's float32 sum
+    depth /= np.float32(DEPTH_SCALE)
+    depth *= np.float32(DEPTH_MAX_M)
+    return depth
+
+
+def read_pan_seg(path: str | Path) -> np.ndarray:
+    """Panoptic labels: int32 H×W×2; ``[..., 0]`` instance (G + 256·B), ``[..., 1]`` class (R)."""
+    bgr = decode_image(path, cv2.IMREAD_COLOR)
+    pan = np.empty((*bgr.shape[:2], 2), dtype=np.int32)
+    np.left_shift(bgr[..., 0], 8, out=pan[..., 0], dtype=np.int32)
+    pan[..., 0] += bgr[..., 1]
+    pan[..., 1] = bgr[..., 2]
+    return pan
+
+
+def read_semantic(path: str | Path) -> np.ndarray:
+    """Only the class ids of a panoptic PNG: uint8 H×W (the R channel), without the int32 pair."""
+    return np.ascontiguousarray(decode_image(path, cv2.IMREAD_COLOR)[..., 2])
+
+
+def read_dynamic_mask(path: str | Path) -> np.ndarray:
+    """The dynamic mask: uint8 H×W, 255 static and 0 dynamic.
+
+    Converted like PIL's ``convert('L')``: grey files as they are; colour files with PIL's
+    ITU-R 601-2 integer luma (which differs from OpenCV's in rounding).
+    """
+    image = decode_image(path, cv2.IMREAD_UNCHANGED)
+    if image.dtype != np.uint8:
+        raise CorruptFileError(path, f"expected an 8-bit mask, found {image.dtype} pixels")
+    if image.ndim == 2:
+        return image
+    b, g, r = (image[..., i].astype(np.uint32) for i in range(3))
+    return ((r * 19595 + g * 38470 + b * 7471 + 0x8000) >> 16).astype(np.uint8)
+
+
+def read_extrinsics(path: str | Path) -> np.ndarray:
+    """The camera-to-world pose: float32 4×4."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"file not found: {path}")
+    try:
+        matrix = np.asarray(json.loads(path.read_text()), dtype=np.float64)
+        return matrix.astype(np.float32).reshape(4, 4)
+    except (ValueError, TypeError) as error:
+        raise CorruptFileError(path, f"expected a 4×4 nested list of numbers ({error})") from None
+
+
+def read_intrinsics(*_args: object) -> np.ndarray:
+    """The pinhole intrinsics (no files): float32 3×3."""
+    return INTRINSICS.copy()
+
+
+READERS = {
+    "rgb": read_rgb,
+    "depth": read_depth,
+    "seg_color": read_seg_color,
+    "pan_seg": read_pan_seg,
+    "dynamic_mask": read_dynamic_mask,
+    "extrinsics": read_extrinsics,
+    "intrinsics": read_intrinsics,
+}
+
+
+# --------------------------------------------------------------------------------------------
+# Writers: the exact on-disk encodings.
+
+
+def _write_image(path: str | Path, image: np.ndarray, params: list[int] | None = None) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ok, data = cv2.imencode(path.suffix, image, params or [])
+    if not ok:
+        raise ValueError(f"OpenCV could not encode {path}")
+    data.tofile(path)
+
+
+def write_rgb(path: str | Path, rgb: np.ndarray, quality: int = 95) -> None:
+    """Write a uint8 H×W×3 RGB image as JPEG."""
+    _write_image(path, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
+
+
+def write_seg_color(path: str | Path, colors: np.ndarray) -> None:
+    """Write a uint8 H×W×3 RGB colour map as PNG."""
+    _write_image(path, cv2.cvtColor(colors, cv2.COLOR_RGB2BGR))
+
+
+def encode_depth(depth_m: np.ndarray) -> np.ndarray:
+    """Metres -> the 24-bit RGB code (truncating, as the SDK's serializer does)."""
+    code = (np.asarray(depth_m, dtype=np.float64) / DEPTH_MAX_M * DEPTH_SCALE).astype(np.int64)
+    code = np.clip(code, 0, DEPTH_SCALE)
+    return np.stack([code & 0xFF, (code >> 8) & 0xFF, (code >> 16) & 0xFF], -1).astype(np.uint8)
+
+
+def write_depth(path: str | Path, depth_m: np.ndarray) -> None:
+    """Write metric depth (H×W, metres in [0, 1000]) as a 24-bit RGB PNG."""
+    _write_image(path, cv2.cvtColor(encode_depth(depth_m), cv2.COLOR_RGB2BGR))
+
+
+def write_pan_seg(path: str | Path, semantic: np.ndarray, instance: np.ndarray) -> None:
+    """Write class ids (R) and instance ids (G + 256·B) as an RGB PNG."""
+    instance = np.asarray(instance, dtype=np.int64)
+    if instance.min(initial=0) < 0 or instance.max(initial=0) > 0xFFFF:
+        raise ValueError("instance ids must be in [0, 65535]")
+    rgb = np.stack(
+        [np.asarray(semantic, dtype=np.uint8), instance & 0xFF, instance >> 8], -1
+    ).astype(np.uint8)
+    _write_image(path, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+
+
+def write_dynamic_mask(path: str | Path, mask: np.ndarray) -> None:
+    """Write a uint8 H×W mask (255 static, 0 dynamic) as a grey PNG."""
+    _write_image(path, np.asarray(mask, dtype=np.uint8))
+
+
+def write_extrinsics(path: str | Path, matrix: np.ndarray) -> None:
+    """Write a 4×4 camera-to-world matrix as a JSON nested list."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(np.asarray(matrix, dtype=np.float64).reshape(4, 4).tolist()))

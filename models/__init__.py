@@ -1,0 +1,1 @@
+"""Models: DINOv2 ViT backbones in plain PyTorch, the DPT segmentation decoder, ONNX export."""
