@@ -1,0 +1,133 @@
+"""From panoptic PNGs to label codes: one uint8 image per frame that every palette reads.
+
+A *label code* folds the ClaraVid class id and the dynamic flag into one byte, so a palette
+reduction (even one that splits static and moving vehicles) is a single 256-entry lookup:
+
+- a known class id ``c`` on a static pixel: ``c`` (0…22, or 255 for Unlabeled);
+- a known class id ``c`` on a dynamic pixel: ``c + 128`` (Unlabeled stays 255);
+- an id outside the ClaraVid class table: ``UNKNOWN_CODE`` (254), ignored and counted.
+
+Codes are cheap to cache: ``LabelCache`` keeps them as single-channel PNGs, a fraction of the
+panoptic RGB PNG's decoding time, named after the source files' size and modification time
+so an edited source is never served stale.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from hashlib import sha1
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from claravid import modalities
+from claravid.layout import CLASS_BY_ID, DYNAMIC_MASK_DYNAMIC, UNLABELED_ID
+
+DYNAMIC_OFFSET = 128
+UNKNOWN_CODE = 254
+
+
+class UnknownClassWarning(UserWarning):
+    """Pixels carried class ids outside the ClaraVid class table; they were ignored."""
+
+
+def _code_tables() -> tuple[np.ndarray, np.ndarray]:
+    static = np.full(256, UNKNOWN_CODE, dtype=np.uint8)
+    for class_id in CLASS_BY_ID:
+        static[class_id] = class_id
+    dynamic = static.copy()
+    known = [c for c in CLASS_BY_ID if c != UNLABELED_ID]
+    dynamic[known] = np.asarray(known) + DYNAMIC_OFFSET
+    return static, dynamic
+
+
+STATIC_CODES, DYNAMIC_CODES = _code_tables()
+
+
+def label_codes(semantic: np.ndarray, dynamic_mask: np.ndarray | None = None) -> np.ndarray:
+    """Class ids (uint8 H×W, the panoptic R channel) and an optional dynamic mask -> codes."""
+    codes = cv2.LUT(semantic, STATIC_CODES)
+    if dynamic_mask is not None:
+        if dynamic_mask.shape != semantic.shape:
+            raise ValueError(
+                f"dynamic mask is {dynamic_mask.shape[1]}×{dynamic_mask.shape[0]} but the "
+                f"labels are {semantic.shape[1]}×{semantic.shape[0]}"
+            )
+        moving = dynamic_mask == DYNAMIC_MASK_DYNAMIC
+        codes[moving] = DYNAMIC_CODES[semantic[moving]]
+    return codes
+
+
+def read_label_codes(pan_seg: str | Path, dynamic_mask: str | Path | None = None) -> np.ndarray:
+    """Read a frame's label codes from its panoptic PNG (and dynamic mask, when given)."""
+    semantic = modalities.read_semantic(pan_seg)
+    mask = None
+    if dynamic_mask is not None:
+        mask = modalities.read_dynamic_mask(dynamic_mask)
+        if mask.shape != semantic.shape:
+            raise ValueError(
+                f"size mismatch: {dynamic_mask} is {mask.shape[1]}×{mask.shape[0]} but "
+                f"{pan_seg} is {semantic.shape[1]}×{semantic.shape[0]}; the files do not belong "
+                "to the same frame"
+            )
+    return label_codes(semantic, mask)
+
+
+def warn_unknown(codes: np.ndarray, source: str | Path) -> int:
+    """Count pixels of unknown class ids and warn once per file; returns the count."""
+    count = int(np.count_nonzero(codes == UNKNOWN_CODE))
+    if count:
+        warnings.warn(
+            f"{count} pixel(s) of {source} carry class ids outside the ClaraVid class table; "
+            "they are ignored",
+            UnknownClassWarning,
+            stacklevel=3,
+        )
+    return count
+
+
+def default_cache_dir() -> Path:
+    """``$CLARAVID_CACHE`` or ``~/.cache/claravid``."""
+    return Path(os.environ.get("CLARAVID_CACHE", Path.home() / ".cache" / "claravid"))
+
+
+def _fingerprint(*paths: Path | None) -> str:
+    parts = []
+    for path in paths:
+        if path is not None:
+            stat = path.stat()
+            parts.append(f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}")
+    return sha1("|".join(parts).encode()).hexdigest()[:16]
+
+
+class LabelCache:
+    """Label codes of frames, prepared once as single-channel PNGs under ``directory``.
+
+    A file is named after the fingerprint (path, size, mtime) of its source files, so
+    changing a source makes its entry miss instead of serving stale labels.
+    """
+
+    def __init__(self, directory: str | Path | None = None) -> None:
+        self.directory = Path(directory) if directory is not None else default_cache_dir()
+        self.directory = self.directory / "label_codes"
+
+    def path_for(self, pan_seg: Path, dynamic_mask: Path | None) -> Path:
+        key = _fingerprint(pan_seg, dynamic_mask)
+        return self.directory / key[:2] / f"{key}.png"
+
+    def read(self, pan_seg: Path, dynamic_mask: Path | None = None) -> np.ndarray:
+        """The frame's codes: from the cache when present, else decoded and stored."""
+        path = self.path_for(pan_seg, dynamic_mask)
+        if path.is_file():
+            codes = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if codes is not None and codes.ndim == 2:
+                return codes
+        codes = read_label_codes(pan_seg, dynamic_mask)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # Written under a unique name then renamed, so parallel workers never see half a file.
+        tmp = path.with_suffix(f".{os.getpid()}.tmp.png")
+        cv2.imwrite(str(tmp), codes, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        os.replace(tmp, path)
+        return codes

@@ -1,0 +1,192 @@
+"""``ClaraVidSegmentation``: ClaraVid frames and palette labels as a torch Dataset.
+
+::
+
+    from claravid import ClaraVidSegmentation
+    from claravid.transforms import train_transforms
+
+    ds = ClaraVidSegmentation("/data/claravid", split="train", palette="uavid",
+                              transforms=train_transforms())
+    sample = ds[0]  # {"image": float [3,630,630], "mask": int64 [630,630], "path": ..., ...}
+
+Only the modalities it needs are read: the RGB, the panoptic PNG's class channel, and the
+dynamic mask when the palette tells moving from static objects.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from matplotlib.figure import Figure
+from torch.utils.data import Dataset
+from tqdm.auto import tqdm
+
+from claravid import modalities
+from claravid.index import Frame, list_frames
+from claravid.labels import LabelCache, default_cache_dir, read_label_codes, warn_unknown
+from claravid.layout import MISSIONS, MODALITIES
+from claravid.palettes import Palette, load_palette
+from claravid.plot import plot_sample
+from claravid.splits import SplitConfig, select_split
+
+Transform = Callable[[dict[str, Any]], dict[str, Any]]
+
+
+class ClaraVidSegmentation(Dataset):
+    """Semantic segmentation samples of a ClaraVid selection and split.
+
+    A sample is a dict: ``image`` (uint8 [3,H,W] RGB, the exact pixels, when there are no
+    transforms), ``mask`` (int64 [H,W] palette train ids, 255 ignore), ``path`` (the RGB
+    file), ``mission``, ``viewpoint`` and ``key`` (``<mission folder>/<viewpoint>/<stem>``).
+    Transforms take and return the whole dict (see ``claravid.transforms``).
+
+    Args:
+        root: the ClaraVid root, holding the mission folders.
+        split: ``train``, ``val``, ``test`` (spatial blocks, see ``claravid.splits``),
+            ``all``, or the path of a text file listing frames.
+        missions: mission keys; None: all present.
+        altitude: ``low``, ``mid``, ``high``; None: all.
+        direction: ``h``, ``v``; None: all.
+        palette: a palette name (``claravid``, ``uavid``), YAML path or ``Palette``.
+        transforms: called on each sample dict.
+        split_config: block size, fractions, seed, held-out missions (a ``SplitConfig`` or
+            a dict of its fields).
+        label_cache: keep each frame's labels as a single-channel PNG under this directory
+            (True: ``$CLARAVID_CACHE`` or ``~/.cache/claravid``) after the first read;
+            later epochs skip decoding the panoptic RGB PNG.
+        skip_incomplete: leave out frames missing a modality instead of raising.
+    """
+
+    def __init__(
+        self,
+        root: str | Path,
+        split: str | Path = "train",
+        missions: Sequence[str] | None = None,
+        altitude: Sequence[str] | str | None = None,
+        direction: Sequence[str] | str | None = None,
+        palette: str | Path | Palette = "claravid",
+        transforms: Transform | None = None,
+        *,
+        split_config: SplitConfig | dict[str, Any] | None = None,
+        label_cache: bool | str | Path = False,
+        skip_incomplete: bool = False,
+    ) -> None:
+        self.root = Path(root)
+        self.palette = load_palette(palette)
+        self.transforms = transforms
+        self.split = str(split)
+        if isinstance(split_config, dict):
+            split_config = SplitConfig(**split_config)
+        self.split_config = split_config or SplitConfig()
+        fields = ["rgb", "pan_seg"] + (["dynamic_mask"] if self.palette.uses_dynamic else [])
+        frames = list_frames(
+            self.root, missions, altitude, direction, fields, skip_incomplete=skip_incomplete
+        )
+        self.frames: list[Frame] = select_split(
+            frames, split, self.split_config, lambda: camera_positions(self.root, frames)
+        )
+        if label_cache is True:
+            self.label_cache: LabelCache | None = LabelCache()
+        elif label_cache:
+            self.label_cache = LabelCache(label_cache)
+        else:
+            self.label_cache = None
+
+    @property
+    def classes(self) -> tuple[str, ...]:
+        """Class names in train-id order."""
+        return self.palette.names
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def read_mask(self, index: int) -> np.ndarray:
+        """The frame's train ids, uint8 H×W (255 ignore), unknown class ids counted."""
+        frame = self.frames[index]
+        pan_seg = frame.paths["pan_seg"]
+        dynamic = frame.paths.get("dynamic_mask") if self.palette.uses_dynamic else None
+        if self.label_cache is not None:
+            codes = self.label_cache.read(pan_seg, dynamic)
+        else:
+            codes = read_label_codes(pan_seg, dynamic)
+        warn_unknown(codes, pan_seg)
+        return self.palette.remap(codes)
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        frame = self.frames[index]
+        rgb = modalities.read_rgb(frame.paths["rgb"])
+        mask = self.read_mask(index)
+        if mask.shape != rgb.shape[:2]:
+            raise ValueError(
+                f"size mismatch: {frame.paths['rgb']} is {rgb.shape[1]}×{rgb.shape[0]} but "
+                f"{frame.paths['pan_seg']} is {mask.shape[1]}×{mask.shape[0]}; the label does "
+                "not belong to this image (re-extract the frame)"
+            )
+        sample: dict[str, Any] = {
+            # A [3,H,W] view of the decoded H×W×3 array: transforms crop it without a copy.
+            "image": torch.from_numpy(rgb).permute(2, 0, 1),
+            "mask": torch.from_numpy(mask),
+            "path": str(frame.paths["rgb"]),
+            "mission": frame.mission,
+            "viewpoint": frame.viewpoint,
+            "key": frame.key,
+        }
+        if self.transforms is not None:
+            sample = self.transforms(sample)
+        sample["mask"] = sample["mask"].long()
+        return sample
+
+    def class_frequencies(self, progress: bool = True) -> np.ndarray:
+        """Pixels of each train id over this split (int64 [K]), computed once and cached.
+
+        The cache key covers the palette and every label file's path, size and mtime, so
+        any change to the selection or the files recomputes it.
+        """
+        key = hashlib.sha1(self.palette.lut.tobytes())
+        for frame in self.frames:
+            for name in ("pan_seg", "dynamic_mask"):
+                path = frame.paths.get(name)
+                if path is not None and (name == "pan_seg" or self.palette.uses_dynamic):
+                    stat = path.stat()
+                    key.update(f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}".encode())
+        cache_file = default_cache_dir() / "class_frequencies" / f"{key.hexdigest()}.json"
+        if cache_file.is_file():
+            return np.asarray(json.loads(cache_file.read_text())["counts"], dtype=np.int64)
+        counts = np.zeros(self.palette.num_classes, dtype=np.int64)
+        for index in tqdm(range(len(self)), desc="class frequencies", disable=not progress):
+            ids = self.read_mask(index)
+            counts += np.bincount(ids.ravel(), minlength=256)[: self.palette.num_classes]
+        cache_file.parent.mkdir(parents=True, exist_ok=True)
+        cache_file.write_text(json.dumps({"classes": self.classes, "counts": counts.tolist()}))
+        return counts
+
+    def plot(
+        self,
+        sample: dict[str, Any],
+        show_titles: bool = True,
+        suptitle: str | None = None,
+    ) -> Figure:
+        """Image, mask in palette colours with a legend, and ``sample["prediction"]`` if any."""
+        return plot_sample(sample, self.palette, show_titles=show_titles, suptitle=suptitle)
+
+
+def camera_positions(root: Path, frames: Sequence[Frame]) -> np.ndarray:
+    """Camera x, y (metres, world frame) of each frame, from its extrinsics file."""
+    folder = MODALITIES["extrinsics"]
+    positions = np.empty((len(frames), 2), dtype=np.float64)
+    for i, frame in enumerate(frames):
+        path = root / MISSIONS[frame.mission] / folder.folder / frame.viewpoint
+        path = path / f"{frame.stem}.{folder.ext}"
+        if not path.is_file():
+            raise FileNotFoundError(
+                f"the train/val/test split needs camera positions but {path} is missing; "
+                "restore the extrinsics, or use split='all' or a split file"
+            )
+        positions[i] = modalities.read_extrinsics(path)[:2, 3]
+    return positions

@@ -1,0 +1,171 @@
+"""Augmentation pipelines over sample dicts (albumentations 2.x).
+
+Training: a random crop at native resolution first (padded with the ignore index when the
+image is smaller), then colour jitter, brightness/contrast, rotation, optical or grid
+distortion and a horizontal flip, then normalisation. Cropping first is what makes this
+cheap: augmenting a 630×630 crop takes a few ms, the full 4032×3024 frame hundreds.
+Evaluation: normalisation only, no crop. Masks are warped with nearest interpolation and
+filled with the ignore index (albumentations 2.x ``fill_mask``; the 1.x names are ignored).
+
+A transform takes and returns the whole sample dict. It receives ``image`` as uint8 [3,H,W]
+and ``mask`` as uint8 [H,W] train ids; it returns ``image`` as float32 [3,h,w]. The
+dataset casts the mask to int64 afterwards.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict, dataclass
+from typing import Any
+
+os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")  # it phones home at import otherwise
+
+import albumentations as A
+import cv2
+import numpy as np
+import torch
+from omegaconf import OmegaConf
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+
+@dataclass
+class AugmentConfig:
+    """Every knob of the pipelines; YAML files override any subset (see ``configs/``).
+
+    Probabilities are per sample; a probability of 0 removes that augmentation.
+    """
+
+    crop_height: int = 630
+    crop_width: int = 630
+    hflip_p: float = 0.5
+    color_jitter_p: float = 0.5
+    brightness: float = 0.2
+    contrast: float = 0.2
+    saturation: float = 0.2
+    hue: float = 0.02
+    lighting_p: float = 0.5  # RandomBrightnessContrast
+    brightness_limit: float = 0.2
+    contrast_limit: float = 0.2
+    rotate_p: float = 0.3
+    rotate_limit: float = 15.0
+    distortion_p: float = 0.2  # one of optical / grid distortion
+    optical_distort_limit: float = 0.05
+    grid_distort_limit: float = 0.2
+    mean: tuple[float, float, float] = IMAGENET_MEAN
+    std: tuple[float, float, float] = IMAGENET_STD
+    ignore_index: int = 255
+
+
+def augment_config(overrides: Any = None) -> AugmentConfig:
+    """The default config merged with a dict, DictConfig, or YAML file path.
+
+    Unknown keys are an error that names them (OmegaConf's structured-config check).
+    """
+    base = OmegaConf.structured(AugmentConfig)
+    if overrides is None:
+        return AugmentConfig(**OmegaConf.to_container(base))
+    if isinstance(overrides, str | os.PathLike):
+        overrides = OmegaConf.load(overrides)
+    try:
+        merged = OmegaConf.merge(base, overrides)
+    except Exception as error:  # omegaconf raises several unrelated types
+        raise ValueError(f"invalid augmentation config: {error}") from None
+    return AugmentConfig(**OmegaConf.to_container(merged))
+
+
+def _train_ops(cfg: AugmentConfig) -> list[A.BasicTransform]:
+    fill = {"border_mode": cv2.BORDER_CONSTANT, "fill": 0, "fill_mask": cfg.ignore_index}
+    nearest = {"mask_interpolation": cv2.INTER_NEAREST}
+    ops: list[A.BasicTransform] = [
+        A.PadIfNeeded(cfg.crop_height, cfg.crop_width, position="random", **fill),
+        A.RandomCrop(cfg.crop_height, cfg.crop_width),
+    ]
+    if cfg.color_jitter_p > 0:
+        ops.append(
+            A.ColorJitter(
+                brightness=cfg.brightness,
+                contrast=cfg.contrast,
+                saturation=cfg.saturation,
+                hue=cfg.hue,
+                p=cfg.color_jitter_p,
+            )
+        )
+    if cfg.lighting_p > 0:
+        ops.append(
+            A.RandomBrightnessContrast(
+                brightness_limit=cfg.brightness_limit,
+                contrast_limit=cfg.contrast_limit,
+                p=cfg.lighting_p,
+            )
+        )
+    if cfg.rotate_p > 0:
+        ops.append(A.Rotate(limit=cfg.rotate_limit, p=cfg.rotate_p, **fill, **nearest))
+    if cfg.distortion_p > 0:
+        distortions = [
+            A.OpticalDistortion(distort_limit=cfg.optical_distort_limit, **fill, **nearest),
+            A.GridDistortion(distort_limit=cfg.grid_distort_limit, **fill, **nearest),
+        ]
+        ops.append(A.OneOf(distortions, p=cfg.distortion_p))
+    if cfg.hflip_p > 0:
+        ops.append(A.HorizontalFlip(p=cfg.hflip_p))
+    return ops
+
+
+class SegmentationTransform:
+    """An albumentations pipeline applied to a sample dict (image + mask), then to tensors."""
+
+    def __init__(self, ops: list[A.BasicTransform], cfg: AugmentConfig) -> None:
+        self.cfg = cfg
+        normalize = A.Normalize(mean=cfg.mean, std=cfg.std, max_pixel_value=255.0)
+        self.pipeline = A.Compose([*ops, normalize])
+
+    def __call__(self, sample: dict[str, Any]) -> dict[str, Any]:
+        image = _to_hwc(sample["image"])
+        mask = sample.get("mask")
+        if mask is None:
+            out = self.pipeline(image=image)
+        else:
+            mask = np.asarray(mask)
+            if mask.dtype != np.uint8:
+                mask = mask.astype(np.uint8)  # albumentations warps uint8 masks exactly
+            if mask.shape != image.shape[:2]:
+                raise ValueError(
+                    f"image {image.shape[1]}×{image.shape[0]} and mask "
+                    f"{mask.shape[1]}×{mask.shape[0]} of {sample.get('path', 'a sample')} differ"
+                )
+            out = self.pipeline(image=image, mask=mask)
+            sample["mask"] = torch.from_numpy(np.ascontiguousarray(out["mask"]))
+        sample["image"] = torch.from_numpy(np.ascontiguousarray(out["image"].transpose(2, 0, 1)))
+        return sample
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.pipeline})"
+
+
+def _to_hwc(image: Any) -> np.ndarray:
+    """uint8 [3,H,W] tensor (or H×W×3 array) -> H×W×3 array, a view when possible."""
+    if isinstance(image, torch.Tensor):
+        return image.permute(1, 2, 0).numpy()
+    image = np.asarray(image)
+    if image.ndim == 3 and image.shape[0] == 3 and image.shape[2] != 3:
+        return image.transpose(1, 2, 0)
+    return image
+
+
+def train_transforms(config: Any = None) -> SegmentationTransform:
+    """Random crop first, then photometric and geometric augmentations, then normalise."""
+    cfg = config if isinstance(config, AugmentConfig) else augment_config(config)
+    return SegmentationTransform(_train_ops(cfg), cfg)
+
+
+def eval_transforms(config: Any = None) -> SegmentationTransform:
+    """Normalisation only: the full frame, no crop."""
+    cfg = config if isinstance(config, AugmentConfig) else augment_config(config)
+    return SegmentationTransform([], cfg)
+
+
+def config_dict(cfg: AugmentConfig) -> dict[str, Any]:
+    """A plain dict of the config, for logging and checkpoints."""
+    return asdict(cfg)
