@@ -1,0 +1,90 @@
+"""Spatial-block splits: deterministic, disjoint, near their fractions; split files; hold-outs."""
+
+import numpy as np
+import pytest
+
+from claravid.index import Frame
+from claravid.splits import SplitConfig, assign_blocks, read_split_file, select_split
+
+
+def grid_frames(mission="urban_1", n=20, spacing=40.0):
+    """Frames on an n×n camera grid, two viewpoints at each position (as in ClaraVid)."""
+    frames, positions = [], []
+    for altitude in ("low", "high"):
+        for i in range(n):
+            for j in range(n):
+                stem = f"{i * n + j:06d}"
+                frames.append(Frame(mission, altitude, "h", stem, {}))
+                positions.append((i * spacing, j * spacing))
+    return frames, np.asarray(positions)
+
+
+def test_blocks_are_disjoint_deterministic_and_near_fractions():
+    frames, positions = grid_frames()
+    config = SplitConfig(block_size=100.0, fractions=(0.6, 0.2, 0.2), seed=3)
+    splits = assign_blocks(frames, positions, config)
+    assert splits == assign_blocks(frames, positions, config)
+    counts = {s: splits.count(s) for s in ("train", "val", "test")}
+    assert sum(counts.values()) == len(frames)
+    assert abs(counts["train"] / len(frames) - 0.6) < 0.1
+    assert abs(counts["val"] / len(frames) - 0.2) < 0.1
+    # No block is shared between splits, so every viewpoint over one block is in one split.
+    blocks = {}
+    for split, pos in zip(splits, positions, strict=True):
+        key = tuple(np.floor(pos / 100.0).astype(int))
+        assert blocks.setdefault(key, split) == split
+    assert splits != assign_blocks(frames, positions, SplitConfig(block_size=100.0, seed=4))
+
+
+def test_select_split_partitions_the_frames():
+    frames, positions = grid_frames(n=12)
+    config = SplitConfig(block_size=80.0)
+    parts = {
+        s: select_split(frames, s, config, lambda: positions) for s in ("train", "val", "test")
+    }
+    keys = [{f.key for f in part} for part in parts.values()]
+    assert all(keys) and not (keys[0] & keys[1] or keys[0] & keys[2] or keys[1] & keys[2])
+    assert sum(len(k) for k in keys) == len(frames)
+    assert select_split(frames, "all", config, lambda: positions) == frames
+
+
+def test_mission_hold_out():
+    a, pa = grid_frames("urban_1", n=3)
+    b, pb = grid_frames("rural_1", n=3)
+    c, pc = grid_frames("urban_high_1", n=3)
+    config = SplitConfig(val_missions=["rural_1"], test_missions=["urban_high"])
+    splits = assign_blocks(a + b + c, np.vstack([pa, pb, pc]), config)
+    assert splits == ["train"] * len(a) + ["val"] * len(b) + ["test"] * len(c)
+
+
+def test_split_file(tmp_path):
+    frames, positions = grid_frames(n=3)
+    (tmp_path / "val.txt").write_text(
+        "# published split\n003_urban_1/45deg_low_h/000004\n\n"
+        "003_urban_1/left_rgb/90deg_high_h/000002.jpg  # a file path works too\n"
+    )
+    chosen = select_split(frames, tmp_path / "val.txt", SplitConfig(), lambda: positions)
+    assert [f.key for f in chosen] == [
+        "003_urban_1/45deg_low_h/000004",
+        "003_urban_1/90deg_high_h/000002",
+    ]
+
+
+def test_split_errors(tmp_path):
+    frames, positions = grid_frames(n=2)
+    (tmp_path / "s.txt").write_text("003_urban_1/45deg_low_h/999999\n")
+    with pytest.raises(ValueError, match=r"1 frame\(s\) of split file .*s\.txt are not in"):
+        select_split(frames, tmp_path / "s.txt", SplitConfig(), lambda: positions)
+    (tmp_path / "bad.txt").write_text("just-a-name\n")
+    with pytest.raises(ValueError, match=r"bad\.txt:1: 'just-a-name' is not a frame"):
+        read_split_file(tmp_path / "bad.txt")
+    with pytest.raises(ValueError, match=r"unknown split 'training'"):
+        select_split(frames, "training", SplitConfig(), lambda: positions)
+    with pytest.raises(FileNotFoundError, match=r"split file not found"):
+        select_split(frames, tmp_path / "none.txt", SplitConfig(), lambda: positions)
+    with pytest.raises(ValueError, match=r"block_size must be positive"):
+        SplitConfig(block_size=0)
+    with pytest.raises(ValueError, match=r"fractions must be three"):
+        SplitConfig(fractions=(0.5, 0.5))
+    with pytest.raises(ValueError, match=r"held out as both val and test"):
+        SplitConfig(val_missions=["urban_1"], test_missions=["003_urban_1"])

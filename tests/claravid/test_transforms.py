@@ -1,0 +1,79 @@
+"""Augmentations: crop size, mask values after augmentation, config from YAML, errors."""
+
+import numpy as np
+import pytest
+import torch
+
+from claravid.transforms import augment_config, eval_transforms, train_transforms
+
+ALLOWED = set(range(8)) | {255}
+
+
+def sample(h=300, w=400, seed=0):
+    rng = np.random.default_rng(seed)
+    image = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    mask = rng.choice(sorted(ALLOWED), (h, w)).astype(np.uint8)
+    # A [3,H,W] view, as the dataset hands it over.
+    return {"image": torch.from_numpy(image).permute(2, 0, 1), "mask": torch.from_numpy(mask)}
+
+
+def test_train_crop_and_mask_values_only_palette_ids_and_ignore():
+    transform = train_transforms(
+        {"crop_height": 64, "crop_width": 96, "rotate_p": 1.0, "distortion_p": 1.0}
+    )
+    for seed in range(10):
+        out = transform(sample(seed=seed))
+        assert out["image"].shape == (3, 64, 96) and out["image"].dtype == torch.float32
+        assert out["mask"].shape == (64, 96)
+        assert set(out["mask"].unique().tolist()) <= ALLOWED
+
+
+def test_small_image_is_padded_with_ignore():
+    out = train_transforms({"crop_height": 64, "crop_width": 64, "rotate_p": 0})(sample(20, 30))
+    mask = out["mask"].numpy()
+    assert out["image"].shape == (3, 64, 64)
+    assert (mask == 255).sum() >= 64 * 64 - 20 * 30
+
+
+def test_without_augmentation_the_crop_is_an_exact_window():
+    off = dict.fromkeys(["hflip_p", "color_jitter_p", "lighting_p", "rotate_p", "distortion_p"], 0)
+    cfg = {"crop_height": 50, "crop_width": 60, "mean": [0, 0, 0], "std": [1, 1, 1], **off}
+    s = sample(120, 150, seed=5)
+    image = s["image"].permute(1, 2, 0).numpy().copy()
+    mask = s["mask"].numpy().copy()
+    out = train_transforms(cfg)(s)
+    crop = (out["image"].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+    # Locate the window by its mask and check the pixels match exactly.
+    found = False
+    for y in range(120 - 50 + 1):
+        for x in range(150 - 60 + 1):
+            if np.array_equal(mask[y : y + 50, x : x + 60], out["mask"].numpy()):
+                np.testing.assert_array_equal(image[y : y + 50, x : x + 60], crop)
+                found = True
+    assert found
+
+
+def test_eval_keeps_full_frame_and_normalises():
+    s = sample(40, 50)
+    raw = s["image"].float()
+    out = eval_transforms()(s)
+    assert out["image"].shape == (3, 40, 50)
+    mean = torch.tensor([0.485, 0.456, 0.406])[:, None, None]
+    std = torch.tensor([0.229, 0.224, 0.225])[:, None, None]
+    torch.testing.assert_close(out["image"], (raw / 255 - mean) / std, atol=1e-5, rtol=0)
+
+
+def test_config_from_yaml_and_unknown_key(tmp_path):
+    (tmp_path / "aug.yaml").write_text("crop_height: 320\nhflip_p: 0.0\n")
+    cfg = augment_config(tmp_path / "aug.yaml")
+    assert cfg.crop_height == 320 and cfg.crop_width == 630 and cfg.hflip_p == 0.0
+    with pytest.raises(ValueError, match="crop_hieght"):
+        augment_config({"crop_hieght": 3})
+
+
+def test_mismatched_image_and_mask():
+    s = sample(30, 40)
+    s["mask"] = s["mask"][:20]
+    s["path"] = "frame.jpg"
+    with pytest.raises(ValueError, match=r"image 40×30 and mask 40×20 of frame\.jpg differ"):
+        eval_transforms()(s)
