@@ -13,17 +13,7 @@ from pathlib import Path
 from claravid.layout import ALTITUDES, DIRECTIONS, MISSIONS, viewpoint_folder
 from claravid.plot import save_sample_sheet
 from claravid.segmentation import ClaraVidSegmentation
-from claravid.synth import synthesize
-
-
-def _parse_size(text: str) -> tuple[int, int]:
-    try:
-        width, height = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"size {text!r} is not WIDTHxHEIGHT, e.g. 640x480"
-        ) from None
-    return width, height
+from claravid.synth import parse_size, positive_int, synthesize
 
 
 def prepare_data(out: Path, size: tuple[int, int], frames: int, seed: int) -> Path:
@@ -75,8 +65,8 @@ def run(out: Path, size: tuple[int, int], frames: int, seed: int) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="claravid-demo", description=__doc__.split("\n")[0])
     parser.add_argument("out", type=Path, help="output folder, e.g. runs/demo")
-    parser.add_argument("--size", type=_parse_size, default=(640, 480), help="WIDTHxHEIGHT")
-    parser.add_argument("--frames-per-viewpoint", type=int, default=3)
+    parser.add_argument("--size", type=parse_size, default=(640, 480), help="WIDTHxHEIGHT")
+    parser.add_argument("--frames-per-viewpoint", type=positive_int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     run(args.out, args.size, args.frames_per_viewpoint, args.seed)

@@ -128,6 +128,8 @@ class LabelCache:
         path.parent.mkdir(parents=True, exist_ok=True)
         # Written under a unique name then renamed, so parallel workers never see half a file.
         tmp = path.with_suffix(f".{os.getpid()}.tmp.png")
-        cv2.imwrite(str(tmp), codes, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        cv2.imwrite(
+            str(tmp), codes, [cv2.IMWRITE_PNG_COMPRESSION, 3]
+        )  # smallest and fastest to read
         os.replace(tmp, path)
         return codes

@@ -62,8 +62,14 @@ def decode_image(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
     return image
 
 
+# OpenCV >= 4.10 decodes straight to RGB order, saving a full-frame channel swap.
+_IMREAD_RGB = getattr(cv2, "IMREAD_COLOR_RGB", None)
+
+
 def _read_color(path: str | Path) -> np.ndarray:
     """uint8 H×W×3 in RGB order, like PIL's ``Image.open(p).convert('RGB')``."""
+    if _IMREAD_RGB is not None:
+        return decode_image(path, _IMREAD_RGB)
     return cv2.cvtColor(decode_image(path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
 
 

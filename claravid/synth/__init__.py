@@ -31,7 +31,7 @@ from claravid.layout import (
 from claravid.synth.render import flight_poses, render
 from claravid.synth.world import build_world
 
-__all__ = ["main", "synthesize"]
+__all__ = ["main", "parse_size", "positive_int", "synthesize"]
 
 
 def _ground_resolution(size: tuple[int, int]) -> float:
@@ -153,7 +153,8 @@ def _write(mission_dir: Path, viewpoint: str, stem: str, frame, pose: np.ndarray
     modalities.write_extrinsics(path("extrinsics"), pose)
 
 
-def _size(text: str) -> tuple[int, int]:
+def parse_size(text: str) -> tuple[int, int]:
+    """argparse type for ``WIDTHxHEIGHT``."""
     parts = text.lower().split("x")
     if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x480, got {text!r}")
@@ -163,7 +164,8 @@ def _size(text: str) -> tuple[int, int]:
     return width, height
 
 
-def _positive(text: str) -> int:
+def positive_int(text: str) -> int:
+    """argparse type for a positive integer."""
     try:
         value = int(text)
     except ValueError:
@@ -180,9 +182,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("out", type=Path, help="root folder to write")
     parser.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
-    parser.add_argument("--frames-per-viewpoint", type=_positive, default=4, metavar="N",
+    parser.add_argument("--frames-per-viewpoint", type=positive_int, default=4, metavar="N",
                         help="frames per altitude and direction (default 4)")  # fmt: skip
-    parser.add_argument("--size", type=_size, default=IMAGE_SIZE, metavar="WxH",
+    parser.add_argument("--size", type=parse_size, default=IMAGE_SIZE, metavar="WxH",
                         help="image size (default the native 4032x3024)")  # fmt: skip
     parser.add_argument("--missions", nargs="+", metavar="MISSION",
                         help=f"default all: {' '.join(MISSIONS)}")  # fmt: skip

@@ -77,3 +77,10 @@ def test_mismatched_image_and_mask():
     s["path"] = "frame.jpg"
     with pytest.raises(ValueError, match=r"image 40×30 and mask 40×20 of frame\.jpg differ"):
         eval_transforms()(s)
+
+
+def test_shipped_augment_yaml_matches_the_defaults():
+    from pathlib import Path
+
+    shipped = augment_config(Path(__file__).parents[2] / "configs" / "augment.yaml")
+    assert shipped == augment_config()
