@@ -30,7 +30,7 @@ from claravid.dsp.collection import (
     profile_images,
     select_shard,
 )
-from claravid.dsp.metrics import METRICS
+from claravid.dsp.metrics import METRICS, check_blur_ksize
 
 DEFAULT_OUTPUT = "complexity_results.json"
 
@@ -113,10 +113,13 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     elif args.input.is_file() and args.input.suffix.lower() == ".json":
         run = load_results(args.input)
     else:
+        # Cheap argument errors first, before a long directory walk.
+        k, n = parse_shard(args.shard) if args.shard else (0, 1)
+        if not args.no_blur:
+            check_blur_ksize(args.blur_ksize)
         paths = find_images(args.input, args.pattern)
         shard = None
         if args.shard:
-            k, n = parse_shard(args.shard)
             shard = {"index": k, "count": n, "num_candidates": len(paths)}
             paths = select_shard(paths, k, n)
             output = output or Path(f"complexity_results.shard-{k}-of-{n}.json")

@@ -104,7 +104,7 @@ def fit_profile(values: Iterable[float] | np.ndarray) -> Profile:
     arr = np.asarray(list(values) if not isinstance(values, np.ndarray) else values, np.float64)
     arr = arr.reshape(-1)
     finite = arr[np.isfinite(arr)]
-    if finite.size < arr.size:
+    if 0 < finite.size < arr.size:
         warnings.warn(
             f"{arr.size - finite.size} of {arr.size} values are NaN or infinite "
             "(unreadable images); they are left out of the profile",
@@ -113,7 +113,7 @@ def fit_profile(values: Iterable[float] | np.ndarray) -> Profile:
         )
     if finite.size == 0:
         warnings.warn(
-            "no finite complexity values: the profile is undefined (all NaN)",
+            f"no finite complexity values (of {arr.size}): the profile is undefined (all NaN)",
             DegenerateProfileWarning,
             stacklevel=2,
         )
