@@ -1,0 +1,166 @@
+"""``claravid-dsp``: per-image complexity and the scene profile of a collection of images.
+
+Examples::
+
+    claravid-dsp /data/ClaraVid/003_urban_1 --pattern 'left_rgb/**/*.jpg' --plot urban_1.png
+    claravid-dsp frames.txt --metric glcment --workers 8 --output glcm.json
+    claravid-dsp complexity_results.json --plot profile.png      # official JSON: no recompute
+    claravid-dsp /data/big --pattern '**/*.jpg' --shard $SLURM_ARRAY_TASK_ID/16 --output part.json
+    claravid-dsp --merge part_*.json --output all.json --plot all.png
+    claravid-dsp --compare claravid.json uavid.json
+
+Exit status: 0 on success (unreadable images are listed under "errors"), 1 when no image could be
+read, 2 for bad arguments or an input that names no image.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from claravid.dsp.collection import (
+    NoImagesError,
+    ProfileRun,
+    find_images,
+    load_results,
+    merge_runs,
+    parse_shard,
+    profile_images,
+    select_shard,
+)
+from claravid.dsp.metrics import METRICS, check_blur_ksize
+
+DEFAULT_OUTPUT = "complexity_results.json"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser (exposed for documentation and tests)."""
+    parser = argparse.ArgumentParser(
+        prog="claravid-dsp",
+        description="Delentropic Scene Profile (and GLCM / pixel entropy baselines) of a "
+        "collection of images, with the official ClaraVid values.",
+        epilog="Exit status: 0 ok, 1 no image could be read, 2 bad arguments or no input images.",
+    )
+    parser.add_argument(
+        "input",
+        nargs="?",
+        type=Path,
+        help="a folder (searched with --pattern), a text file of image paths, or a results JSON "
+        "(official or ours) to profile and plot without recomputing",
+    )
+    parser.add_argument(
+        "--pattern", default="*.jpg", help="glob inside a folder; '**' recurses (default *.jpg)"
+    )
+    parser.add_argument("--metric", default="delent", choices=METRICS, help="default delent")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=min(8, os.cpu_count() or 1),
+        help="worker processes; 0 or 1 computes in this process (default: cores, at most 8)",
+    )
+    parser.add_argument(
+        "--output", type=Path, help=f"results JSON (default {DEFAULT_OUTPUT} when computing)"
+    )
+    parser.add_argument("--plot", type=Path, help="save the profile plot here (PNG)")
+    parser.add_argument("--no-blur", action="store_true", help="skip the Gaussian blur")
+    parser.add_argument(
+        "--blur-ksize", type=int, default=3, help="odd Gaussian kernel size (default 3)"
+    )
+    parser.add_argument(
+        "--shard", help="k/n: measure only every n-th sorted image from the k-th (0-based)"
+    )
+    parser.add_argument("--no-cache", action="store_true", help="neither read nor write the cache")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument(
+        "--merge", nargs="+", type=Path, metavar="JSON", help="join shard outputs into one profile"
+    )
+    mode.add_argument(
+        "--compare", nargs="+", type=Path, metavar="JSON", help="table of profiles side by side"
+    )
+    return parser
+
+
+def _summary(run: ProfileRun) -> str:
+    p = run.profile
+    bad = f" ({len(run.errors)} unreadable, left out)" if run.errors else ""
+    return (
+        f"{run.metric} over {len(run.results)} images{bad}: mu={p.mu:.4f} sigma={p.sigma:.4f} "
+        f"alpha={p.alpha:.4f} beta={p.beta:.4f} a={p.a:.4f} b={p.b:.4f}"
+    )
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    if args.compare:
+        from claravid.dsp.compare import compare_table
+
+        if args.input is not None:
+            parser.error("--compare takes JSON files only; drop the INPUT argument")
+        runs = [load_results(p) for p in args.compare]
+        print(compare_table(runs, [str(p) for p in args.compare]))
+        return 0
+
+    output = args.output
+    if args.merge:
+        if args.input is not None:
+            parser.error("--merge takes JSON files only; drop the INPUT argument")
+        run = merge_runs([load_results(p) for p in args.merge])
+        output = output or Path(DEFAULT_OUTPUT)
+    elif args.input is None:
+        parser.error("give an INPUT (folder, list file or results JSON), --merge or --compare")
+    elif args.input.is_file() and args.input.suffix.lower() == ".json":
+        run = load_results(args.input)
+    else:
+        # Cheap argument errors first, before a long directory walk.
+        k, n = parse_shard(args.shard) if args.shard else (0, 1)
+        if not args.no_blur:
+            check_blur_ksize(args.blur_ksize)
+        paths = find_images(args.input, args.pattern)
+        shard = None
+        if args.shard:
+            shard = {"index": k, "count": n, "num_candidates": len(paths)}
+            paths = select_shard(paths, k, n)
+            output = output or Path(f"complexity_results.shard-{k}-of-{n}.json")
+        run = profile_images(
+            paths,
+            args.metric,
+            blur=not args.no_blur,
+            ksize=args.blur_ksize,
+            workers=args.workers,
+            cache=not args.no_cache,
+            progress=not args.quiet,
+        )
+        run.shard = shard
+        output = output or Path(DEFAULT_OUTPUT)
+
+    for err in run.errors:
+        print(f"skipped {err.image_path}: {err.error}", file=sys.stderr)
+    print(_summary(run))
+    if output is not None:
+        print(f"wrote {run.save(output)}")
+    if args.plot is not None:
+        from claravid.dsp.plot import plot_profile
+
+        plot_profile(run.values, run.profile, args.plot, metric=run.metric)
+        print(f"wrote {args.plot}")
+    if not run.results and (run.errors or not run.shard):
+        print("claravid-dsp: error: no image could be read; see the reasons above", file=sys.stderr)
+        return 1
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``claravid-dsp``; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return _run(args, parser)
+    except (NoImagesError, ValueError) as exc:
+        print(f"claravid-dsp: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

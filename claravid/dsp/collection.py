@@ -1,0 +1,382 @@
+"""A collection of images -> per-image values -> profile: discovery, workers, cache, shards, JSON.
+
+The JSON is the official script's schema (``metric``, ``num_images``, ``use_blur``,
+``blur_ksize``, ``results: [{image_path, complexity}]``) plus ``profile``, ``errors`` and, per
+result, the image ``height`` and ``width`` (so profiles of different resolutions can be told
+apart). Files written by the official script load too. A large collection splits into shards
+(``k/n`` takes every n-th sorted path from the k-th), and :func:`merge_runs` joins the parts.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing
+import warnings
+from collections.abc import Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tqdm.auto import tqdm
+
+from claravid.dsp.cache import ComplexityCache, cache_key
+from claravid.dsp.metrics import (
+    ImageReadError,
+    check_blur_ksize,
+    check_metric,
+    gray_complexity,
+    preprocess,
+    read_gray,
+)
+from claravid.dsp.profile import Profile, fit_profile
+
+
+class NoImagesError(FileNotFoundError):
+    """The input names no image: the message says what was searched and how to fix it."""
+
+
+@dataclass(frozen=True)
+class ImageResult:
+    """One image's complexity, with its decoded size (None when read from an official JSON)."""
+
+    image_path: str
+    complexity: float
+    height: int | None = None
+    width: int | None = None
+
+
+@dataclass(frozen=True)
+class ImageError:
+    """An image left out of the profile, and why."""
+
+    image_path: str
+    error: str
+
+
+@dataclass
+class ProfileRun:
+    """Per-image values of one collection and their profile; ``to_json`` gives the file schema."""
+
+    metric: str
+    use_blur: bool
+    blur_ksize: int
+    results: list[ImageResult]
+    errors: list[ImageError] = field(default_factory=list)
+    profile: Profile | None = None
+    shard: dict[str, Any] | None = None
+    source: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.profile is None:
+            self.profile = fit_profile([r.complexity for r in self.results])
+
+    @property
+    def values(self) -> list[float]:
+        """The per-image complexities, in result order."""
+        return [r.complexity for r in self.results]
+
+    def to_json(self) -> dict[str, Any]:
+        """The official schema plus ``profile``, ``errors`` (and ``shard`` for a shard)."""
+        results = []
+        for r in self.results:
+            row: dict[str, Any] = {"image_path": r.image_path, "complexity": r.complexity}
+            if r.height is not None:
+                row.update(height=r.height, width=r.width)
+            results.append(row)
+        out: dict[str, Any] = {
+            "metric": self.metric,
+            "num_images": len(self.results),
+            "use_blur": self.use_blur,
+            "blur_ksize": self.blur_ksize,
+            "results": results,
+            "profile": self.profile.to_dict(),
+            "errors": [{"image_path": e.image_path, "error": e.error} for e in self.errors],
+        }
+        if self.shard is not None:
+            out["shard"] = self.shard
+        return out
+
+    def save(self, path: str | Path) -> Path:
+        """Write :meth:`to_json` (strict JSON: no NaN) and return the path."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(self.to_json(), indent=2, allow_nan=False) + "\n")
+        return path
+
+
+# ---------------------------------------------------------------------------------------------
+# Input discovery and shards
+
+
+def find_images(input_path: str | Path, pattern: str = "*.jpg") -> list[Path]:
+    """Image paths from a directory (glob ``pattern``, ``**`` recurses) or a text file of paths.
+
+    As the official script: a directory is globbed, a file lists one path per line (blank lines
+    skipped). A relative listed path is taken from the current directory, as there, or failing
+    that from the list file's folder. Paths come back resolved and sorted.
+
+    Raises:
+        NoImagesError: the input does not exist, or nothing matched / was listed.
+    """
+    root = Path(input_path)
+    if root.is_dir():
+        found = sorted({p.resolve() for p in root.glob(pattern) if p.is_file()})
+        if not found:
+            raise NoImagesError(
+                f"no files match the pattern {pattern!r} in {root.resolve()}; pass --pattern, "
+                "e.g. 'left_rgb/**/*.jpg' for a ClaraVid mission or '**/*.png' to recurse"
+            )
+        return found
+    if root.is_file():
+        lines = [ln.strip() for ln in root.read_text(encoding="utf-8").splitlines()]
+        paths = []
+        for line in filter(None, lines):
+            p = Path(line)
+            if not p.is_absolute() and not p.exists() and (root.parent / p).exists():
+                p = root.parent / p
+            paths.append(p.resolve())
+        if not paths:
+            raise NoImagesError(f"the list file {root.resolve()} names no images (it is empty)")
+        return sorted(paths)
+    raise NoImagesError(
+        f"input {root} does not exist; give a folder of images, a text file with one image "
+        "path per line, or a results JSON"
+    )
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    """``"k/n"`` -> (k, n) with 0 <= k < n; a ValueError says the expected form otherwise."""
+    try:
+        k_text, n_text = text.split("/")
+        k, n = int(k_text), int(n_text)
+    except ValueError:
+        raise ValueError(f"shard must look like k/n (e.g. 0/8), got {text!r}") from None
+    if n < 1 or not 0 <= k < n:
+        raise ValueError(
+            f"shard {text!r} is out of range: need n >= 1 and 0 <= k < n "
+            "(k is 0-based; with SLURM use $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)"
+        )
+    return k, n
+
+
+def select_shard(paths: Sequence[Path], k: int, n: int) -> list[Path]:
+    """Every n-th path from the k-th: shards balance even when file sizes drift along the list."""
+    return list(paths[k::n])
+
+
+# ---------------------------------------------------------------------------------------------
+# Computing values
+
+
+def _measure(job: tuple[str, str, bool, int]) -> tuple[str, float | None, int, int, str | None]:
+    path, metric, blur, ksize = job
+    try:
+        gray = read_gray(path)
+        height, width = gray.shape
+        value = gray_complexity(preprocess(gray, blur, ksize), metric)
+    except ImageReadError as exc:
+        return path, None, 0, 0, exc.reason
+    except Exception as exc:  # one bad file must never stop a 17k-image run
+        return path, None, 0, 0, f"{type(exc).__name__}: {exc}"
+    return path, value, height, width, None
+
+
+def _init_worker() -> None:
+    import cv2
+
+    cv2.setNumThreads(1)  # the processes already fill the cores
+
+
+def compute_complexities(
+    paths: Iterable[str | Path],
+    metric: str = "delent",
+    *,
+    blur: bool = True,
+    ksize: int = 3,
+    workers: int = 0,
+    cache: bool | ComplexityCache = True,
+    progress: bool = False,
+) -> tuple[list[ImageResult], list[ImageError]]:
+    """Per-image values of ``paths`` (in order), reading cached values where the file is unchanged.
+
+    Args:
+        paths: image files.
+        metric: ``delent``, ``glcment`` or ``pixent``.
+        blur: Gaussian blur before measuring (official default on).
+        ksize: odd blur kernel size.
+        workers: worker processes; 0 or 1 computes in this process.
+        cache: True for the default cache, False for none, or a :class:`ComplexityCache`.
+        progress: show a progress bar on stderr.
+
+    Returns:
+        (results, errors): readable images in input order, and the unreadable ones with reasons.
+    """
+    check_metric(metric)
+    if blur:
+        check_blur_ksize(ksize)
+    if workers < 0:
+        raise ValueError(f"workers must be >= 0 (0 or 1: in this process), got {workers}")
+    paths = [str(p) for p in paths]
+    store = ComplexityCache() if cache is True else (cache or None)
+    keys = {p: cache_key(p, metric, blur, ksize) for p in paths}
+    hits = store.get_many(k for k in keys.values() if k is not None) if store else {}
+    done: dict[str, tuple[float | None, int, int, str | None]] = {}
+    for p in paths:
+        if keys[p] in hits:
+            value, h, w = hits[keys[p]]
+            done[p] = (value, h, w, None)
+    todo = [p for p in dict.fromkeys(paths) if p not in done]
+    jobs = [(p, metric, blur, ksize) for p in todo]
+    new_rows = []
+    bar = tqdm(total=len(jobs), desc=f"{metric}", unit="img", disable=not progress)
+    try:
+        if workers <= 1 or len(jobs) <= 1:
+            outputs: Iterable = map(_measure, jobs)
+            executor = None
+        else:
+            executor = ProcessPoolExecutor(
+                max_workers=workers,
+                mp_context=multiprocessing.get_context("spawn"),
+                initializer=_init_worker,
+            )
+            chunk = max(1, min(16, len(jobs) // (workers * 8)))
+            outputs = executor.map(_measure, jobs, chunksize=chunk)
+        for path, value, h, w, err in outputs:
+            done[path] = (value, h, w, err)
+            if value is not None and keys[path] is not None:
+                new_rows.append((keys[path], value, h, w))
+                if len(new_rows) >= 256 and store:
+                    store.put_many(new_rows)  # an interrupted run keeps what it measured
+                    new_rows = []
+            bar.update(1)
+    finally:
+        bar.close()
+        if executor is not None:
+            executor.shutdown(cancel_futures=True)
+        if store and new_rows:
+            store.put_many(new_rows)
+    results, errors = [], []
+    for p in paths:
+        value, h, w, err = done[p]
+        if err is None and value is not None:
+            results.append(ImageResult(p, float(value), h, w))
+        else:
+            errors.append(ImageError(p, err or "no value"))
+    return results, errors
+
+
+def profile_images(
+    paths: Iterable[str | Path],
+    metric: str = "delent",
+    *,
+    blur: bool = True,
+    ksize: int = 3,
+    workers: int = 0,
+    cache: bool | ComplexityCache = True,
+    progress: bool = False,
+) -> ProfileRun:
+    """Per-image values and the scene profile of a list of images (the demo's entry point).
+
+    Arguments as :func:`compute_complexities`. Unreadable files are listed in ``errors`` and left
+    out of the profile; ``run.results``, ``run.profile`` and ``run.values`` hold the rest.
+    """
+    results, errors = compute_complexities(
+        paths, metric, blur=blur, ksize=ksize, workers=workers, cache=cache, progress=progress
+    )
+    return ProfileRun(metric, blur, ksize, results, errors)
+
+
+# ---------------------------------------------------------------------------------------------
+# JSON in, merge
+
+
+def load_results(path: str | Path) -> ProfileRun:
+    """Read a results JSON written by this tool or by the official script (profile refitted).
+
+    Raises:
+        ValueError: the file is not JSON or lacks the official keys.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"cannot read results JSON {path}: {exc}") from exc
+    if not isinstance(data, dict) or not isinstance(data.get("results"), list):
+        raise ValueError(
+            f"{path} is not a complexity results file: expected a JSON object with 'metric' and "
+            "'results' (as written by claravid-dsp or compute_complexity_profile.py)"
+        )
+    metric = check_metric(str(data.get("metric", "delent")))
+    results, errors = [], []
+    for row in data["results"]:
+        value = row.get("complexity")
+        # The official script writes NaN for images it could not load.
+        if value is None or not math.isfinite(float(value)):
+            errors.append(ImageError(str(row.get("image_path")), "no value in the results file"))
+            continue
+        results.append(
+            ImageResult(str(row["image_path"]), float(value), row.get("height"), row.get("width"))
+        )
+    errors += [ImageError(str(e["image_path"]), str(e["error"])) for e in data.get("errors", [])]
+    return ProfileRun(
+        metric,
+        bool(data.get("use_blur", True)),
+        int(data.get("blur_ksize", 3)),
+        results,
+        errors,
+        shard=data.get("shard"),
+        source=str(path),
+    )
+
+
+def merge_runs(runs: Sequence[ProfileRun]) -> ProfileRun:
+    """Join shard outputs (or any runs of one setting) into one run with a refitted profile.
+
+    Raises:
+        ValueError: settings differ, a shard appears twice, or an image appears in two runs.
+    """
+    if not runs:
+        raise ValueError("nothing to merge: give the shard JSON files")
+    first = runs[0]
+    settings = (first.metric, first.use_blur, first.blur_ksize if first.use_blur else None)
+    for run in runs[1:]:
+        other = (run.metric, run.use_blur, run.blur_ksize if run.use_blur else None)
+        if other != settings:
+            raise ValueError(
+                f"cannot merge {run.source} (metric, blur, ksize = {other}) with {first.source} "
+                f"({settings}): rerun the shards with the same settings"
+            )
+    shards = [r.shard for r in runs if r.shard]
+    if shards:
+        counts = {s["count"] for s in shards}
+        if len(counts) > 1:
+            raise ValueError(f"shards come from different splits (n = {sorted(counts)})")
+        indices = [s["index"] for s in shards]
+        dup = sorted({i for i in indices if indices.count(i) > 1})
+        if dup:
+            raise ValueError(f"shard(s) {dup} given more than once; give each shard's file once")
+        missing = sorted(set(range(counts.pop())) - set(indices))
+        if missing:
+            warnings.warn(
+                f"shards {missing} are missing: the merged profile covers only part of the "
+                "collection",
+                UserWarning,
+                stacklevel=2,
+            )
+    seen: dict[str, str | None] = {}
+    results: list[ImageResult] = []
+    errors: list[ImageError] = []
+    for run in runs:
+        for r in run.results:
+            if r.image_path in seen:
+                raise ValueError(
+                    f"{r.image_path} appears in both {seen[r.image_path]} and {run.source}; "
+                    "merge the shards of one split only"
+                )
+            seen[r.image_path] = run.source
+            results.append(r)
+        errors += run.errors
+    results.sort(key=lambda r: r.image_path)
+    return ProfileRun(first.metric, first.use_blur, first.blur_ksize, results, errors)

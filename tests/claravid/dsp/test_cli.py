@@ -1,0 +1,264 @@
+"""``claravid-dsp`` end to end: folders, list files, official JSON, shards, merge, compare."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sqlite3
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from claravid.dsp import fit_profile, load_results, profile_images
+from claravid.dsp.cache import cache_dir
+from claravid.dsp.cli import main
+
+from .reference import official_image_complexity, textured
+
+
+@pytest.fixture
+def collection(tmp_path) -> Path:
+    """Six small images in two sub-folders, PNG and JPEG, plus one corrupt file."""
+    rng = np.random.default_rng(42)
+    root = tmp_path / "scene"
+    for i in range(6):
+        folder = root / "left_rgb" / ("45deg_low_h" if i < 3 else "55deg_mid_v")
+        folder.mkdir(parents=True, exist_ok=True)
+        img = np.dstack([textured(rng, 48, 64) for _ in range(3)])
+        cv2.imwrite(str(folder / f"{i:06d}.{'jpg' if i % 2 else 'png'}"), img)
+    (root / "left_rgb" / "45deg_low_h" / "000099.png").write_bytes(b"\x89PNG broken")
+    return root
+
+
+def _run(argv) -> int:
+    return main([*argv, "--quiet", "--workers", "0"])
+
+
+def test_folder_with_recursive_pattern(collection, tmp_path, capsys):
+    out, plot = tmp_path / "r.json", tmp_path / "p.png"
+    assert (
+        _run(
+            [
+                str(collection),
+                "--pattern",
+                "left_rgb/**/*.png",
+                "--output",
+                str(out),
+                "--plot",
+                str(plot),
+            ]
+        )
+        == 0
+    )
+    data = json.loads(out.read_text())
+    assert list(data)[:5] == ["metric", "num_images", "use_blur", "blur_ksize", "results"]
+    assert (data["metric"], data["num_images"], data["use_blur"], data["blur_ksize"]) == (
+        "delent",
+        3,
+        True,
+        3,
+    )
+    for row in data["results"]:
+        assert row["complexity"] == pytest.approx(
+            official_image_complexity(row["image_path"]), abs=1e-9
+        )
+        assert (row["height"], row["width"]) == (48, 64)
+    assert [Path(e["image_path"]).name for e in data["errors"]] == ["000099.png"]
+    assert "could not decode" in data["errors"][0]["error"]
+    expected = fit_profile([r["complexity"] for r in data["results"]]).to_dict()
+    assert data["profile"] == pytest.approx(expected)
+    assert plot.read_bytes()[:4] == b"\x89PNG"
+    assert "000099.png" in capsys.readouterr().err
+
+
+def test_list_file_and_other_settings(collection, tmp_path, monkeypatch):
+    images = sorted(collection.glob("left_rgb/*/*.jpg"))
+    listing = tmp_path / "list.txt"
+    listing.write_text("\n".join(os.path.relpath(p, tmp_path) for p in images) + "\n\n")
+    monkeypatch.chdir(collection)  # relative paths resolve from the list file's folder
+    out = tmp_path / "g.json"
+    assert _run([str(listing), "--metric", "glcment", "--no-blur", "--output", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["metric"] == "glcment" and data["use_blur"] is False
+    got = {r["image_path"]: r["complexity"] for r in data["results"]}
+    assert list(got) == [str(p) for p in images]
+    for p in images:
+        assert got[str(p)] == pytest.approx(
+            official_image_complexity(p, "glcment", blur=False), abs=1e-9
+        )
+
+
+def test_official_json_is_profiled_without_recomputing(tmp_path):
+    official = {
+        "metric": "delent",
+        "num_images": 4,
+        "use_blur": True,
+        "blur_ksize": 3,
+        "results": [
+            {"image_path": f"/nowhere/{i}.jpg", "complexity": v}
+            for i, v in enumerate([4.1, 3.9, float("nan"), 4.3])
+        ],
+    }
+    src = tmp_path / "complexity_results.json"
+    src.write_text(json.dumps(official))  # json writes NaN like the official script
+    out = tmp_path / "profiled.json"
+    assert _run([str(src), "--output", str(out), "--plot", str(tmp_path / "p.png")]) == 0
+    data = json.loads(out.read_text())
+    assert data["num_images"] == 3 and data["errors"][0]["image_path"] == "/nowhere/2.jpg"
+    assert data["profile"] == pytest.approx(fit_profile([4.1, 3.9, 4.3]).to_dict())
+
+
+def test_shards_merge_to_the_full_run(collection, tmp_path):
+    pattern = ["--pattern", "**/*.*"]
+    full = tmp_path / "full.json"
+    assert _run([str(collection), *pattern, "--output", str(full), "--no-cache"]) == 0
+    parts = []
+    for k in range(3):
+        part = tmp_path / f"part{k}.json"
+        assert _run([str(collection), *pattern, "--shard", f"{k}/3", "--output", str(part)]) == 0
+        assert json.loads(part.read_text())["shard"] == {
+            "index": k,
+            "count": 3,
+            "num_candidates": 7,
+        }
+        parts.append(str(part))
+    merged = tmp_path / "merged.json"
+    assert main(["--merge", *parts, "--output", str(merged)]) == 0
+    a, b = json.loads(full.read_text()), json.loads(merged.read_text())
+    assert a["results"] == b["results"] and a["profile"] == b["profile"]
+    assert [e["image_path"] for e in a["errors"]] == [e["image_path"] for e in b["errors"]]
+    with pytest.warns(UserWarning, match=r"shards \[2\] are missing"):
+        assert main(["--merge", *parts[:2], "--output", str(tmp_path / "m2.json")]) == 0
+
+
+def test_merge_refuses_mismatches(collection, tmp_path, capsys):
+    p0, p0b, g1 = (tmp_path / n for n in ("p0.json", "p0b.json", "g1.json"))
+    assert (
+        _run([str(collection), "--pattern", "**/*.png", "--shard", "0/2", "--output", str(p0)]) == 0
+    )
+    p0b.write_text(p0.read_text())
+    assert main(["--merge", str(p0), str(p0b)]) == 2
+    assert "given more than once" in capsys.readouterr().err
+    assert (
+        _run(
+            [
+                str(collection),
+                "--pattern",
+                "**/*.png",
+                "--shard",
+                "1/2",
+                "--metric",
+                "pixent",
+                "--output",
+                str(g1),
+            ]
+        )
+        == 0
+    )
+    assert main(["--merge", str(p0), str(g1)]) == 2
+    assert "same settings" in capsys.readouterr().err
+
+
+def test_compare_warns_on_resolution_gap(collection, tmp_path, capsys):
+    small = tmp_path / "small"
+    small.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        cv2.imwrite(str(small / f"{i}.png"), textured(rng, 40, 53))  # ~17 % smaller
+    a, b, c = tmp_path / "a.json", tmp_path / "b.json", tmp_path / "c.json"
+    assert _run([str(collection), "--pattern", "**/*.png", "--output", str(a)]) == 0
+    assert _run([str(collection), "--pattern", "**/*.jpg", "--output", str(b)]) == 0
+    assert _run([str(small), "--pattern", "*.png", "--output", str(c)]) == 0
+    capsys.readouterr()
+    assert main(["--compare", str(a), str(b)]) == 0
+    table = capsys.readouterr().out
+    assert "64x48" in table and "WARNING" not in table
+    assert main(["--compare", str(a), str(c)]) == 0
+    table = capsys.readouterr().out
+    assert "WARNING: image resolutions differ by 20 %" in table
+    mu = load_results(c).profile.mu
+    assert f"{mu:.3f}" in table
+
+
+def test_cache_is_reused_until_the_file_changes(collection, tmp_path):
+    image = sorted(collection.glob("**/*.png"))[0]
+    truth = profile_images([image]).results[0].complexity
+    db = cache_dir() / "dsp.sqlite3"
+    with sqlite3.connect(db) as conn:
+        assert (
+            conn.execute("SELECT value FROM complexity WHERE path=?", (str(image),)).fetchone()[0]
+            == truth
+        )
+        conn.execute("UPDATE complexity SET value=123.0")
+    assert profile_images([image]).results[0].complexity == 123.0  # served from the cache
+    assert profile_images([image], blur=False).results[0].complexity != 123.0  # other key
+    assert profile_images([image], cache=False).results[0].complexity == truth
+    st = image.stat()
+    os.utime(image, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert profile_images([image]).results[0].complexity == truth  # stale entry ignored
+
+
+def test_unwritable_cache_warns_and_still_computes(collection, tmp_path, monkeypatch):
+    blocker = tmp_path / "not_a_dir"
+    blocker.write_text("")
+    monkeypatch.setenv("CLARAVID_CACHE", str(blocker))
+    image = sorted(collection.glob("**/*.png"))[0]
+    with pytest.warns(RuntimeWarning, match="cache .* switched off"):
+        run = profile_images([image])
+    assert run.results[0].complexity == pytest.approx(official_image_complexity(image), abs=1e-9)
+
+
+@pytest.mark.slow
+def test_worker_processes_give_the_same_values(collection):
+    paths = sorted(collection.glob("**/*.*"))
+    serial = profile_images(paths, cache=False)
+    parallel = profile_images(paths, workers=2, cache=False)
+    assert parallel.results == serial.results and parallel.errors == serial.errors
+
+
+def test_error_paths(collection, tmp_path, capsys):
+    missing = tmp_path / "nope"
+    assert _run([str(missing)]) == 2
+    assert f"input {missing} does not exist" in capsys.readouterr().err
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert _run([str(empty), "--pattern", "*.jpg"]) == 2
+    err = capsys.readouterr().err
+    assert "no files match the pattern '*.jpg'" in err and str(empty) in err
+    blank = tmp_path / "blank.txt"
+    blank.write_text("\n\n")
+    assert _run([str(blank)]) == 2
+    assert "names no images" in capsys.readouterr().err
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "x.jpg").write_bytes(b"nope")
+    assert _run([str(bad), "--output", str(tmp_path / "bad.json")]) == 1
+    assert "no image could be read" in capsys.readouterr().err
+    assert json.loads((tmp_path / "bad.json").read_text())["profile"]["mu"] is None
+    assert _run([str(collection), "--shard", "3/3"]) == 2
+    assert "0 <= k < n" in capsys.readouterr().err
+    assert _run([str(collection), "--shard", "one"]) == 2
+    assert "k/n" in capsys.readouterr().err
+    assert _run([str(collection), "--blur-ksize", "4", "--output", str(tmp_path / "k.json")]) == 2
+    assert "must be odd" in capsys.readouterr().err
+    notres = tmp_path / "other.json"
+    notres.write_text('{"hello": 1}')
+    assert _run([str(notres)]) == 2
+    assert "not a complexity results file" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--metric", "entropy", str(collection)])
+    with pytest.raises(SystemExit):
+        main([])
+    with pytest.raises(SystemExit):
+        main([str(collection), "--merge", "a.json"])
+
+
+def test_profile_images_reports_values_and_errors(collection):
+    paths = sorted(collection.glob("left_rgb/45deg_low_h/*"))
+    run = profile_images(paths, metric="pixent", cache=False)
+    assert [Path(e.image_path).name for e in run.errors] == ["000099.png"]
+    assert len(run.results) == 3 and not math.isnan(run.profile.mu)
+    assert run.profile == fit_profile(run.values)
