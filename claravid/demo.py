@@ -1,7 +1,9 @@
 """``claravid-demo``: the toolkit end to end on a generated ClaraVid-format scene.
 
 Writes the demo scene to ``OUT/data`` (once), prints frames per mission and viewpoint and
-the pixel share of each class, and saves a sheet of samples to ``OUT/samples.png``.
+the pixel share of each class, saves a sheet of samples to ``OUT/samples.png``, and the
+Delentropic Scene Profile of each mission to ``OUT/dsp_<mission>.json`` and
+``OUT/dsp_profiles.png``.
 """
 
 from __future__ import annotations
@@ -10,7 +12,10 @@ import argparse
 from collections import Counter
 from pathlib import Path
 
-from claravid.layout import ALTITUDES, DIRECTIONS, MISSIONS, viewpoint_folder
+from matplotlib.figure import Figure
+
+from claravid.dsp import plot_profile, profile_images
+from claravid.layout import ALTITUDES, DIRECTIONS, MISSIONS, MODALITIES, viewpoint_folder
 from claravid.plot import save_sample_sheet
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.synth import parse_size, positive_int, synthesize
@@ -47,8 +52,30 @@ def print_summary(dataset: ClaraVidSegmentation) -> None:
         print(f"  {name:<16}{100 * count / total:6.2f} %")
 
 
-def run(out: Path, size: tuple[int, int], frames: int, seed: int) -> None:
-    """Generate (or reuse) the scene, summarise it and save the sample sheet."""
+def print_profiles(data: Path, out: Path, workers: int) -> None:
+    """Profile each mission's RGB frames (delentropy), print the table and save the plots."""
+    runs = {}
+    for mission, folder in MISSIONS.items():
+        paths = sorted((data / folder / MODALITIES["rgb"].folder).glob("*/*.jpg"))
+        if paths:
+            runs[mission] = profile_images(paths, workers=workers)
+            runs[mission].save(out / f"dsp_{mission}.json")
+    print("\nDelentropic Scene Profile per mission (delentropy, bits)")
+    print(f"  {'mission':<14}{'images':>7}{'μ':>8}{'σ':>8}{'α':>8}{'β':>8}")
+    for mission, result in runs.items():
+        p = result.profile
+        print(f"  {mission:<14}{p.n:>7}{p.mu:>8.3f}{p.sigma:>8.3f}{p.alpha:>8.2f}{p.beta:>8.2f}")
+    fig = Figure(figsize=(16, 7), layout="constrained")
+    axes = fig.subplots(2, (len(runs) + 1) // 2, squeeze=False).ravel()
+    for ax, (mission, result) in zip(axes, runs.items(), strict=False):
+        plot_profile(result.values, result.profile, ax=ax, title=mission)
+    path = out / "dsp_profiles.png"
+    fig.savefig(path, dpi=80)
+    print(f"profile plots: {path}")
+
+
+def run(out: Path, size: tuple[int, int], frames: int, seed: int, workers: int = 0) -> None:
+    """Generate (or reuse) the scene, summarise it, save the sample sheet and the profiles."""
     data = prepare_data(out, size, frames, seed)
     dataset = ClaraVidSegmentation(data, split="all", palette="claravid")
     print_summary(dataset)
@@ -60,6 +87,7 @@ def run(out: Path, size: tuple[int, int], frames: int, seed: int) -> None:
     samples = [uavid[i] for i in firsts.values()]
     sheet = save_sample_sheet(samples, uavid.palette, out / "samples.png")
     print(f"\nsample sheet (UAVid palette): {sheet}")
+    print_profiles(data, out, workers)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -68,8 +96,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--size", type=parse_size, default=(640, 480), help="WIDTHxHEIGHT")
     parser.add_argument("--frames-per-viewpoint", type=positive_int, default=3)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--workers", type=int, default=0, help="processes for the profiles (0: none)"
+    )
     args = parser.parse_args(argv)
-    run(args.out, args.size, args.frames_per_viewpoint, args.seed)
+    run(args.out, args.size, args.frames_per_viewpoint, args.seed, args.workers)
     return 0
 
 

@@ -24,6 +24,7 @@ def plot_profile(
     title: str | None = None,
     metric: str = "delent",
     dpi: int = 150,
+    ax=None,
 ):
     """Draw (and save when ``path`` is given) a scene profile.
 
@@ -34,6 +35,7 @@ def plot_profile(
         title: figure title; default "Scene complexity profile - <metric name>".
         metric: metric key, for the default title and the x label.
         dpi: resolution of the saved file.
+        ax: a matplotlib Axes to draw into (e.g. one panel of a grid); default a new figure.
 
     Returns:
         The matplotlib Figure.
@@ -47,9 +49,11 @@ def plot_profile(
         profile = fit_profile(vals)
     name = METRIC_NAMES.get(metric, metric)
 
-    fig = Figure(figsize=(7, 4.5), layout="constrained")
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot()
+    if ax is None:
+        fig = Figure(figsize=(7, 4.5), layout="constrained")
+        FigureCanvasAgg(fig)
+        ax = fig.add_subplot()
+    fig = ax.figure
     if vals.size:
         bins = "auto" if vals.size > 1 and np.ptp(vals) > 0 else 10
         ax.hist(vals, bins=bins, density=True, color="#4c72b0", alpha=0.6, edgecolor="white")
