@@ -29,8 +29,6 @@ class CorruptFileError(ValueError):
     """A file exists but cannot be decoded (truncated, corrupt, or of the wrong kind)."""
 
     def __init__(self, path: str | Path, reason: str) -> None:
-        super().__init__(
-            f"cannot read {path}: {reason}. Re-download or re-extract this file, "
-            "or pass skip_incomplete=True to leave such frames out"
-        )
+        super().__init__(f"cannot read {path}: {reason}; re-copy or re-extract the file")
         self.path = Path(path)
+        self.reason = reason

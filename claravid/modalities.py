@@ -36,29 +36,35 @@ def read_bytes(path: str | Path) -> np.ndarray:
 def _check_complete(data: np.ndarray, path: Path) -> None:
     """Reject truncated JPEG and PNG files, which decoders may otherwise half-decode."""
     if data.size == 0:
-        raise CorruptFileError(path, "the file is empty")
-    head, tail = data[:8].tobytes(), data[-16:].tobytes()
+        raise CorruptFileError(path, "the file is empty (0 bytes)")
+    head = data[:8].tobytes()
     if head.startswith(_JPEG_SOI):
-        # Some encoders pad after the end-of-image marker; look at the last bytes only.
-        if _JPEG_EOI not in tail:
-            raise CorruptFileError(path, "the JPEG is truncated (no end-of-image marker)")
-    elif head.startswith(_PNG_SIGNATURE) and not tail.endswith(_PNG_IEND):
-        raise CorruptFileError(path, "the PNG is truncated (no IEND chunk)")
+        # Some cameras append data after the end-of-image marker: search the last 4 KiB.
+        if _JPEG_EOI not in data[-4096:].tobytes():
+            raise CorruptFileError(path, "truncated JPEG (no end-of-image marker)")
+    elif head.startswith(_PNG_SIGNATURE) and not data[-12:].tobytes().endswith(_PNG_IEND):
+        raise CorruptFileError(path, "truncated PNG (no IEND chunk)")
 
 
-def decode_image(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
+def decode_image(
+    path: str | Path, flags: int = cv2.IMREAD_COLOR, *, exif_orientation: bool = False
+) -> np.ndarray:
     """Decode an image file with OpenCV, raising errors that name the file.
 
-    EXIF orientation is ignored, as PIL (and so the official SDK) ignores it.
+    Args:
+        path: the image file.
+        flags: ``cv2.IMREAD_*`` flags.
+        exif_orientation: rotate by the EXIF orientation tag, as ``cv2.imread`` does. Off by
+            default, as PIL (and so the official SDK) ignores the tag.
     """
     path = Path(path)
     data = read_bytes(path)
     _check_complete(data, path)
-    if flags != cv2.IMREAD_UNCHANGED:
+    if not exif_orientation and flags != cv2.IMREAD_UNCHANGED:
         flags |= cv2.IMREAD_IGNORE_ORIENTATION
     image = cv2.imdecode(data, flags)
     if image is None:
-        raise CorruptFileError(path, "not a decodable image")
+        raise CorruptFileError(path, "OpenCV could not decode it (corrupt or not an image)")
     return image
 
 

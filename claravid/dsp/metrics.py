@@ -22,6 +22,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from claravid.errors import CorruptFileError
+from claravid.modalities import decode_image
+
 #: The official metric names, in the official order.
 METRICS: tuple[str, ...] = ("delent", "glcment", "pixent")
 #: Human-readable names, for titles and tables.
@@ -225,25 +228,11 @@ def check_blur_ksize(ksize: int) -> int:
     return int(ksize)
 
 
-def _jpeg_truncated(path: Path) -> bool:
-    # libjpeg decodes a truncated file to a partly grey image with only a warning on stderr;
-    # a missing end-of-image marker is the reliable sign. Files that are not JPEG inside are left
-    # to OpenCV, which decodes by content, not by name.
-    with open(path, "rb") as f:
-        if f.read(2) != b"\xff\xd8":
-            return False
-        f.seek(0, 2)
-        size = f.tell()
-        f.seek(max(0, size - 4096))
-        tail = f.read()
-    return b"\xff\xd9" not in tail
-
-
 def read_gray(path: str | Path) -> np.ndarray:
     """Decode an image as 8-bit greyscale exactly as ``cv2.imread(path, cv2.IMREAD_GRAYSCALE)``.
 
     Raises:
-        ImageReadError: the file is missing, empty, a truncated JPEG, or not a decodable image.
+        ImageReadError: the file is missing, empty, truncated, or not a decodable image.
     """
     path = Path(path)
     if not path.exists():
@@ -251,17 +240,11 @@ def read_gray(path: str | Path) -> np.ndarray:
     if not path.is_file():
         raise ImageReadError(path, "not a regular file")
     try:
-        size = path.stat().st_size
-        if size == 0:
-            raise ImageReadError(path, "the file is empty (0 bytes)")
-        if path.suffix.lower() in (".jpg", ".jpeg") and _jpeg_truncated(path):
-            raise ImageReadError(path, "truncated JPEG (no end-of-image marker); re-copy the file")
+        return decode_image(path, cv2.IMREAD_GRAYSCALE, exif_orientation=True)
+    except CorruptFileError as exc:
+        raise ImageReadError(path, exc.reason) from None
     except OSError as exc:
-        raise ImageReadError(path, f"{exc.strerror or exc}") from exc
-    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if gray is None:
-        raise ImageReadError(path, "OpenCV could not decode it (corrupt or not an image format)")
-    return gray
+        raise ImageReadError(path, exc.strerror or str(exc)) from None
 
 
 def preprocess(gray: np.ndarray, blur: bool = True, ksize: int = 3) -> np.ndarray:
