@@ -65,6 +65,19 @@ class Palette:
         """Label codes (uint8) -> train ids (uint8), in one table lookup."""
         return self.lut[codes]
 
+    def ids_from_colors(self, rgb: np.ndarray) -> np.ndarray:
+        """A colour-coded label image (uint8 H×W×3 RGB) -> train ids; other colours -> ignore."""
+
+        def pack(c: np.ndarray) -> np.ndarray:
+            c = np.asarray(c, dtype=np.uint32)
+            return (c[..., 0] << 16) | (c[..., 1] << 8) | c[..., 2]
+
+        packed, keys = pack(rgb), pack(self.colors)
+        order = np.argsort(keys)
+        slot = np.searchsorted(keys[order], packed).clip(0, len(keys) - 1)
+        found = keys[order][slot] == packed
+        return np.where(found, order[slot], self.ignore_index).astype(np.uint8)
+
     def colorize(self, train_ids: np.ndarray) -> np.ndarray:
         """Train ids -> uint8 RGB image; ignored pixels black."""
         table = np.zeros((256, 3), dtype=np.uint8)
