@@ -106,7 +106,8 @@ class DPTHead(nn.Module):
         if num_classes < 1:
             raise ValueError(f"num_classes must be >= 1, got {num_classes}")
         self.reassemble = nn.ModuleList(
-            Reassemble(embed_dim, c, s, use_cls) for c, s in zip(out_channels, (4, 2, 1, 0))
+            Reassemble(embed_dim, c, s, use_cls)
+            for c, s in zip(out_channels, (4, 2, 1, 0), strict=True)
         )
         self.layer_rn = nn.ModuleList(
             nn.Conv2d(c, features, 3, padding=1, bias=False) for c in out_channels
@@ -128,7 +129,7 @@ class DPTHead(nn.Module):
         """Logits [B, K, *out_size] from four (patch tokens [B,N,D], CLS [B,D]) pairs."""
         levels = [
             rn(re(tokens, cls, grid_h, grid_w))
-            for (tokens, cls), re, rn in zip(feats, self.reassemble, self.layer_rn)
+            for (tokens, cls), re, rn in zip(feats, self.reassemble, self.layer_rn, strict=True)
         ]
         # Coarse to fine: level 3 (1/2x) -> 2 (1x) -> 1 (2x) -> 0 (4x, kept at its size).
         x = self.fusion[3](levels[3], None, levels[2].shape[-2:])

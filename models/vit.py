@@ -373,7 +373,7 @@ class DinoVisionTransformer(nn.Module):
                 p.reshape(p.shape[0], gh, gw, -1).permute(0, 3, 1, 2).contiguous() for p in patches
             ]
         if return_class_token:
-            return tuple(zip(patches, cls))
+            return tuple(zip(patches, cls, strict=True))
         return tuple(patches)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -425,9 +425,6 @@ def build_backbone(
     model = DinoVisionTransformer(**backbone_config(name, **overrides))
     if weights is None:
         return model
-    if str(weights) == "official":
-        path = download_official(name)
-    else:
-        path = Path(weights)
+    path = download_official(name) if str(weights) == "official" else Path(weights)
     load_backbone_state(model, read_state_dict(path), str(path))
     return model.eval()

@@ -108,7 +108,7 @@ def official_to_hf(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         idx, rest = m.groups()
         if rest.startswith("attn.qkv."):
             kind = rest.removeprefix("attn.qkv.")
-            for name, part in zip(_QKV, value.chunk(3, dim=0)):
+            for name, part in zip(_QKV, value.chunk(3, dim=0), strict=True):
                 out[f"encoder.layer.{idx}.attention.attention.{name}.{kind}"] = part.clone()
             continue
         if rest in _OFFICIAL_BLOCK:
