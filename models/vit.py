@@ -52,7 +52,7 @@ def bicubic_matrix(out_size: Any, in_size: int, offset: float) -> torch.Tensor:
     which would specialise the exported graph to the example size).
     """
     a = -0.75
-    index = torch.arange(out_size, dtype=torch.float32)
+    index = torch.arange(out_size, dtype=torch.float64)
     # out_size as a tensor (index[-1] + 1): Python arithmetic on it would be specialised.
     inv_scale = in_size / (index[-1] + 1 + offset)
     src = (index + 0.5) * inv_scale - 0.5
@@ -69,8 +69,8 @@ def bicubic_matrix(out_size: Any, in_size: int, offset: float) -> torch.Tensor:
         dim=1,
     )
     taps = left.long().unsqueeze(1) + torch.arange(-1, 3).unsqueeze(0)
-    onehot = F.one_hot(taps.clamp(0, in_size - 1), in_size).to(torch.float32)
-    return (onehot * weights.unsqueeze(-1)).sum(dim=1)
+    onehot = F.one_hot(taps.clamp(0, in_size - 1), in_size).to(weights.dtype)
+    return (onehot * weights.unsqueeze(-1)).sum(dim=1).float()
 
 
 def _length(size: Any) -> torch.Tensor:
