@@ -30,7 +30,11 @@ class CheckpointError(ValueError):
 
 
 def save_checkpoint(
-    model: Segmenter, path: str | os.PathLike, include_backbone: bool | None = None, **extra: Any
+    model: Segmenter,
+    path: str | os.PathLike,
+    /,
+    include_backbone: bool | None = None,
+    **extra: Any,
 ) -> Path:
     """Write ``model`` atomically (temp file + rename) to ``path``.
 

@@ -64,16 +64,17 @@ class ResidualConvUnit(nn.Module):
 class FusionBlock(nn.Module):
     """Add the lateral input (refined), refine, upsample to the next level, 1x1 conv."""
 
-    def __init__(self, features: int) -> None:
+    def __init__(self, features: int, lateral: bool = True) -> None:
         super().__init__()
-        self.res1 = ResidualConvUnit(features)
+        # The coarsest level has no lateral input; no unused parameters (DDP would complain).
+        self.res1 = ResidualConvUnit(features) if lateral else None
         self.res2 = ResidualConvUnit(features)
         self.out_conv = nn.Conv2d(features, features, kernel_size=1)
 
     def forward(
         self, x: torch.Tensor, lateral: torch.Tensor | None, size: Sequence[int]
     ) -> torch.Tensor:
-        if lateral is not None:
+        if lateral is not None and self.res1 is not None:
             x = x + self.res1(lateral)
         x = self.res2(x)
         if tuple(x.shape[-2:]) != tuple(size):
@@ -112,7 +113,7 @@ class DPTHead(nn.Module):
         self.layer_rn = nn.ModuleList(
             nn.Conv2d(c, features, 3, padding=1, bias=False) for c in out_channels
         )
-        self.fusion = nn.ModuleList(FusionBlock(features) for _ in range(4))
+        self.fusion = nn.ModuleList(FusionBlock(features, lateral=i < 3) for i in range(4))
         self.head = nn.Sequential(
             nn.Conv2d(features, features, 3, padding=1),
             nn.ReLU(),
