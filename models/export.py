@@ -14,6 +14,7 @@ import json
 import logging
 import os
 import sys
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -41,7 +42,10 @@ def _export_mode(model: Segmenter, size: tuple[int, int] | None):
     level = registration.level
     registration.setLevel(logging.ERROR)
     try:
-        yield
+        with warnings.catch_warnings():
+            # torch's own exporter internals use a deprecated pytree API (not our code).
+            warnings.filterwarnings("ignore", message=".*LeafSpec", category=FutureWarning)
+            yield
     finally:
         registration.setLevel(level)
         model.backbone.freeze_pos_embed(None)
