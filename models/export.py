@@ -25,6 +25,10 @@ import torch
 from models.onnx_runtime import META_PREFIX, OnnxSegmenter
 from models.segmenter import Segmenter
 
+# Opset 23 has a fused Attention op (SDPA maps to it; onnxruntime runs it without materialising
+# the N x N score matrix in memory-bound MatMul/Softmax pairs).
+OPSET = 23
+
 
 class ExportCheckError(RuntimeError):
     """The exported graph's outputs differ from PyTorch's beyond the tolerance."""
@@ -102,6 +106,7 @@ def export_onnx(
             dynamic_shapes={"x": shapes},
             dynamo=True,
             external_data=external,
+            opset_version=OPSET,
             verbose=False,
         )
     _write_metadata(path, model, None if dynamic else (height, width))
