@@ -96,10 +96,10 @@ def test_incomplete_hf_qkv(tmp_path):
 
 def test_missing_and_unreadable_files(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"nope.pth not found.*'official'"):
-        build_backbone("dinov2_vits14", weights=tmp_path / "nope.pth")
+        build_backbone("dinov2_vits14", weights=tmp_path / "nope.pth", **TINY)
     (tmp_path / "junk.pth").write_bytes(b"not a checkpoint")
     with pytest.raises(WeightsError, match=r"cannot read .*junk.pth"):
-        build_backbone("dinov2_vits14", weights=tmp_path / "junk.pth")
+        build_backbone("dinov2_vits14", weights=tmp_path / "junk.pth", **TINY)
 
 
 def test_official_urls():
