@@ -1,0 +1,134 @@
+"""Model checkpoints: a plain dict of tensors and Python values that ``weights_only`` can read.
+
+Layout::
+
+    {"format": "claravid-model", "version": 1,
+     "model_args": {... build_model arguments ...},
+     "model": state dict (without "backbone.*" when the backbone came from a weights file),
+     "backbone_included": bool,
+     ... whatever the caller adds (training state) ...}
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from models.segmenter import Segmenter, build_model
+
+FORMAT = "claravid-model"
+VERSION = 1
+_RESERVED = {"format", "version", "model", "model_args", "backbone_included"}
+
+
+class CheckpointError(ValueError):
+    """A file is not a claravid model checkpoint, or comes from a newer version."""
+
+
+def save_checkpoint(
+    model: Segmenter,
+    path: str | os.PathLike,
+    /,
+    include_backbone: bool | None = None,
+    **extra: Any,
+) -> Path:
+    """Write ``model`` atomically (temp file + rename) to ``path``.
+
+    Args:
+        model: A `Segmenter` from `build_model` (its ``model_args`` are stored).
+        path: Destination file.
+        include_backbone: Store the frozen backbone's weights. Default: only when they are a
+            random init; weights from a file or ``"official"`` are referenced by source instead.
+        **extra: Further entries (optimizer state, epoch ...); plain tensors/containers only.
+
+    Returns:
+        The path written.
+    """
+    if not model.model_args:
+        raise ValueError("model has no model_args: build it with models.build_model")
+    clash = _RESERVED & set(extra)
+    if clash:
+        raise ValueError(f"extra entries {sorted(clash)} are reserved names of the checkpoint")
+    weights = model.model_args.get("weights")
+    if include_backbone is None:
+        include_backbone = weights is None
+    if not include_backbone and weights is None:
+        raise ValueError(
+            "the backbone is a random init: it cannot be referenced by name, so it must be stored "
+            "(include_backbone=True)"
+        )
+    state = {
+        k: v.detach().cpu()
+        for k, v in model.state_dict().items()
+        if include_backbone or not k.startswith("backbone.")
+    }
+    payload = {
+        "format": FORMAT,
+        "version": VERSION,
+        "model_args": model.model_args,
+        "model": state,
+        "backbone_included": include_backbone,
+        **extra,
+    }
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            torch.save(payload, f)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
+    """Read and validate a checkpoint dict (no code runs: ``weights_only=True``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {path} not found")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise CheckpointError(
+            f"cannot read {path} as a claravid checkpoint ({exc.__class__.__name__}: {exc})"
+        ) from exc
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        keys = sorted(ckpt)[:8] if isinstance(ckpt, dict) else type(ckpt).__name__
+        raise CheckpointError(
+            f"{path} is not a claravid model checkpoint (found {keys}); a bare DINOv2 weights "
+            "file goes to build_model(weights=...), not load_checkpoint"
+        )
+    version = ckpt.get("version")
+    if not isinstance(version, int) or version > VERSION:
+        raise CheckpointError(
+            f"{path} has checkpoint format version {version}, newer than this code's {VERSION}: "
+            "upgrade claravid-toolkit to read it"
+        )
+    return ckpt
+
+
+def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = "cpu") -> Segmenter:
+    """Rebuild the model from the file alone (weights source included when referenced)."""
+    ckpt = read_checkpoint(path)
+    args = dict(ckpt["model_args"])
+    included = bool(ckpt.get("backbone_included", True))
+    # A stored backbone overwrites whatever init we build, so skip loading the source file.
+    model = build_model(**{**args, "weights": None if included else args["weights"]})
+    model.model_args = args
+    state = ckpt["model"]
+    own = model.state_dict()
+    expected = {k for k in own if included or not k.startswith("backbone.")}
+    missing, unexpected = sorted(expected - set(state)), sorted(set(state) - expected)
+    if missing or unexpected:
+        raise CheckpointError(
+            f"{path} does not match its model_args: missing {missing[:10]}, "
+            f"unexpected {unexpected[:10]}"
+        )
+    model.load_state_dict(state, strict=included)
+    return model.to(map_location)

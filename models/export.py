@@ -1,0 +1,203 @@
+"""ONNX export of a segmenter, with checks, and the ``claravid-export`` command.
+
+We use the dynamo exporter (``torch.onnx.export(..., dynamo=True)``, the default in torch 2.9+,
+through onnxscript): it handles SDPA, bicubic and symbolic H/W. The batch is always dynamic; the
+example batch is 2 because a batch of 1 lets the exporter freeze that dimension.
+
+    claravid-export runs/exp/best.pt --output model.onnx --height 630 --width 630
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+import warnings
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from models.onnx_runtime import META_PREFIX, OnnxSegmenter
+from models.segmenter import Segmenter
+
+# Opset 23 has a fused Attention op (SDPA maps to it; onnxruntime runs it without materialising
+# the N x N score matrix in memory-bound MatMul/Softmax pairs).
+OPSET = 23
+
+
+class ExportCheckError(RuntimeError):
+    """The exported graph's outputs differ from PyTorch's beyond the tolerance."""
+
+
+@contextmanager
+def _export_mode(model: Segmenter, size: tuple[int, int] | None):
+    """Eval mode, and for a fixed size a stored positional embedding; restored afterwards."""
+    was_training = model.training
+    model.eval()
+    if size is not None:
+        model.backbone.freeze_pos_embed(*size)
+    # The exporter warns about every torchvision op it cannot register; torchvision is unused.
+    registration = logging.getLogger("torch.onnx._internal.exporter._registration")
+    level = registration.level
+    registration.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            # torch's own exporter internals use a deprecated pytree API (not our code).
+            warnings.filterwarnings("ignore", message=".*LeafSpec", category=FutureWarning)
+            yield
+    finally:
+        registration.setLevel(level)
+        model.backbone.freeze_pos_embed(None)
+        model.train(was_training)
+
+
+def export_onnx(
+    model: Segmenter,
+    path: str | os.PathLike,
+    height: int = 630,
+    width: int = 630,
+    dynamic: bool = False,
+    check: bool = True,
+    tolerance: float = 1e-3,
+) -> dict[str, Any]:
+    """Export ``model`` to ONNX, then check it with ``onnx.checker`` and ONNX Runtime.
+
+    Args:
+        model: A `Segmenter`.
+        path: Output ``.onnx`` (large models also write ``<path>.data`` next to it).
+        height: Example (and, unless dynamic, the only) input height; a patch multiple.
+        width: Example input width.
+        dynamic: Also make H and W dynamic (multiples of the patch size).
+        check: Run the checks below after export.
+        tolerance: Largest allowed max-abs difference of logits between ORT and PyTorch.
+
+    Returns:
+        ``{"path", "max_abs_diff", "check_shape"}`` (diff and shape None when not checked).
+
+    Raises:
+        ValueError: the size is not a multiple of the patch size.
+        ExportCheckError: ORT's logits differ from PyTorch's by more than ``tolerance``.
+    """
+    p = model.patch_size
+    model.backbone.check_input_size(height, width)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    param = next(model.parameters())
+    example = torch.randn(2, 3, height, width, device=param.device)
+    batch = torch.export.Dim("batch", min=1, max=4096)
+    shapes: dict[int, Any] = {0: batch}
+    if dynamic:
+        shapes[2] = p * torch.export.Dim("grid_h", min=1, max=1024)
+        shapes[3] = p * torch.export.Dim("grid_w", min=1, max=1024)
+    # One self-contained file unless the weights pass protobuf's 2 GB limit (ViT-g).
+    external = sum(t.numel() * t.element_size() for t in model.state_dict().values()) > 1.8e9
+    with _export_mode(model, None if dynamic else (height, width)):
+        torch.onnx.export(
+            model,
+            (example,),
+            str(path),
+            input_names=["image"],
+            output_names=["logits"],
+            dynamic_shapes={"x": shapes},
+            dynamo=True,
+            external_data=external,
+            opset_version=OPSET,
+            verbose=False,
+        )
+    _write_metadata(path, model, None if dynamic else (height, width))
+    result: dict[str, Any] = {"path": path, "max_abs_diff": None, "check_shape": None}
+    if check:
+        result.update(check_export(model, path, height, width, dynamic, tolerance))
+    return result
+
+
+def _write_metadata(path: Path, model: Segmenter, size: tuple[int, int] | None) -> None:
+    import onnx
+
+    proto = onnx.load(str(path), load_external_data=False)
+    meta = {
+        "patch_size": str(model.patch_size),
+        "num_classes": str(model.num_classes),
+        "model_args": json.dumps(model.model_args),
+    }
+    if size is not None:
+        meta["input_size"] = f"{size[0]}x{size[1]}"
+    for key, value in meta.items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = META_PREFIX + key, value
+    onnx.save(proto, str(path))
+
+
+def check_export(
+    model: Segmenter,
+    path: str | os.PathLike,
+    height: int,
+    width: int,
+    dynamic: bool,
+    tolerance: float = 1e-3,
+) -> dict[str, Any]:
+    """``onnx.checker``, then ORT vs PyTorch on batch 3 (and another size when dynamic)."""
+    import onnx
+
+    onnx.checker.check_model(str(path))
+    p = model.patch_size
+    shape = (3, 3, height + p, width + 2 * p) if dynamic else (3, 3, height, width)
+    param = next(model.parameters())
+    x = torch.randn(*shape, generator=torch.Generator().manual_seed(0))
+    was_training = model.training
+    model.eval()
+    with torch.no_grad():
+        expected = model(x.to(param.device)).float().cpu().numpy()
+    model.train(was_training)
+    got = OnnxSegmenter(path, providers=["CPUExecutionProvider"])(x.numpy())
+    diff = float(np.abs(got - expected).max())
+    print(f"onnxruntime vs PyTorch on input {list(shape)}: max abs diff of logits {diff:.3g}")
+    if not diff <= tolerance:
+        raise ExportCheckError(
+            f"exported model {path} differs from PyTorch by {diff:.3g} (> {tolerance}) on input "
+            f"{list(shape)}; export in float32 on CPU, or report the model arguments"
+        )
+    return {"max_abs_diff": diff, "check_shape": shape}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``claravid-export CHECKPOINT --output model.onnx [--height --width --dynamic]``."""
+    parser = argparse.ArgumentParser(
+        prog="claravid-export", description="Export a claravid segmenter checkpoint to ONNX."
+    )
+    parser.add_argument("checkpoint", help="checkpoint written by models.save_checkpoint")
+    parser.add_argument("--output", "-o", required=True, help="output .onnx file")
+    parser.add_argument("--height", type=int, default=630, help="input height (patch multiple)")
+    parser.add_argument("--width", type=int, default=630, help="input width (patch multiple)")
+    parser.add_argument("--dynamic", action="store_true", help="dynamic height and width")
+    parser.add_argument("--no-check", action="store_true", help="skip the ONNX Runtime check")
+    parser.add_argument("--tolerance", type=float, default=1e-3, help="max abs logits diff")
+    args = parser.parse_args(argv)
+
+    from models.checkpoint import CheckpointError, load_checkpoint
+
+    try:
+        model = load_checkpoint(args.checkpoint)
+        result = export_onnx(
+            model,
+            args.output,
+            height=args.height,
+            width=args.width,
+            dynamic=args.dynamic,
+            check=not args.no_check,
+            tolerance=args.tolerance,
+        )
+    except (FileNotFoundError, CheckpointError, ValueError, ExportCheckError) as exc:
+        print(f"claravid-export: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {result['path']}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

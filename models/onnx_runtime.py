@@ -1,0 +1,81 @@
+"""Run an exported segmenter with ONNX Runtime (used by evaluation and prediction)."""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+import numpy as np
+
+META_PREFIX = "claravid."
+
+
+class OnnxSegmenter:
+    """An exported segmenter: normalised float images [B,3,H,W] -> logits [B,K,H,W] (numpy).
+
+    Args:
+        path: The ``.onnx`` file written by `models.export_onnx`.
+        providers: ONNX Runtime execution providers (default: CUDA when available, then CPU).
+        threads: Intra-op threads (default: ONNX Runtime's choice).
+
+    Attributes:
+        patch_size: H and W must be multiples of it.
+        num_classes: K.
+        input_size: (H, W) of a fixed-size export, or None when H/W are dynamic.
+        model_args: The ``build_model`` arguments of the exported model.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        providers: list[str] | None = None,
+        threads: int | None = None,
+    ) -> None:
+        import onnxruntime as ort
+
+        if not os.path.isfile(path):
+            raise FileNotFoundError(f"ONNX model {path} not found; write one with claravid-export")
+        options = ort.SessionOptions()
+        if threads:
+            options.intra_op_num_threads = threads
+        if providers is None:
+            available = ort.get_available_providers()
+            providers = [
+                p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in available
+            ]
+        self.session = ort.InferenceSession(str(path), options, providers=providers)
+        self.input_name = self.session.get_inputs()[0].name
+        meta = self.session.get_modelmeta().custom_metadata_map
+        self.patch_size = int(meta.get(META_PREFIX + "patch_size", 14))
+        self.num_classes = int(meta.get(META_PREFIX + "num_classes", 0)) or None
+        self.model_args: dict[str, Any] = json.loads(meta.get(META_PREFIX + "model_args", "{}"))
+        fixed = meta.get(META_PREFIX + "input_size")
+        self.input_size: tuple[int, int] | None = (
+            tuple(int(v) for v in fixed.split("x")) if fixed else None  # type: ignore[assignment]
+        )
+
+    def check_input(self, images: np.ndarray) -> None:
+        """Raise ``ValueError`` when ``images`` cannot go through this model."""
+        if images.ndim != 4 or images.shape[1] != 3:
+            raise ValueError(f"expected images [B,3,H,W], got shape {tuple(images.shape)}")
+        h, w = images.shape[-2:]
+        if self.input_size is not None and (h, w) != self.input_size:
+            raise ValueError(
+                f"this ONNX model was exported for {self.input_size[0]}x{self.input_size[1]} "
+                f"inputs, got {h}x{w}: resize/crop to that size or re-export with --dynamic"
+            )
+        p = self.patch_size
+        if h % p or w % p:
+            raise ValueError(
+                f"input size {h}x{w} is not a multiple of the patch size {p}: pad it to "
+                f"{-(-h // p) * p}x{-(-w // p) * p}"
+            )
+
+    def __call__(self, images: Any) -> np.ndarray:
+        """Logits for a batch (numpy array or torch tensor, float32, normalised)."""
+        if hasattr(images, "detach"):
+            images = images.detach().cpu().numpy()
+        images = np.ascontiguousarray(images, dtype=np.float32)
+        self.check_input(images)
+        return self.session.run(None, {self.input_name: images})[0]

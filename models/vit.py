@@ -1,0 +1,430 @@
+"""DINOv2 vision transformer in plain PyTorch, key-compatible with the official checkpoints.
+
+Parameter names follow ``facebookresearch/dinov2`` (``blocks.N.attn.qkv``, ``ls1.gamma``,
+``mlp.w12`` ...) so an official ``.pth`` loads with ``load_state_dict`` unchanged. The numerics
+follow the official code too: token order [CLS, registers, patches], bicubic positional-embedding
+interpolation in float32 with the ``+0.1`` offset (no registers) or exact size plus antialias
+(registers), and ``get_intermediate_layers`` with the official argument meaning.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from models.weights import download_official, load_backbone_state, read_state_dict
+
+# Architecture of each official size; the name suffix `_reg` adds 4 register tokens.
+ARCHS: dict[str, dict[str, Any]] = {
+    "vits14": {"embed_dim": 384, "depth": 12, "num_heads": 6, "ffn": "mlp"},
+    "vitb14": {"embed_dim": 768, "depth": 12, "num_heads": 12, "ffn": "mlp"},
+    "vitl14": {"embed_dim": 1024, "depth": 24, "num_heads": 16, "ffn": "mlp"},
+    "vitg14": {"embed_dim": 1536, "depth": 40, "num_heads": 24, "ffn": "swiglu"},
+}
+BACKBONE_NAMES: tuple[str, ...] = tuple(
+    f"dinov2_{arch}{suffix}" for arch in ARCHS for suffix in ("", "_reg")
+)
+
+
+def _is_exporting() -> bool:
+    """True while tracing, exporting or compiling, when Python-side shape checks must not run."""
+    return bool(
+        torch.jit.is_tracing()
+        or torch.onnx.is_in_onnx_export()
+        or torch.compiler.is_exporting()
+        or torch.compiler.is_compiling()
+    )
+
+
+def bicubic_matrix(out_size: Any, in_size: int, offset: float) -> torch.Tensor:
+    """[out_size, in_size] matrix of PyTorch's bicubic resize along one axis.
+
+    Same rule as ``F.interpolate(mode="bicubic", scale_factor=(out_size + offset) / in_size)``:
+    source position (i + 0.5) / scale - 0.5, Keys cubic with a = -0.75, borders clamped. Built
+    from tensor ops so that ``out_size`` may be symbolic while exporting (no float() on it,
+    which would specialise the exported graph to the example size).
+    """
+    a = -0.75
+    index = torch.arange(out_size, dtype=torch.float64)
+    # out_size as a tensor (index[-1] + 1): Python arithmetic on it would be specialised.
+    inv_scale = in_size / (index[-1] + 1 + offset)
+    src = (index + 0.5) * inv_scale - 0.5
+    left = torch.floor(src)
+    t = src - left
+    # Weights of the 4 taps at left-1, left, left+1, left+2.
+    weights = torch.stack(
+        [
+            ((a * (t + 1) - 5 * a) * (t + 1) + 8 * a) * (t + 1) - 4 * a,
+            ((a + 2) * t - (a + 3)) * t * t + 1,
+            ((a + 2) * (1 - t) - (a + 3)) * (1 - t) * (1 - t) + 1,
+            ((a * (2 - t) - 5 * a) * (2 - t) + 8 * a) * (2 - t) - 4 * a,
+        ],
+        dim=1,
+    )
+    taps = left.long().unsqueeze(1) + torch.arange(-1, 3).unsqueeze(0)
+    onehot = F.one_hot(taps.clamp(0, in_size - 1), in_size).to(weights.dtype)
+    return (onehot * weights.unsqueeze(-1)).sum(dim=1).float()
+
+
+def _length(size: Any) -> torch.Tensor:
+    """A (possibly symbolic) size as a 0-d tensor, so comparisons stay in the exported graph."""
+    return torch.arange(size)[-1] + 1
+
+
+def _identity(size: Any, in_size: int) -> torch.Tensor:
+    """[size, in_size] rows of the identity (only used where size == in_size)."""
+    rows = torch.arange(size).clamp(max=in_size - 1)
+    return F.one_hot(rows, in_size).to(torch.float32)
+
+
+class PatchEmbed(nn.Module):
+    """Non-overlapping patches -> tokens: one strided convolution, flattened to [B, N, D]."""
+
+    def __init__(self, patch_size: int, in_chans: int, embed_dim: int) -> None:
+        super().__init__()
+        self.proj = nn.Conv2d(in_chans, embed_dim, kernel_size=patch_size, stride=patch_size)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.proj(x).flatten(2).transpose(1, 2)
+
+
+class Attention(nn.Module):
+    """Multi-head self-attention with a fused qkv projection (rows q, k, v) and SDPA."""
+
+    def __init__(self, dim: int, num_heads: int) -> None:
+        super().__init__()
+        if dim % num_heads:
+            raise ValueError(f"embed_dim {dim} is not divisible by num_heads {num_heads}")
+        self.num_heads = num_heads
+        self.qkv = nn.Linear(dim, 3 * dim)
+        self.proj = nn.Linear(dim, dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        b, n, c = x.shape
+        qkv = self.qkv(x).reshape(b, n, 3, self.num_heads, c // self.num_heads)
+        q, k, v = qkv.permute(2, 0, 3, 1, 4).unbind(0)
+        x = F.scaled_dot_product_attention(q, k, v)
+        return self.proj(x.transpose(1, 2).reshape(b, n, c))
+
+
+class Mlp(nn.Module):
+    """fc1 -> exact GELU -> fc2."""
+
+    def __init__(self, dim: int, hidden: int) -> None:
+        super().__init__()
+        self.fc1 = nn.Linear(dim, hidden)
+        self.act = nn.GELU()
+        self.fc2 = nn.Linear(hidden, dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.fc2(self.act(self.fc1(x)))
+
+
+def swiglu_hidden(dim: int, mlp_ratio: float = 4.0) -> int:
+    """Hidden width of the official fused SwiGLU: 2/3 of the MLP width, rounded up to 8."""
+    return (int(int(dim * mlp_ratio) * 2 / 3) + 7) // 8 * 8
+
+
+class SwiGLU(nn.Module):
+    """w12 -> (silu(x1) * x2) -> w3, the giant model's feed-forward (``SwiGLUFFNFused``)."""
+
+    def __init__(self, dim: int, hidden: int) -> None:
+        super().__init__()
+        self.w12 = nn.Linear(dim, 2 * hidden)
+        self.w3 = nn.Linear(hidden, dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x1, x2 = self.w12(x).chunk(2, dim=-1)
+        return self.w3(F.silu(x1) * x2)
+
+
+class LayerScale(nn.Module):
+    """Per-channel learned scale of a residual branch."""
+
+    def __init__(self, dim: int, init_value: float = 1.0) -> None:
+        super().__init__()
+        self.gamma = nn.Parameter(torch.full((dim,), init_value))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x * self.gamma
+
+
+class Block(nn.Module):
+    """Pre-norm transformer block: x += ls1(attn(norm1 x)); x += ls2(mlp(norm2 x))."""
+
+    def __init__(self, dim: int, num_heads: int, ffn: str, mlp_ratio: float = 4.0) -> None:
+        super().__init__()
+        self.norm1 = nn.LayerNorm(dim, eps=1e-6)
+        self.attn = Attention(dim, num_heads)
+        self.ls1 = LayerScale(dim)
+        self.norm2 = nn.LayerNorm(dim, eps=1e-6)
+        if ffn == "mlp":
+            self.mlp: nn.Module = Mlp(dim, int(dim * mlp_ratio))
+        elif ffn == "swiglu":
+            self.mlp = SwiGLU(dim, swiglu_hidden(dim, mlp_ratio))
+        else:
+            raise ValueError(f"unknown ffn {ffn!r}: use 'mlp' or 'swiglu'")
+        self.ls2 = LayerScale(dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = x + self.ls1(self.attn(self.norm1(x)))
+        return x + self.ls2(self.mlp(self.norm2(x)))
+
+
+class DinoVisionTransformer(nn.Module):
+    """DINOv2 ViT backbone.
+
+    Args:
+        embed_dim: Token width D.
+        depth: Number of blocks.
+        num_heads: Attention heads.
+        patch_size: Patch side in pixels (14 for the official models).
+        img_size: Training resolution; the stored positional grid is img_size // patch_size.
+        num_register_tokens: Extra learned tokens without positional embedding (0 or 4).
+        ffn: ``"mlp"`` (GELU MLP) or ``"swiglu"`` (giant).
+        mlp_ratio: Feed-forward expansion.
+        interpolate_offset: Added to the target grid before computing the bicubic scale factor
+            (0.1 in the official models without registers); 0 means resize to the exact size.
+        interpolate_antialias: Antialiased bicubic (the official register models).
+    """
+
+    def __init__(
+        self,
+        embed_dim: int = 384,
+        depth: int = 12,
+        num_heads: int = 6,
+        patch_size: int = 14,
+        img_size: int = 518,
+        num_register_tokens: int = 0,
+        ffn: str = "mlp",
+        mlp_ratio: float = 4.0,
+        interpolate_offset: float = 0.1,
+        interpolate_antialias: bool = False,
+    ) -> None:
+        super().__init__()
+        if img_size % patch_size:
+            raise ValueError(f"img_size {img_size} is not a multiple of patch_size {patch_size}")
+        self.embed_dim = self.num_features = embed_dim
+        self.patch_size = patch_size
+        self.n_blocks = depth
+        self.num_heads = num_heads
+        self.num_register_tokens = num_register_tokens
+        self.interpolate_offset = interpolate_offset
+        self.interpolate_antialias = interpolate_antialias
+        grid = img_size // patch_size
+        self.patch_embed = PatchEmbed(patch_size, 3, embed_dim)
+        self.cls_token = nn.Parameter(torch.zeros(1, 1, embed_dim))
+        self.pos_embed = nn.Parameter(torch.zeros(1, 1 + grid * grid, embed_dim))
+        if num_register_tokens:
+            self.register_tokens = nn.Parameter(torch.zeros(1, num_register_tokens, embed_dim))
+        else:
+            self.register_tokens = None
+        self.blocks = nn.ModuleList(
+            Block(embed_dim, num_heads, ffn, mlp_ratio) for _ in range(depth)
+        )
+        self.norm = nn.LayerNorm(embed_dim, eps=1e-6)
+        # Unused at inference; kept so official checkpoints load strictly.
+        self.mask_token = nn.Parameter(torch.zeros(1, embed_dim))
+        # Positional embedding precomputed for one grid (see `freeze_pos_embed`), or None.
+        self._frozen_pos: tuple[tuple[int, int], torch.Tensor] | None = None
+        self._init_weights()
+
+    def _init_weights(self) -> None:
+        nn.init.trunc_normal_(self.pos_embed, std=0.02)
+        nn.init.normal_(self.cls_token, std=1e-6)
+        if self.register_tokens is not None:
+            nn.init.normal_(self.register_tokens, std=1e-6)
+        for m in self.modules():
+            if isinstance(m, nn.Linear):
+                nn.init.trunc_normal_(m.weight, std=0.02)
+                nn.init.zeros_(m.bias)
+
+    def check_input_size(self, height: int, width: int) -> None:
+        """Raise ``ValueError`` naming the padded size when H or W is not a patch multiple."""
+        p = self.patch_size
+        if height % p or width % p:
+            ph, pw = math.ceil(height / p) * p, math.ceil(width / p) * p
+            raise ValueError(
+                f"input size {height}x{width} is not a multiple of the patch size {p}: "
+                f"pad or resize it to {ph}x{pw} (or crop to {height // p * p}x{width // p * p})"
+            )
+
+    def interpolate_pos_encoding(self, grid_h: int, grid_w: int) -> torch.Tensor:
+        """Positional embedding [1, 1 + grid_h*grid_w, D] for a patch grid, official semantics."""
+        if self._frozen_pos is not None and self._frozen_pos[0] == (grid_h, grid_w):
+            return self._frozen_pos[1]
+        n = self.pos_embed.shape[1] - 1
+        m = int(math.sqrt(n))
+        exporting = _is_exporting()
+        # A Python test on symbolic sizes would specialise an export to one side of it.
+        if not exporting and (grid_h, grid_w) == (m, m):
+            return self.pos_embed
+        pos = self.pos_embed.float()
+        patch_pos = pos[:, 1:].reshape(1, m, m, -1).permute(0, 3, 1, 2)
+        if self.interpolate_offset and exporting and not self.interpolate_antialias:
+            # Exporters bake a float scale_factor into a constant; the same resize as a product
+            # with interpolation matrices stays shape-generic. At the native grid the official
+            # code uses the table as is, which identity matrices reproduce.
+            native = (_length(grid_h) == m) & (_length(grid_w) == m)
+            rows = torch.where(
+                native, _identity(grid_h, m), bicubic_matrix(grid_h, m, self.interpolate_offset)
+            )
+            cols = torch.where(
+                native, _identity(grid_w, m), bicubic_matrix(grid_w, m, self.interpolate_offset)
+            )
+            patch_pos = rows.to(patch_pos) @ patch_pos @ cols.to(patch_pos).T
+        elif self.interpolate_offset:
+            # The official models scale by (grid + 0.1) / M so that floor() lands on the grid;
+            # the scale itself (not the size) sets the sampling positions, so keep it.
+            scale = (
+                float(grid_h + self.interpolate_offset) / m,
+                float(grid_w + self.interpolate_offset) / m,
+            )
+            patch_pos = F.interpolate(
+                patch_pos, scale_factor=scale, mode="bicubic", antialias=self.interpolate_antialias
+            )
+        else:
+            patch_pos = F.interpolate(
+                patch_pos,
+                size=(grid_h, grid_w),
+                mode="bicubic",
+                antialias=self.interpolate_antialias,
+            )
+        patch_pos = patch_pos.permute(0, 2, 3, 1).reshape(1, grid_h * grid_w, -1)
+        return torch.cat((pos[:, :1], patch_pos), dim=1).to(self.pos_embed.dtype)
+
+    def freeze_pos_embed(self, height: int | None, width: int | None = None) -> None:
+        """Precompute the positional embedding for one input size (``None`` clears it).
+
+        Used for fixed-size ONNX export: antialiased bicubic resize does not export cleanly, and
+        a stored table is also faster.
+        """
+        if height is None:
+            self._frozen_pos = None
+            return
+        width = height if width is None else width
+        self.check_input_size(height, width)
+        grid = (height // self.patch_size, width // self.patch_size)
+        self._frozen_pos = None
+        with torch.no_grad():
+            table = self.interpolate_pos_encoding(*grid).detach().clone()
+        self._frozen_pos = (grid, table)
+
+    def prepare_tokens(self, x: torch.Tensor) -> torch.Tensor:
+        """Image [B,3,H,W] -> tokens [B, 1 + R + N, D] with positional embedding added."""
+        h, w = x.shape[-2:]
+        if not _is_exporting():
+            self.check_input_size(int(h), int(w))
+        tokens = self.patch_embed(x)
+        tokens = torch.cat((self.cls_token.expand(tokens.shape[0], -1, -1), tokens), dim=1)
+        pos = self.interpolate_pos_encoding(h // self.patch_size, w // self.patch_size)
+        tokens = tokens + pos.to(tokens.dtype)
+        if self.register_tokens is not None:
+            regs = self.register_tokens.expand(tokens.shape[0], -1, -1).to(tokens.dtype)
+            tokens = torch.cat((tokens[:, :1], regs, tokens[:, 1:]), dim=1)
+        return tokens
+
+    def get_intermediate_layers(
+        self,
+        x: torch.Tensor,
+        n: int | Sequence[int] = 1,
+        reshape: bool = False,
+        return_class_token: bool = False,
+        norm: bool = True,
+    ) -> tuple[Any, ...]:
+        """Outputs of chosen blocks, official DINOv2 semantics.
+
+        Args:
+            x: Images [B, 3, H, W], H and W multiples of the patch size.
+            n: The last ``n`` blocks if an int, else the block indices to return.
+            reshape: Return patch tokens as [B, D, H/p, W/p] instead of [B, N, D].
+            return_class_token: Return (patch tokens, CLS token) pairs.
+            norm: Pass each output through the final LayerNorm.
+
+        Returns:
+            One entry per requested block, in block order; registers are dropped.
+        """
+        depth = len(self.blocks)
+        take = list(range(depth - n, depth)) if isinstance(n, int) else [int(i) for i in n]
+        bad = [i for i in take if not 0 <= i < depth]
+        if bad or not take:
+            raise ValueError(f"block indices {take} must be in [0, {depth - 1}] and non-empty")
+        h, w = x.shape[-2:]
+        tokens = self.prepare_tokens(x)
+        outputs = []
+        for i, blk in enumerate(self.blocks[: max(take) + 1]):
+            tokens = blk(tokens)
+            if i in take:
+                outputs.append(tokens)
+        if norm:
+            outputs = [self.norm(o) for o in outputs]
+        cls = [o[:, 0] for o in outputs]
+        patches = [o[:, 1 + self.num_register_tokens :] for o in outputs]
+        if reshape:
+            gh, gw = h // self.patch_size, w // self.patch_size
+            patches = [
+                p.reshape(p.shape[0], gh, gw, -1).permute(0, 3, 1, 2).contiguous() for p in patches
+            ]
+        if return_class_token:
+            return tuple(zip(patches, cls, strict=True))
+        return tuple(patches)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Normalised CLS token [B, D] (the official ``forward`` without a head)."""
+        tokens = self.prepare_tokens(x)
+        for blk in self.blocks:
+            tokens = blk(tokens)
+        return self.norm(tokens)[:, 0]
+
+
+def backbone_config(name: str, **overrides: Any) -> dict[str, Any]:
+    """Constructor arguments of a named backbone, with optional overrides (tiny test models).
+
+    Args:
+        name: One of ``BACKBONE_NAMES``, e.g. ``"dinov2_vitl14"`` or ``"dinov2_vitl14_reg"``.
+        **overrides: Any ``DinoVisionTransformer`` argument.
+    """
+    if name not in BACKBONE_NAMES:
+        raise ValueError(f"unknown backbone {name!r}: choose one of {', '.join(BACKBONE_NAMES)}")
+    arch = name.removeprefix("dinov2_").removesuffix("_reg")
+    cfg: dict[str, Any] = {**ARCHS[arch], "patch_size": 14, "img_size": 518}
+    if name.endswith("_reg"):
+        cfg.update(num_register_tokens=4, interpolate_offset=0.0, interpolate_antialias=True)
+    else:
+        cfg.update(num_register_tokens=0, interpolate_offset=0.1, interpolate_antialias=False)
+    unknown = set(overrides) - set(cfg) - {"mlp_ratio"}
+    if unknown:
+        raise ValueError(f"unknown backbone arguments {sorted(unknown)}; known: {sorted(cfg)}")
+    cfg.update(overrides)
+    return cfg
+
+
+def build_backbone(
+    name: str = "dinov2_vitl14", weights: str | os.PathLike | None = None, **overrides: Any
+) -> DinoVisionTransformer:
+    """Build a DINOv2 backbone, optionally with weights.
+
+    Args:
+        name: One of ``BACKBONE_NAMES``.
+        weights: ``None`` for a random init; a path to an official ``.pth`` or a Hugging Face
+            ``model.safetensors``; or ``"official"`` to download the official checkpoint into
+            the torch hub cache (the project's only network access).
+        **overrides: ``DinoVisionTransformer`` arguments replacing the named ones (tiny models).
+
+    Raises:
+        WeightsError: the file's keys or shapes do not match, listing them.
+        ConnectionError: ``"official"`` while offline, naming the URL and the cache path.
+    """
+    model = DinoVisionTransformer(**backbone_config(name, **overrides))
+    if weights is None:
+        return model
+    path = download_official(name) if str(weights) == "official" else Path(weights)
+    load_backbone_state(model, read_state_dict(path), str(path))
+    return model.eval()

@@ -1,0 +1,72 @@
+"""Model checkpoints: weights_only-safe, atomic, rebuilt from the file alone."""
+
+import pytest
+import torch
+
+from models import CheckpointError, build_model, load_checkpoint, save_checkpoint
+from tests.models.reference import random_official_state
+
+TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
+HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
+
+
+def _outputs(model, x):
+    with torch.no_grad():
+        return model.eval()(x)
+
+
+def test_round_trip_random_backbone(tmp_path):
+    model = build_model("dinov2_vits14_reg", num_classes=4, backbone_kwargs=TINY, **HEAD)
+    path = save_checkpoint(model, tmp_path / "run" / "m.pt", epoch=3, optim={"lr": 0.1})
+    ckpt = torch.load(path, weights_only=True)
+    assert ckpt["format"] == "claravid-model" and ckpt["version"] == 1
+    assert ckpt["epoch"] == 3 and ckpt["optim"] == {"lr": 0.1}
+    assert "backbone.pos_embed" in ckpt["model"]  # a random init is always stored
+    assert [p.name for p in path.parent.iterdir()] == ["m.pt"]  # no temp file left
+    loaded = load_checkpoint(path)
+    assert loaded.model_args == model.model_args
+    x = torch.randn(1, 3, 42, 56)
+    torch.testing.assert_close(_outputs(loaded, x), _outputs(model, x), atol=0, rtol=0)
+
+
+def test_backbone_from_weights_file_is_referenced(tmp_path):
+    weights = tmp_path / "dino.pth"
+    torch.save(random_official_state(build_model(backbone_kwargs=TINY, **HEAD).backbone), weights)
+    model = build_model("dinov2_vitl14", 3, weights=weights, backbone_kwargs=TINY, **HEAD)
+    path = save_checkpoint(model, tmp_path / "m.pt")
+    ckpt = torch.load(path, weights_only=True)
+    assert not any(k.startswith("backbone.") for k in ckpt["model"])
+    assert ckpt["model_args"]["weights"] == str(weights)
+    x = torch.randn(1, 3, 28, 42)
+    torch.testing.assert_close(_outputs(load_checkpoint(path), x), _outputs(model, x))
+    full = save_checkpoint(model, tmp_path / "full.pt", include_backbone=True)
+    weights.unlink()  # a self-contained file no longer needs the weights file
+    torch.testing.assert_close(_outputs(load_checkpoint(full), x), _outputs(model, x))
+    with pytest.raises(FileNotFoundError, match=r"dino.pth not found"):
+        load_checkpoint(path)
+
+
+def test_save_errors(tmp_path):
+    model = build_model("dinov2_vits14", 2, backbone_kwargs=TINY, **HEAD)
+    with pytest.raises(ValueError, match=r"random init.*include_backbone=True"):
+        save_checkpoint(model, tmp_path / "m.pt", include_backbone=False)
+    with pytest.raises(ValueError, match=r"extra entries \['model'\] are reserved"):
+        save_checkpoint(model, tmp_path / "m.pt", model={})
+
+
+def test_foreign_and_newer_files(tmp_path):
+    torch.save({"pos_embed": torch.zeros(1)}, tmp_path / "dino.pth")
+    with pytest.raises(CheckpointError, match=r"not a claravid model checkpoint.*build_model"):
+        load_checkpoint(tmp_path / "dino.pth")
+    model = build_model("dinov2_vits14", 2, backbone_kwargs=TINY, **HEAD)
+    path = save_checkpoint(model, tmp_path / "m.pt")
+    ckpt = torch.load(path, weights_only=True)
+    ckpt["version"] = 2
+    torch.save(ckpt, tmp_path / "new.pt")
+    with pytest.raises(CheckpointError, match=r"version 2, newer than this code's 1"):
+        load_checkpoint(tmp_path / "new.pt")
+    (tmp_path / "junk.pt").write_text("hello")
+    with pytest.raises(CheckpointError, match=r"cannot read .*junk.pt"):
+        load_checkpoint(tmp_path / "junk.pt")
+    with pytest.raises(FileNotFoundError, match=r"checkpoint .*missing.pt not found"):
+        load_checkpoint(tmp_path / "missing.pt")

@@ -1,0 +1,128 @@
+"""The segmenter: frozen backbone, trainable DPT head, sizes, precision and compile."""
+
+import pytest
+import torch
+
+from models import DPTHead, build_model
+from tests.models.reference import random_official_state, reference_layers
+
+TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
+HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
+
+
+def _model(name="dinov2_vits14", **kw):
+    torch.manual_seed(0)
+    return build_model(name, num_classes=5, backbone_kwargs=TINY, **{**HEAD, **kw})
+
+
+def test_forward_backward_trains_only_the_head():
+    model = _model().train()
+    assert not model.backbone.training and model.head.training
+    x = torch.randn(2, 3, 42, 70)
+    logits = model(x)
+    assert logits.shape == (2, 5, 42, 70)
+    logits.square().mean().backward()
+    assert all(p.grad is None for p in model.backbone.parameters())
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in model.head.parameters())
+    head_count = sum(p.numel() for p in model.head.parameters())
+    assert model.num_trainable_parameters() == head_count
+    assert f"trainable={head_count:,}" in repr(model)
+
+
+def test_backbone_keeps_no_activations():
+    """Autograd saves exactly what the head alone saves: nothing of the backbone."""
+    model = _model().train()
+    x = torch.randn(1, 3, 42, 42)
+    saved = []
+
+    def count(t):
+        saved.append(t.numel())
+        return t
+
+    with torch.autograd.graph.saved_tensors_hooks(count, lambda t: t):
+        model(x)
+    total = sum(saved)
+    with torch.no_grad():
+        feats = model.backbone.get_intermediate_layers(x, model.layers, return_class_token=True)
+    saved.clear()
+    with torch.autograd.graph.saved_tensors_hooks(count, lambda t: t):
+        model.head(feats, 3, 3, (42, 42))
+    assert total == sum(saved) > 0
+
+
+def test_head_gets_the_official_backbone_features():
+    model = _model("dinov2_vits14_reg").eval()
+    state = random_official_state(model.backbone, seed=5)
+    model.backbone.load_state_dict(state)
+    x = torch.randn(1, 3, 56, 42)
+    captured = {}
+
+    def keep(module, args):
+        captured["feats"] = args[0]
+
+    model.head.register_forward_pre_hook(keep)
+    model(x)
+    ref = reference_layers(state, x, 2, [0, 1, 2, 3], registers=True)
+    for (tokens, cls), (ref_tokens, ref_cls) in zip(captured["feats"], ref, strict=True):
+        torch.testing.assert_close(tokens, ref_tokens, atol=1e-4, rtol=0)
+        torch.testing.assert_close(cls, ref_cls, atol=1e-4, rtol=0)
+
+
+def test_pyramid_sizes_at_630():
+    model = _model().eval()
+    sizes = []
+    for rn in model.head.layer_rn:
+        rn.register_forward_hook(lambda m, a, out: sizes.append(tuple(out.shape[-2:])))
+    with torch.no_grad():
+        out = model(torch.randn(1, 3, 630, 630))
+    assert sizes == [(180, 180), (90, 90), (45, 45), (23, 23)]
+    assert out.shape == (1, 5, 630, 630)
+
+
+def test_cls_readout_and_defaults():
+    model = _model(use_cls=True)
+    assert model.head.reassemble[0].readout is not None
+    assert model(torch.randn(1, 3, 28, 42)).shape == (1, 5, 28, 42)
+    with torch.device("meta"):
+        big = build_model("dinov2_vitl14", num_classes=19)
+    assert big.layers == (4, 11, 17, 23)
+    assert [r.project.out_channels for r in big.head.reassemble] == [256, 512, 1024, 1024]
+    assert big.head.layer_rn[0].out_channels == 256
+
+
+def test_odd_size_and_bad_arguments():
+    model = _model()
+    with pytest.raises(ValueError, match=r"pad or resize it to 42x56"):
+        model(torch.randn(1, 3, 40, 50))
+    with pytest.raises(ValueError, match=r"layers \[7\] outside the backbone's 4 blocks"):
+        _model(layers=[0, 1, 2, 7])
+    with pytest.raises(ValueError, match=r"out_channels needs 4 entries"):
+        DPTHead(32, 3, 16, [8, 16, 32])
+
+
+def test_channels_last_and_autocast():
+    model = _model().eval()
+    x = torch.randn(2, 3, 42, 56)
+    with torch.no_grad():
+        ref = model(x)
+        last = model.to(memory_format=torch.channels_last)(x.to(memory_format=torch.channels_last))
+        torch.testing.assert_close(last, ref, atol=1e-5, rtol=1e-5)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            low = model(x)
+    assert low.dtype == torch.bfloat16
+    # bf16 keeps ~3 significant digits: compare relative to the logits' spread.
+    assert (low.float() - ref).abs().max() < 0.1 * ref.std()
+
+
+@pytest.mark.slow
+def test_torch_compile_matches_eager():
+    model = _model().train()
+    # aot_eager traces forward and backward like inductor but skips C++ codegen, which takes
+    # minutes on a 2-core CPU; the GPU benchmark covers the inductor backend.
+    compiled = torch.compile(model, backend="aot_eager")
+    x = torch.randn(2, 3, 42, 56)
+    out = compiled(x)
+    out.mean().backward()
+    torch.testing.assert_close(out, model(x), atol=1e-4, rtol=1e-4)
+    assert all(p.grad is None for p in model.backbone.parameters())
+    assert model.head.layer_rn[0].weight.grad is not None
