@@ -134,6 +134,7 @@ def test_shards_merge_to_the_full_run(collection, tmp_path):
         assert main(["--merge", *parts[:2], "--output", str(tmp_path / "m2.json")]) == 0
 
 
+@pytest.mark.filterwarnings("ignore::claravid.dsp.profile.DegenerateProfileWarning")  # one image
 def test_merge_refuses_mismatches(collection, tmp_path, capsys):
     p0, p0b, g1 = (tmp_path / n for n in ("p0.json", "p0b.json", "g1.json"))
     assert (
@@ -183,6 +184,7 @@ def test_compare_warns_on_resolution_gap(collection, tmp_path, capsys):
     assert f"{mu:.3f}" in table
 
 
+@pytest.mark.filterwarnings("ignore::claravid.dsp.profile.DegenerateProfileWarning")  # one image
 def test_cache_is_reused_until_the_file_changes(collection, tmp_path):
     image = sorted(collection.glob("**/*.png"))[0]
     truth = profile_images([image]).results[0].complexity
@@ -201,6 +203,7 @@ def test_cache_is_reused_until_the_file_changes(collection, tmp_path):
     assert profile_images([image]).results[0].complexity == truth  # stale entry ignored
 
 
+@pytest.mark.filterwarnings("ignore::claravid.dsp.profile.DegenerateProfileWarning")  # one image
 def test_unwritable_cache_warns_and_still_computes(collection, tmp_path, monkeypatch):
     blocker = tmp_path / "not_a_dir"
     blocker.write_text("")
@@ -219,6 +222,7 @@ def test_worker_processes_give_the_same_values(collection):
     assert parallel.results == serial.results and parallel.errors == serial.errors
 
 
+@pytest.mark.filterwarnings("ignore::claravid.dsp.profile.DegenerateProfileWarning")  # one image
 def test_error_paths(collection, tmp_path, capsys):
     missing = tmp_path / "nope"
     assert _run([str(missing)]) == 2
