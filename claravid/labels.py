@@ -93,7 +93,8 @@ def default_cache_dir() -> Path:
     return Path(os.environ.get("CLARAVID_CACHE", Path.home() / ".cache" / "claravid"))
 
 
-def _fingerprint(*paths: Path | None) -> str:
+def source_fingerprint(*paths: Path | None) -> str:
+    """A short hash of files' resolved paths, sizes and mtimes (None entries skipped)."""
     parts = []
     for path in paths:
         if path is not None:
@@ -114,7 +115,7 @@ class LabelCache:
         self.directory = self.directory / "label_codes"
 
     def path_for(self, pan_seg: Path, dynamic_mask: Path | None) -> Path:
-        key = _fingerprint(pan_seg, dynamic_mask)
+        key = source_fingerprint(pan_seg, dynamic_mask)
         return self.directory / key[:2] / f"{key}.png"
 
     def read(self, pan_seg: Path, dynamic_mask: Path | None = None) -> np.ndarray:

@@ -29,7 +29,13 @@ from tqdm.auto import tqdm
 
 from claravid import modalities
 from claravid.index import Frame, list_frames
-from claravid.labels import LabelCache, default_cache_dir, read_label_codes, warn_unknown
+from claravid.labels import (
+    LabelCache,
+    default_cache_dir,
+    read_label_codes,
+    source_fingerprint,
+    warn_unknown,
+)
 from claravid.layout import MISSIONS, MODALITIES
 from claravid.palettes import Palette, load_palette
 from claravid.plot import plot_sample
@@ -106,11 +112,14 @@ class ClaraVidSegmentation(Dataset):
     def __len__(self) -> int:
         return len(self.frames)
 
+    def _label_sources(self, frame: Frame) -> tuple[Path, Path | None]:
+        """A frame's label files: the panoptic PNG, and the dynamic mask if the palette reads it."""
+        dynamic = frame.paths["dynamic_mask"] if self.palette.uses_dynamic else None
+        return frame.paths["pan_seg"], dynamic
+
     def read_mask(self, index: int) -> np.ndarray:
         """The frame's train ids, uint8 H×W (255 ignore), unknown class ids counted."""
-        frame = self.frames[index]
-        pan_seg = frame.paths["pan_seg"]
-        dynamic = frame.paths.get("dynamic_mask") if self.palette.uses_dynamic else None
+        pan_seg, dynamic = self._label_sources(self.frames[index])
         if self.label_cache is not None:
             codes = self.label_cache.read(pan_seg, dynamic)
         else:
@@ -150,11 +159,7 @@ class ClaraVidSegmentation(Dataset):
         """
         key = hashlib.sha1(self.palette.lut.tobytes())
         for frame in self.frames:
-            for name in ("pan_seg", "dynamic_mask"):
-                path = frame.paths.get(name)
-                if path is not None and (name == "pan_seg" or self.palette.uses_dynamic):
-                    stat = path.stat()
-                    key.update(f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}".encode())
+            key.update(source_fingerprint(*self._label_sources(frame)).encode())
         cache_file = default_cache_dir() / "class_frequencies" / f"{key.hexdigest()}.json"
         if cache_file.is_file():
             return np.asarray(json.loads(cache_file.read_text())["counts"], dtype=np.int64)
