@@ -16,8 +16,8 @@ __version__ = "0.1.0"
 _LAZY = {
     "ClaravidDataset": "claravid.sdk",
     "ClaraVidSegmentation": "claravid.segmentation",
-    "UAVidSegmentation": "claravid.uavid",
-    "ImageFolder": "claravid.uavid",
+    "UAVidSegmentation": "claravid.targets",
+    "ImageFolder": "claravid.targets",
     "Palette": "claravid.palettes",
     "load_palette": "claravid.palettes",
     "DatasetNotFoundError": "claravid.errors",

@@ -15,7 +15,7 @@ dataset casts the mask to int64 afterwards.
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")  # it phones home at import otherwise
@@ -166,8 +166,3 @@ def eval_transforms(config: Any = None) -> SegmentationTransform:
     """Normalisation only: the full frame, no crop."""
     cfg = config if isinstance(config, AugmentConfig) else augment_config(config)
     return SegmentationTransform([], cfg)
-
-
-def config_dict(cfg: AugmentConfig) -> dict[str, Any]:
-    """A plain dict of the config, for logging and checkpoints."""
-    return asdict(cfg)

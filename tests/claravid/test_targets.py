@@ -7,7 +7,7 @@ import torch
 from claravid import DatasetNotFoundError, ImageFolder, UAVidSegmentation
 from claravid import modalities as m
 from claravid.palettes import load_palette
-from claravid.uavid import UnknownColorWarning
+from claravid.targets import UnknownColorWarning
 
 COLORS = load_palette("uavid").colors
 
