@@ -5,10 +5,11 @@ The official ClaraVid code (``claravid/scene_complexity_profile.py``) builds the
 Here the same 511 x 511 histogram is counted exactly, in integers, from the int16 gradients:
 
 * An int16 gradient ``g`` in [-128, 127] is identified by its low byte alone, so one 8-bit 2-D
-  ``cv2.calcHist`` over the low bytes of (gx, gy) (a zero-copy view) counts every pixel whose two
-  gradients both lie in that core range; OpenCV's 8-bit histogram is a table look-up, not a search.
+  ``cv2.calcHist`` over the low bytes of (gx, gy) (a zero-copy view), masked to the pixels whose two
+  gradients both lie in that core range, counts them; OpenCV's 8-bit histogram is a table look-up,
+  not a search.
 * The few pixels outside the core ("tail", a few percent of a photo) are gathered and counted with
-  a look-up table from gradient to bin; their aliased low-byte counts are subtracted.
+  a look-up table from gradient to bin.
 * The look-up table is built from numpy's own bin edges with numpy's own rule (``searchsorted``,
   last edge closed), so every integer in [-256, 256] lands in the bin ``np.histogram2d`` gives it,
   and gradients outside that range are dropped, as there.
@@ -55,6 +56,7 @@ def _build_bin_lut() -> np.ndarray:
 #: gradient + 1020 -> bin index in [0, 511); 511 = dropped.
 BIN_LUT: np.ndarray = _build_bin_lut()
 BIN_LUT.setflags(write=False)
+_BIN_LUT32 = BIN_LUT.astype(np.int32)  # int32 indices: half the memory traffic of intp
 # Bin of each low byte for core gradients in [-128, 127] (byte b <-> gradient b or b - 256).
 _LOW_BYTE = np.arange(256)
 _CORE_BIN = BIN_LUT[np.where(_LOW_BYTE < 128, _LOW_BYTE, _LOW_BYTE - 256) + _GMAX]
@@ -78,9 +80,15 @@ def _check_gray(gray: np.ndarray) -> np.ndarray:
 
 
 def _hist2d_u8(
-    first: np.ndarray, second: np.ndarray, channels: tuple[int, int] = (0, 1)
+    first: np.ndarray,
+    second: np.ndarray,
+    channels: tuple[int, int] = (0, 1),
+    mask: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Exact int64 256 x 256 histogram of two 8-bit images (or byte views), row block by block."""
+    """Exact int64 256 x 256 histogram of two 8-bit images (or byte views), row block by block.
+
+    Only pixels where ``mask`` (uint8, same rows and columns) is non-zero count, when given.
+    """
     rows, cols = first.shape[:2]
     step = max(1, _MAX_BLOCK_PIXELS // max(cols, 1))
     total = np.zeros((256, 256), np.int64)
@@ -88,7 +96,7 @@ def _hist2d_u8(
         block = cv2.calcHist(
             [first[r : r + step], second[r : r + step]],
             list(channels),
-            None,
+            None if mask is None else mask[r : r + step],
             [256, 256],
             [0, 256, 0, 256],
         )
@@ -117,32 +125,29 @@ def deldensity_counts(gray: np.ndarray) -> np.ndarray:
     gx, gy = cv2.spatialGradient(gray, ksize=3)
     low_x = gx.view(np.uint8).reshape(rows, cols, 2)  # channel 0 = low byte (little-endian)
     low_y = gy.view(np.uint8).reshape(rows, cols, 2)
-
-    # The low-byte histogram runs in a thread (OpenCV releases the GIL) while we find the tail.
-    result: dict[str, np.ndarray] = {}
-
-    def count_low_bytes() -> None:
-        result["low"] = _hist2d_u8(low_x, low_y, channels=(0, 2))
-
-    worker = threading.Thread(target=count_low_bytes, daemon=True)
-    worker.start()
     core = cv2.inRange(gx, -128, 127)
     cv2.bitwise_and(core, cv2.inRange(gy, -128, 127), dst=core)
+
+    # The core histogram (masked to core pixels, so no aliasing) runs in a thread (OpenCV
+    # releases the GIL) while this thread counts the tail.
+    result: dict[str, np.ndarray] = {}
+
+    def count_core() -> None:
+        result["core"] = _hist2d_u8(low_x, low_y, channels=(0, 2), mask=core)
+
+    worker = threading.Thread(target=count_core, daemon=True)
+    worker.start()
     tail = np.flatnonzero(core.reshape(-1) == 0)
-    del core
-    tail_x = gx.reshape(-1)[tail]
-    tail_y = gy.reshape(-1)[tail]
+    index = _BIN_LUT32[gx.reshape(-1)[tail] + _GMAX]
+    index *= _NUM_BINS + 1
+    index += _BIN_LUT32[gy.reshape(-1)[tail] + _GMAX]
     del tail
-    counts = np.bincount(
-        BIN_LUT[tail_x + _GMAX] * (_NUM_BINS + 1) + BIN_LUT[tail_y + _GMAX],
-        minlength=(_NUM_BINS + 1) ** 2,
-    ).reshape(_NUM_BINS + 1, _NUM_BINS + 1)
-    aliased = np.bincount(
-        (tail_x & 0xFF).astype(np.intp) * 256 + (tail_y & 0xFF), minlength=256 * 256
-    ).reshape(256, 256)
+    counts = np.bincount(index, minlength=(_NUM_BINS + 1) ** 2).reshape(
+        _NUM_BINS + 1, _NUM_BINS + 1
+    )
     worker.join()
     # Core gradients map one-to-one onto bins, so a fancy-indexed add never collides.
-    counts[_CORE_BIN[:, None], _CORE_BIN[None, :]] += result["low"] - aliased
+    counts[_CORE_BIN[:, None], _CORE_BIN[None, :]] += result["core"]
     return counts[:_NUM_BINS, :_NUM_BINS]
 
 
