@@ -15,6 +15,7 @@ from claravid.dsp import (
     delentropy,
     glcm_entropy,
     image_complexity,
+    metrics,
     pixel_entropy,
     read_gray,
 )
@@ -37,6 +38,32 @@ def test_bin_lut_matches_histogram2d_for_every_integer_gradient():
         one, _, _ = np.histogram2d([g], [0], bins=511, range=[[-256, 256]] * 2)
         nz = np.flatnonzero(one.sum(axis=1))
         assert BIN_LUT[g + 1020] == (nz[0] if nz.size else 511), g
+
+
+def fallback_counts(img: np.ndarray) -> np.ndarray:
+    return metrics._counts_opencv(*cv2.spatialGradient(np.ascontiguousarray(img), ksize=3))
+
+
+def test_native_module_is_built_and_counts_any_int16_exactly():
+    # `make test` installs with a C compiler, so the fast path must be there (and tested).
+    native = metrics._native
+    assert native is not None, "claravid.dsp._deldensity was not built; reinstall with a compiler"
+    rng = np.random.default_rng(0)
+    gx = rng.integers(-32768, 32768, 5000).astype(np.int16)
+    gy = rng.integers(-300, 300, 5000).astype(np.int16)
+    gx[:10] = [-32768, 32767, -1021, 1021, -257, 257, -256, 256, 0, -1]
+    counts = np.zeros((512, 512), np.uint32)
+    native.count(gx, gy, metrics._BIN_LUT_U16, counts)
+    expected, _, _ = np.histogram2d(
+        gx.astype(int), gy.astype(int), bins=511, range=[[-256, 256]] * 2
+    )
+    assert np.array_equal(counts[:511, :511], expected)
+    with pytest.raises(ValueError, match="equal length"):
+        native.count(gx, gy[:-1], metrics._BIN_LUT_U16, counts)
+    with pytest.raises(ValueError, match="512 x 512 uint32"):
+        native.count(gx, gy, metrics._BIN_LUT_U16, np.zeros((512, 512), np.int64))
+    with pytest.raises(ValueError, match="65536"):
+        native.count(gx, gy, BIN_LUT, counts)
 
 
 def test_hand_computed_values():
@@ -73,6 +100,8 @@ def _cases():
 @pytest.mark.parametrize("name,img", list(_cases()), ids=[n for n, _ in _cases()])
 def test_equal_to_official_formulation(name, img):
     assert np.array_equal(deldensity_counts(img), official_deldensity(img))
+    # The OpenCV + numpy path, used where the C module is not built, equals it too.
+    assert np.array_equal(fallback_counts(img), official_deldensity(img))
     assert abs(delentropy(img) - OFFICIAL["delent"](img)) <= TOL
     assert abs(glcm_entropy(img) - OFFICIAL["glcment"](img)) <= TOL
     assert abs(pixel_entropy(img) - OFFICIAL["pixent"](img)) <= TOL
@@ -88,10 +117,10 @@ def test_counts_stay_exact_beyond_float32_range():
     # OpenCV histograms are float32 (exact below 2**24); 4097**2 is odd and above it.
     img = np.zeros((4097, 4097), np.uint8)
     img[0, 0] = 1
-    counts = deldensity_counts(img)
-    assert counts.sum() == 4097 * 4097
-    # Only (0, 1), (1, 0) and (1, 1) see the corner pixel (reflect-101 cancels it at (0, 0)).
-    assert counts[255, 255] == 4097 * 4097 - 3
+    for counts in (deldensity_counts(img), fallback_counts(img)):
+        assert counts.sum() == 4097 * 4097
+        # Only (0, 1), (1, 0) and (1, 1) see the corner pixel (reflect-101 cancels it at (0, 0)).
+        assert counts[255, 255] == 4097 * 4097 - 3
     assert pixel_entropy(img) == pytest.approx(OFFICIAL["pixent"](img), abs=TOL)
 
 
