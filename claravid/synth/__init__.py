@@ -29,7 +29,7 @@ from claravid.layout import (
     viewpoint_folder,
 )
 from claravid.synth.render import flight_poses, render
-from claravid.synth.world import build_world
+from claravid.synth.scenery import build_world
 
 __all__ = ["main", "parse_size", "positive_int", "synthesize"]
 

@@ -122,35 +122,39 @@ def render(
     raster_to_ground = np.array([[r, 0, origin], [0, r, origin], [0, 0, 1.0]])
     m = ground_to_image @ raster_to_ground
     # Rays: world z of K^-1 (u, v, 1) rotated; < 0 means the ray goes down to the ground.
-    u = np.arange(width, dtype=np.float64)  # pixel centres sit at integer coordinates (cx = W/2)
-    v = np.arange(height, dtype=np.float64)
-    kinv = np.linalg.inv(k)
-    dz = rot[2] @ kinv  # ray z per unit camera depth = dz[0]·u + dz[1]·v + dz[2]
+    u = np.arange(width, dtype=np.float32)  # pixel centres sit at integer coordinates (cx = W/2)
+    v = np.arange(height, dtype=np.float32)
+    dz = (rot[2] @ np.linalg.inv(k)).astype(np.float32)  # ray z per unit of camera depth
     down = -(dz[0] * u[None, :] + dz[1] * v[:, None] + dz[2])
     ground = down > 1e-6
-    depth = np.where(ground, centre[2] / np.where(ground, down, 1.0), DEPTH_MAX_M)
+    sky = None if ground.all() else ~ground
+    down[~ground] = 1.0
 
     warp = dict(dsize=(width, height), borderMode=cv2.BORDER_CONSTANT)
-    # Class and instance in one float32 (exact below 2^24), so one nearest lookup keeps them paired.
-    packed = world.label.astype(np.float32) * 65536 + world.instance
+    border = UNLABELED_ID * 65536.0
     packed = cv2.warpPerspective(
-        packed, m, flags=cv2.INTER_NEAREST, borderValue=UNLABELED_ID * 65536.0, **warp
+        world.packed, m, flags=cv2.INTER_NEAREST, borderValue=border, **warp
     )
-    packed = packed.astype(np.int64)
+    packed = packed.astype(np.int32)
     semantic, instance = (packed >> 16).astype(np.uint8), (packed & 0xFFFF).astype(np.uint16)
     lift = cv2.warpPerspective(world.height, m, flags=cv2.INTER_NEAREST, borderValue=0.0, **warp)
-    rgb = cv2.warpPerspective(
-        world.color, m, flags=cv2.INTER_LINEAR, borderValue=_SKY.tolist(), **warp
-    )
+    rgb = cv2.warpPerspective(world.color, m, flags=cv2.INTER_LINEAR,
+                              borderValue=_SKY.tolist(), **warp)  # fmt: skip
 
-    semantic[~ground], instance[~ground], lift[~ground] = UNLABELED_ID, 0, 0
-    rgb[~ground] = _SKY
-    depth = depth * np.clip(1.0 - lift / centre[2], 0.05, 1.0)
-    depth = np.clip(depth, 0.01, DEPTH_MAX_M).astype(np.float32)
-    # Light haze with distance and sensor noise, so far and flat areas are not perfectly clean.
-    haze = np.clip(depth / 1500.0, 0, 0.3)[..., None]
-    noisy = rgb * (1 - haze) + _SKY * haze + rng.normal(0, 2.0, (height, width, 1))
-    rgb = np.clip(noisy, 0, 255).astype(np.uint8)
+    # Depth along the optical axis: to the ground, shortened to where the ray meets the object top.
+    lift *= np.float32(-1.0 / centre[2])
+    lift += 1.0
+    depth = np.float32(centre[2]) / down
+    depth *= np.clip(lift, 0.05, 1.0, out=lift)
+    np.clip(depth, 0.01, DEPTH_MAX_M, out=depth)
+    if sky is not None:
+        semantic[sky], instance[sky], depth[sky], rgb[sky] = UNLABELED_ID, 0, DEPTH_MAX_M, _SKY
+    # Light haze with distance and sensor noise, so far and flat areas are not perfectly clean
+    # (saturating uint8 arithmetic in OpenCV: float images of 4032×3024×3 would cost seconds).
+    haze = np.clip(depth * np.float32(1 / 1500), 0, 0.3)
+    rgb = cv2.blendLinear(rgb, np.broadcast_to(_SKY, rgb.shape).copy(), 1 - haze, haze)
+    grain = rng.integers(0, 5, (height, width), dtype=np.uint8)
+    rgb = cv2.subtract(cv2.add(rgb, cv2.merge([grain, grain, grain])), (2, 2, 2, 0))
 
     dynamic = world.dynamic[instance] if len(world.dynamic) else np.zeros_like(semantic, bool)
     mask = np.where(dynamic, DYNAMIC_MASK_DYNAMIC, DYNAMIC_MASK_STATIC).astype(np.uint8)
