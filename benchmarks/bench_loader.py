@@ -23,7 +23,7 @@ os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
 import numpy as np
 import torch
 from PIL import Image
-from torch.utils.data import DataLoader
+from torch.utils.data import DataLoader, RandomSampler
 
 from claravid.palettes import load_palette
 from claravid.segmentation import ClaraVidSegmentation
@@ -64,15 +64,17 @@ def throughput(dataset, samples: int) -> float:
 
 
 def loader_throughput(dataset, workers: int, samples: int) -> float:
-    loader = DataLoader(dataset, batch_size=1, shuffle=True, num_workers=workers)
-    next(iter(loader))  # start-up of the workers is not the steady state
-    start, seen = time.perf_counter(), 0
-    while seen < samples:
-        for _ in loader:
-            seen += 1
-            if seen >= samples:
-                break
-    return seen / (time.perf_counter() - start)
+    """Steady-state samples/s: one long shuffled epoch, timed after the first batches."""
+    warmup = 2 * workers
+    sampler = RandomSampler(dataset, replacement=True, num_samples=samples + warmup)
+    loader = DataLoader(dataset, batch_size=1, sampler=sampler, num_workers=workers)
+    batches = iter(loader)
+    for _ in range(warmup):  # worker start-up is not the steady state
+        next(batches)
+    start = time.perf_counter()
+    for _ in batches:
+        pass
+    return samples / (time.perf_counter() - start)
 
 
 def main() -> None:
