@@ -21,6 +21,7 @@ from claravid.layout import (
     MISSIONS,
     MODALITIES,
     canonical_mission,
+    frame_file,
     viewpoint_folder,
 )
 
@@ -139,11 +140,7 @@ def list_frames(
                     for d in [mission_dir / MODALITIES[key].folder / view]
                 }
                 for stem in stems:
-                    paths = {
-                        key: mission_dir / MODALITIES[key].folder / view / f"{stem}.{m.ext}"
-                        for key in file_fields
-                        for m in [MODALITIES[key]]
-                    }
+                    paths = {key: frame_file(mission_dir, view, stem, key) for key in file_fields}
                     absent = [paths[k] for k in file_fields[1:] if stem not in present[k]]
                     if absent:
                         missing.extend(absent)

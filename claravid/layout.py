@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -128,6 +129,12 @@ def canonical_mission(key: str) -> str:
     if key in by_folder:
         return by_folder[key]
     raise ValueError(f"unknown ClaraVid mission {key!r}; valid missions: {', '.join(MISSIONS)}")
+
+
+def frame_file(mission_dir: Path, viewpoint: str, stem: str, field: str) -> Path:
+    """The file of one field of a frame: ``<mission_dir>/<modality>/<viewpoint>/<stem>.<ext>``."""
+    modality = MODALITIES[field]
+    return mission_dir / modality.folder / viewpoint / f"{stem}.{modality.ext}"
 
 
 def viewpoint_folder(altitude: str, direction: str) -> str:

@@ -36,7 +36,7 @@ from claravid.labels import (
     source_fingerprint,
     warn_unknown,
 )
-from claravid.layout import MISSIONS, MODALITIES
+from claravid.layout import MISSIONS, frame_file
 from claravid.palettes import Palette, load_palette
 from claravid.plot import plot_sample
 from claravid.splits import SplitConfig, select_split
@@ -183,11 +183,9 @@ class ClaraVidSegmentation(Dataset):
 
 def camera_positions(root: Path, frames: Sequence[Frame]) -> np.ndarray:
     """Camera x, y (metres, world frame) of each frame, from its extrinsics file."""
-    folder = MODALITIES["extrinsics"]
     positions = np.empty((len(frames), 2), dtype=np.float64)
     for i, frame in enumerate(frames):
-        path = root / MISSIONS[frame.mission] / folder.folder / frame.viewpoint
-        path = path / f"{frame.stem}.{folder.ext}"
+        path = frame_file(root / MISSIONS[frame.mission], frame.viewpoint, frame.stem, "extrinsics")
         if not path.is_file():
             raise FileNotFoundError(
                 f"the train/val/test split needs camera positions but {path} is missing; "

@@ -24,8 +24,8 @@ from claravid.layout import (
     FOCAL_PX,
     IMAGE_SIZE,
     MISSIONS,
-    MODALITIES,
     canonical_mission,
+    frame_file,
     viewpoint_folder,
 )
 from claravid.synth.render import flight_poses, render
@@ -142,8 +142,7 @@ def synthesize(
 
 def _write(mission_dir: Path, viewpoint: str, stem: str, frame, pose: np.ndarray) -> None:
     def path(key: str) -> Path:
-        modality = MODALITIES[key]
-        return mission_dir / modality.folder / viewpoint / f"{stem}.{modality.ext}"
+        return frame_file(mission_dir, viewpoint, stem, key)
 
     modalities.write_rgb(path("rgb"), frame.rgb)
     modalities.write_depth(path("depth"), frame.depth)
