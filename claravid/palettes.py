@@ -29,8 +29,8 @@ import yaml
 
 from claravid.labels import DYNAMIC_OFFSET
 from claravid.layout import CLASSES, UNLABELED_ID
+from claravid.resources import shipped_file, shipped_names
 
-PALETTE_DIR = Path(__file__).resolve().parent.parent / "configs" / "palettes"
 IGNORE = "ignore"
 
 
@@ -187,8 +187,8 @@ def palette_from_dict(config: dict[str, Any], source: str = "<dict>") -> Palette
 
 
 def available_palettes() -> list[str]:
-    """Names of the palettes shipped in ``configs/palettes``."""
-    return sorted(p.stem for p in PALETTE_DIR.glob("*.yaml"))
+    """Names of the palettes shipped in ``configs/palettes`` (installed with the package)."""
+    return shipped_names("palettes")
 
 
 def load_palette(palette: str | Path | Palette) -> Palette:
@@ -197,12 +197,13 @@ def load_palette(palette: str | Path | Palette) -> Palette:
         return palette
     path = Path(palette)
     if path.suffix not in (".yaml", ".yml"):
-        path = PALETTE_DIR / f"{palette}.yaml"
-        if not path.is_file():
+        shipped = shipped_file(str(palette), "palettes")
+        if shipped is None:
             raise PaletteError(
                 f"unknown palette {str(palette)!r}: shipped palettes are "
                 f"{', '.join(available_palettes())}; or pass the path of a YAML file"
             )
+        path = Path(str(shipped))
     if not path.is_file():
         raise PaletteError(f"palette file not found: {path}")
     try:

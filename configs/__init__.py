@@ -1,0 +1,4 @@
+"""Shipped YAML files (palettes, experiment configs), installed as ``claravid.configs``.
+
+Read them through ``claravid.resources``, never by a path relative to the checkout.
+"""

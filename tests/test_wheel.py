@@ -1,0 +1,66 @@
+"""The built wheel, installed outside the checkout, carries everything it reads at run time."""
+
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# Run from an empty folder with only the installed wheel ahead of site-packages on the path:
+# the checkout is not importable, so every shipped file must come from the wheel.
+PROBE = """
+import sys
+from pathlib import Path
+target = Path(sys.argv[1]).resolve()
+import claravid, models, train, eval
+for module in (claravid, models, train, eval):
+    assert Path(module.__file__).resolve().is_relative_to(target), module.__file__
+from claravid.palettes import available_palettes, load_palette
+from claravid.resources import shipped_names
+names = available_palettes()
+assert {"claravid", "uavid"} <= set(names), names
+assert load_palette("uavid").num_classes == 8
+from claravid.synth import synthesize
+from claravid.segmentation import ClaraVidSegmentation
+synthesize(Path(sys.argv[2]) / "data", seed=0, frames_per_viewpoint=1, size=(84, 70),
+           missions=["urban_1"], progress=False)
+sample = ClaraVidSegmentation(Path(sys.argv[2]) / "data", split="all", palette="uavid")[0]
+assert tuple(sample["mask"].shape) == (70, 84), sample["mask"].shape
+print("OK", ",".join(names), ",".join(shipped_names()))
+"""
+
+
+@pytest.mark.slow
+def test_wheel_installed_outside_checkout_loads_palettes_and_a_sample(tmp_path):
+    wheels = tmp_path / "wheels"
+    build = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
+         "-w", str(wheels), str(ROOT)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert build.returncode == 0, build.stderr[-3000:]
+    (wheel,) = wheels.glob("claravid_toolkit-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert "claravid/configs/palettes/uavid.yaml" in names
+    assert "claravid/configs/augment.yaml" in names
+
+    target = tmp_path / "site"
+    install = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(target),
+         str(wheel)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert install.returncode == 0, install.stderr[-3000:]
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    run = subprocess.run(
+        [sys.executable, "-c", PROBE, str(target), str(work)],
+        capture_output=True, text=True, cwd=work, timeout=600,
+        env={"PYTHONPATH": str(target), "PATH": "/usr/bin:/bin", "HOME": str(tmp_path),
+             "NO_ALBUMENTATIONS_UPDATE": "1", "CLARAVID_CACHE": str(tmp_path / "cache")},
+    )  # fmt: skip
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-3000:]
+    assert run.stdout.startswith("OK claravid,")
