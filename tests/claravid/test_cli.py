@@ -1,0 +1,110 @@
+"""The command-line conventions every console script shares (claravid.cli)."""
+
+import argparse
+import os
+import warnings
+
+import pytest
+
+from claravid.cli import (
+    UsageError,
+    add_debug_flag,
+    atomic_save,
+    atomic_write_text,
+    check_output_dir,
+    check_output_file,
+    run_cli,
+)
+
+
+def _parser():
+    parser = argparse.ArgumentParser(prog="tool")
+    parser.add_argument("--fail", choices=["usage", "value", "missing", "bug"])
+    add_debug_flag(parser)
+    return parser
+
+
+def _run(args):
+    warnings.warn("something odd", UserWarning, stacklevel=1)
+    if args.fail == "usage":
+        raise UsageError("bad thing; do this instead")
+    if args.fail == "value":
+        raise ValueError("a value is wrong")
+    if args.fail == "missing":
+        open("/nonexistent/file/x")  # noqa: SIM115
+    if args.fail == "bug":
+        raise KeyError("internal")
+    return 0
+
+
+@pytest.mark.parametrize("kind", ["usage", "value", "missing"])
+def test_user_mistakes_exit_2_with_one_line(kind, capsys):
+    assert run_cli("tool", _run, _parser(), ["--fail", kind]) == 2
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith("tool: error:")]
+    assert len(lines) == 1
+    assert "Traceback" not in err
+    assert "tool: warning: something odd" in err  # the message, not a source line
+    assert "warnings.warn" not in err
+
+
+def test_debug_shows_the_traceback(capsys):
+    assert run_cli("tool", _run, _parser(), ["--fail", "usage", "--debug"]) == 2
+    assert "Traceback" in capsys.readouterr().err
+
+
+def test_a_bug_is_not_disguised_as_a_user_mistake():
+    with pytest.raises(KeyError):
+        run_cli("tool", _run, _parser(), ["--fail", "bug"])
+
+
+def test_success_is_0():
+    assert run_cli("tool", _run, _parser(), []) == 0
+
+
+def test_check_output_file(tmp_path):
+    with pytest.raises(UsageError, match="is a directory"):
+        check_output_file(tmp_path)
+    blocker = tmp_path / "afile"
+    blocker.write_text("x")
+    with pytest.raises(UsageError, match="is a file, not a folder"):
+        check_output_file(blocker / "sub" / "out.json")
+    with pytest.raises(UsageError, match="--overwrite"):
+        check_output_file(blocker, overwrite=False)
+    assert check_output_file(tmp_path / "new" / "out.json") == tmp_path / "new" / "out.json"
+    assert not (tmp_path / "new").exists()  # checking creates nothing
+    if os.geteuid() != 0:  # root writes anywhere
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        with pytest.raises(UsageError, match="not writable"):
+            check_output_file(locked / "out.json")
+
+
+def test_check_output_dir_refuses_a_foreign_folder(tmp_path):
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "precious.txt").write_text("data")
+    with pytest.raises(UsageError, match="not written by this tool"):
+        check_output_dir(theirs, marker="report.json")
+    assert check_output_dir(theirs, marker="report.json", overwrite=True) == theirs
+    ours = tmp_path / "ours"
+    ours.mkdir()
+    (ours / "report.json").write_text("{}")
+    assert check_output_dir(ours, marker="report.json") == ours
+    (tmp_path / "empty").mkdir()
+    assert check_output_dir(tmp_path / "empty", marker="report.json")
+    with pytest.raises(UsageError, match="is a file"):
+        check_output_dir(theirs / "precious.txt", marker="report.json")
+
+
+def test_atomic_save_keeps_the_old_file_when_the_writer_fails(tmp_path):
+    target = atomic_write_text(tmp_path / "r.json", "old")
+
+    def broken(tmp):
+        tmp.write_text("half")
+        raise RuntimeError("killed")
+
+    with pytest.raises(RuntimeError):
+        atomic_save(target, broken)
+    assert target.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]  # no temp left behind
