@@ -1,4 +1,49 @@
-"""Evaluation: sliding-window inference, confusion matrices, mIoU per complexity bin, reports.
+"""Evaluation: sliding-window inference, per-image confusion, mIoU per complexity bin, reports.
 
-Not built yet: see the project's issues.
+The core that training validates through::
+
+    from eval import WindowConfig, evaluate_model, stratify
+
+    scores = evaluate_model(model, val_dataset, num_classes=8, config=WindowConfig(scale=0.5))
+    report = stratify([s.path for s in scores], np.stack([s.confusion for s in scores]),
+                      classes, {"delent": values}, bins=3)
 """
+
+from eval.bins import Bin, bin_names, fixed_bins, parse_edges, quantile_bins
+from eval.evaluate import ImageScore, evaluate_model, sample_key
+from eval.metrics import (
+    CONVENTION,
+    IGNORE_INDEX,
+    confusion_matrix,
+    iou_per_class,
+    mean_iou,
+    pixel_accuracy,
+    scores,
+)
+from eval.stratify import bin_mious, correlation, stratify
+from eval.windows import WindowConfig, predict_labels, sliding_window_logits, window_starts
+
+__all__ = [
+    "CONVENTION",
+    "IGNORE_INDEX",
+    "Bin",
+    "ImageScore",
+    "WindowConfig",
+    "bin_mious",
+    "bin_names",
+    "confusion_matrix",
+    "correlation",
+    "evaluate_model",
+    "fixed_bins",
+    "iou_per_class",
+    "mean_iou",
+    "parse_edges",
+    "pixel_accuracy",
+    "predict_labels",
+    "quantile_bins",
+    "sample_key",
+    "scores",
+    "sliding_window_logits",
+    "stratify",
+    "window_starts",
+]

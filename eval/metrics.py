@@ -1,0 +1,113 @@
+"""Confusion matrices and the scores computed from them (FORMAT.md §8).
+
+Conventions, stated in every report (`CONVENTION`):
+
+- a confusion matrix counts pixels whose ground truth is not the ignore index, rows = ground
+  truth, columns = prediction;
+- IoU of a class = TP / (TP + FP + FN) of a summed confusion; a class with union 0 is left out
+  of the mean (NaN), never counted as 0 or 1;
+- the mIoU of a group of images is computed from the group's summed confusion, never as a mean
+  of per-image mIoUs; an image's own mIoU likewise from its own confusion;
+- pixel accuracy = correct / valid pixels.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+
+IGNORE_INDEX = 255
+
+CONVENTION = (
+    "Confusion over pixels whose ground truth is not the ignore index (255); IoU = TP/(TP+FP+FN) "
+    "from the group's summed confusion; classes with union 0 are left out of the mean (NaN-mean); "
+    "the mIoU of a group (bin, mission, split) comes from its summed confusion, not from a mean of "
+    "per-image mIoUs; pixel accuracy = correct / valid pixels."
+)
+
+
+def confusion_matrix(
+    prediction: torch.Tensor | np.ndarray,
+    target: torch.Tensor | np.ndarray,
+    num_classes: int,
+    ignore_index: int = IGNORE_INDEX,
+) -> torch.Tensor:
+    """Pixel confusion of one image or batch: int64 [K, K], rows = truth, columns = prediction.
+
+    Computed with one ``bincount`` on the tensors' device.
+
+    Args:
+        prediction: predicted train ids, any integer shape.
+        target: ground-truth train ids of the same shape; ``ignore_index`` pixels are skipped.
+        num_classes: K.
+        ignore_index: the ground-truth value to skip.
+
+    Raises:
+        ValueError: shapes differ, or an id outside ``[0, K)`` (other than the ignore index in
+            the ground truth) appears, which would silently shift the counts.
+    """
+    prediction = torch.as_tensor(prediction)
+    target = torch.as_tensor(target, device=prediction.device)
+    if prediction.shape != target.shape:
+        raise ValueError(
+            f"prediction {tuple(prediction.shape)} and ground truth {tuple(target.shape)} differ "
+            "in shape"
+        )
+    target = target.reshape(-1).long()
+    prediction = prediction.reshape(-1).long()
+    valid = target != ignore_index
+    target, prediction = target[valid], prediction[valid]
+    for name, ids in (("ground truth", target), ("prediction", prediction)):
+        if ids.numel() and (int(ids.min()) < 0 or int(ids.max()) >= num_classes):
+            bad = ids[(ids < 0) | (ids >= num_classes)].unique()[:8].tolist()
+            raise ValueError(
+                f"{name} holds ids {bad} outside the palette's {num_classes} classes "
+                f"(ignore index {ignore_index})"
+            )
+    counts = torch.bincount(target * num_classes + prediction, minlength=num_classes**2)
+    return counts.reshape(num_classes, num_classes)
+
+
+def iou_per_class(confusion: np.ndarray | torch.Tensor) -> np.ndarray:
+    """IoU of each class (float64 [K]); NaN where the class has union 0."""
+    conf = np.asarray(confusion, dtype=np.float64)
+    tp = np.diag(conf)
+    union = conf.sum(axis=0) + conf.sum(axis=1) - tp
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(union > 0, tp / np.where(union > 0, union, 1), np.nan)
+
+
+def mean_iou(confusion: np.ndarray | torch.Tensor) -> float:
+    """NaN-mean of the per-class IoU; NaN when no class has any pixel."""
+    iou = iou_per_class(confusion)
+    return float(np.nanmean(iou)) if np.isfinite(iou).any() else float("nan")
+
+
+def pixel_accuracy(confusion: np.ndarray | torch.Tensor) -> float:
+    """Correct / valid pixels; NaN when there is no valid pixel."""
+    conf = np.asarray(confusion, dtype=np.float64)
+    total = conf.sum()
+    return float(np.trace(conf) / total) if total > 0 else float("nan")
+
+
+def finite_or_none(value: float) -> float | None:
+    """A JSON-safe number: NaN and infinities become None (``null``)."""
+    return float(value) if np.isfinite(value) else None
+
+
+def scores(confusion: np.ndarray | torch.Tensor, classes: Sequence[str]) -> dict[str, Any]:
+    """``{"miou", "pixel_acc", "per_class_iou": {class: iou}}``, NaN written as None."""
+    conf = np.asarray(confusion)
+    if conf.shape != (len(classes), len(classes)):
+        raise ValueError(f"confusion {conf.shape} does not match {len(classes)} classes")
+    iou = iou_per_class(conf)
+    return {
+        "miou": finite_or_none(mean_iou(conf)),
+        "pixel_acc": finite_or_none(pixel_accuracy(conf)),
+        "per_class_iou": {
+            name: finite_or_none(value) for name, value in zip(classes, iou, strict=True)
+        },
+    }

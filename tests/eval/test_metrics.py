@@ -1,0 +1,59 @@
+"""Confusion, IoU, mIoU and pixel accuracy against hand-computed values (FORMAT.md §8)."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from eval.metrics import confusion_matrix, iou_per_class, mean_iou, pixel_accuracy, scores
+
+# 3 classes, one ignored pixel (255). Truth row by row, prediction below it.
+TRUTH = np.array([[0, 0, 1, 1], [1, 2, 2, 255]])
+PRED = np.array([[0, 1, 1, 1], [2, 2, 0, 0]])
+# Counted by hand, rows = truth, columns = prediction (the 255 pixel is skipped):
+#   truth 0: pred 0, pred 1        -> [1, 1, 0]
+#   truth 1: pred 1, pred 1, pred 2 -> [0, 2, 1]
+#   truth 2: pred 2, pred 0        -> [1, 0, 1]
+HAND = np.array([[1, 1, 0], [0, 2, 1], [1, 0, 1]])
+
+
+def test_confusion_by_hand():
+    conf = confusion_matrix(PRED, TRUTH, 3)
+    assert conf.dtype == torch.int64
+    np.testing.assert_array_equal(conf.numpy(), HAND)
+
+
+def test_iou_miou_accuracy_by_hand():
+    # class 0: TP 1, FP 1 (truth 2 -> 0), FN 1 -> 1/3; class 1: TP 2, FP 1, FN 1 -> 2/4;
+    # class 2: TP 1, FP 1, FN 1 -> 1/3.
+    np.testing.assert_allclose(iou_per_class(HAND), [1 / 3, 1 / 2, 1 / 3])
+    assert mean_iou(HAND) == pytest.approx((1 / 3 + 1 / 2 + 1 / 3) / 3)
+    assert pixel_accuracy(HAND) == pytest.approx(4 / 7)
+
+
+def test_a_class_with_no_pixels_is_left_out_of_the_mean():
+    conf = np.array([[3, 1, 0], [0, 0, 0], [0, 0, 0]])  # class 2 absent everywhere
+    iou = iou_per_class(conf)
+    assert iou[0] == pytest.approx(3 / 4)
+    assert iou[1] == 0.0  # predicted but never true: union 1, a real 0
+    assert math.isnan(iou[2])
+    assert mean_iou(conf) == pytest.approx((3 / 4 + 0) / 2)
+    out = scores(conf, ["a", "b", "c"])
+    assert out["per_class_iou"] == {"a": 0.75, "b": 0.0, "c": None}
+
+
+def test_nothing_valid_gives_nan_not_zero():
+    conf = confusion_matrix(np.zeros((2, 2)), np.full((2, 2), 255), 3)
+    assert conf.sum() == 0
+    assert math.isnan(mean_iou(conf)) and math.isnan(pixel_accuracy(conf))
+    assert scores(conf, "abc")["miou"] is None
+
+
+def test_out_of_palette_ids_are_an_error():
+    with pytest.raises(ValueError, match=r"prediction holds ids \[3\]"):
+        confusion_matrix(np.array([3]), np.array([0]), 3)
+    with pytest.raises(ValueError, match="ground truth holds ids"):
+        confusion_matrix(np.array([0]), np.array([7]), 3)
+    with pytest.raises(ValueError, match="differ in shape"):
+        confusion_matrix(np.zeros((2, 3)), np.zeros((3, 2)), 3)
