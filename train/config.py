@@ -287,4 +287,4 @@ def _flatten(data: Any, prefix: str = "") -> dict[str, Any]:
         for k, v in data.items():
             out.update(_flatten(v, f"{prefix}{k}."))
         return out
-    return {prefix[:-1]: data}
+    return {prefix[:-1]: list(data) if isinstance(data, tuple) else data}

@@ -223,6 +223,18 @@ def collate_crops(items: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tenso
     return {key: torch.cat([it[key] for it in items]) for key in ("image", "mask")}
 
 
+def check_batch(cfg: DictConfig, world_size: int) -> int:
+    """Frames per optimiser step; raises unless the batch splits into ranks × micro-batches × k."""
+    t, k = cfg.train, cfg.data.crops_per_frame
+    per_step = world_size * t.grad_accum * k
+    if t.batch_size % per_step:
+        raise ValueError(
+            f"train.batch_size={t.batch_size} must be a multiple of ranks ({world_size}) × "
+            f"train.grad_accum ({t.grad_accum}) × data.crops_per_frame ({k}) = {per_step}"
+        )
+    return t.batch_size // k
+
+
 def build_train_loader(
     dataset: Dataset,
     cfg: DictConfig,
@@ -234,13 +246,7 @@ def build_train_loader(
 ) -> DataLoader:
     """An endless loader of micro-batches for this rank, starting at ``start_step``."""
     t, k = cfg.train, cfg.data.crops_per_frame
-    per_step = world_size * t.grad_accum * k
-    if t.batch_size % per_step:
-        raise ValueError(
-            f"train.batch_size={t.batch_size} must be a multiple of ranks ({world_size}) × "
-            f"train.grad_accum ({t.grad_accum}) × data.crops_per_frame ({k}) = {per_step}"
-        )
-    frames_per_step = t.batch_size // k
+    frames_per_step = check_batch(cfg, world_size)
     sampler = StepSampler(
         len(dataset), frames_per_step, cfg.seed, rank, world_size, t.grad_accum, start_step
     )

@@ -40,6 +40,7 @@ from train.data import (
     build_train_dataset,
     build_train_loader,
     build_val_dataset,
+    check_batch,
     class_frequencies,
     class_weights,
 )
@@ -133,6 +134,7 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     torch.backends.cudnn.benchmark = device.type == "cuda"
     _seed_everything(cfg.seed)
 
+    frames_per_step = check_batch(cfg, info.world_size)
     train_set = build_train_dataset(cfg)
     cfg.train.steps = C.derive_steps(cfg, len(train_set))  # resolved: stored in config.yaml
     total = int(cfg.train.steps)
@@ -202,7 +204,6 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
         train_set, cfg, rank=info.rank, world_size=info.world_size, start_step=start,
         pin_memory=device.type == "cuda",
     )  # fmt: skip
-    frames_per_step = cfg.train.batch_size // cfg.data.crops_per_frame
     log = RunLog(out, start, cfg.log.tensorboard) if main else None
     plain_cfg = C.to_plain(cfg)
 

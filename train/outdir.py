@@ -50,7 +50,8 @@ def prepare_out_dir(
     elif resume:
         say(f"no {last} to resume: starting a new run in {out}")
     elif saved.is_file():
-        differ = C.changed_keys(OmegaConf.load(saved), cfg) if _loads(saved) else ["?"]
+        previous = _load(saved)
+        differ = C.changed_keys(previous, cfg) if previous is not None else ["an unreadable file"]
         what = "this config" if not differ else f"another config (differs in {', '.join(differ[:6])})"
         raise UsageError(
             f"out_dir {out} already holds a run of {what}; pass --resume to continue it, "
@@ -62,9 +63,9 @@ def prepare_out_dir(
     return ckpt
 
 
-def _loads(path: Path) -> bool:
+def _load(path: Path) -> DictConfig | None:
+    """A run's saved config, or None when it no longer parses (an older schema)."""
     try:
-        C.from_plain(OmegaConf.to_container(OmegaConf.load(path)))  # type: ignore[arg-type]
-        return True
+        return C.from_plain(OmegaConf.to_container(OmegaConf.load(path)))  # type: ignore[arg-type]
     except Exception:
-        return False
+        return None
