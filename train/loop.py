@@ -79,6 +79,9 @@ class EndToEnd(nn.Module):
     def __init__(self, model: models.Segmenter) -> None:
         super().__init__()
         self.model = model.requires_grad_(True)
+        # DINOv2's mask token serves masked pre-training only: no gradient ever reaches it
+        # (and DDP refuses parameters that never get one).
+        model.backbone.mask_token.requires_grad_(False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         m = self.model
@@ -184,7 +187,6 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
         scheduler.load_state_dict(ckpt["scheduler"])
         if ckpt.get("scaler"):
             scaler.load_state_dict(ckpt["scaler"])
-        set_rng_state(ckpt["rng"])
         best_miou, best_step = ckpt.get("best_miou"), ckpt.get("best_step")
         last_val = ckpt.get("metrics") or {}
         say(f"resuming {out / 'last.pt'} at step {start}/{total}")
@@ -215,7 +217,9 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
         )  # fmt: skip
 
     accum = cfg.train.grad_accum
-    batches = iter(loader)
+    batches = iter(loader)  # draws the loader's base seed from the torch RNG: restore after it
+    if ckpt:
+        set_rng_state(ckpt["rng"])
     bar = tqdm(total=total, initial=start, unit="step", disable=not (main and cfg.log.progress),
                dynamic_ncols=True)  # fmt: skip
     tick, images = time.perf_counter(), 0

@@ -1,0 +1,52 @@
+"""DDP on CPU: 2 gloo processes train what 1 process trains with the same global batch.
+
+Step semantics (``train.loop``): the loss of a step is the mean of its micro-batch losses, and
+rank r of W takes micro-batch r of each step. So 2 ranks × 1 micro-batch of 2 frames equals 1
+process × 2 micro-batches of 2 frames: same frames, same crops, same mean gradient. The weights
+agree to float rounding, not bit for bit: DDP sums the two gradients in an all-reduce where one
+process accumulates them in ``.grad``, and float addition is not associative.
+"""
+
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from models.checkpoint import read_checkpoint
+from tests.train.conftest import tiny
+from train import load_config, train
+from train.logs import read_metrics
+
+EXTRA = ("train.steps=8", "train.batch_size=4", "train.checkpoint_every=4", "val.every=4",
+         "train.log_every=1")  # fmt: skip
+
+
+@pytest.mark.slow
+def test_two_gloo_ranks_match_one_process_with_the_same_global_batch(claravid_root, tmp_path):
+    single = tmp_path / "single"
+    train(load_config("demo", tiny(claravid_root, single, *EXTRA, "train.grad_accum=2")))
+
+    ddp = tmp_path / "ddp"
+    run = subprocess.run(
+        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
+         "-m", "train", "--config", "demo", *tiny(claravid_root, ddp, *EXTRA)],
+        capture_output=True, text=True, timeout=300,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr[-4000:]
+    assert run.stdout.count("results in") == 1  # rank 0 alone reports
+
+    a, b = read_checkpoint(single / "last.pt"), read_checkpoint(ddp / "last.pt")
+    assert a["step"] == b["step"] == 8 and a["sampler"] == b["sampler"]
+    for key, value in a["model"].items():
+        torch.testing.assert_close(b["model"][key], value, rtol=1e-4, atol=1e-5, msg=key)
+    rows_a, rows_b = read_metrics(single / "metrics.jsonl"), read_metrics(ddp / "metrics.jsonl")
+    assert [r["step"] for r in rows_a] == [r["step"] for r in rows_b]  # rank 0 wrote each row once
+    for ra, rb in zip(rows_a, rows_b, strict=True):
+        for key in ("loss", "miou"):
+            if key in ra:
+                assert rb[key] == pytest.approx(ra[key], rel=1e-4, abs=1e-5), (ra["step"], key)
+    losses = [r["loss"] for r in rows_a if "loss" in r]
+    assert len(set(losses)) == len(losses) == 8  # the weights moved at every step
