@@ -18,6 +18,7 @@ $(STAMP): pyproject.toml constraints.txt claravid/dsp/_deldensity.c
 
 demo: $(STAMP)
 	$(BIN)/claravid-demo runs/demo
+	$(BIN)/claravid-train --config demo --resume
 
 test: $(STAMP)
 	$(BIN)/ruff check .

@@ -27,7 +27,8 @@ from models.checkpoint import read_checkpoint
 
 def rng_state() -> dict[str, Any]:
     """torch, CUDA, numpy and python RNG states as tensors and plain lists."""
-    kind, keys, pos, has_gauss, cached = np.random.get_state()
+    # The legacy global numpy RNG: we draw from our own generators, but libraries may not.
+    kind, keys, pos, has_gauss, cached = np.random.get_state()  # noqa: NPY002
     version, internal, gauss = random.getstate()
     return {
         "torch": torch.get_rng_state(),
@@ -50,8 +51,14 @@ def set_rng_state(state: dict[str, Any]) -> None:
     if cuda and torch.cuda.is_available() and len(cuda) == torch.cuda.device_count():
         torch.cuda.set_rng_state_all(cuda)
     n = state["numpy"]
-    np.random.set_state(
-        (n["kind"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"])
+    np.random.set_state(  # noqa: NPY002
+        (
+            n["kind"],
+            n["keys"].numpy().astype(np.uint32),
+            n["pos"],
+            n["has_gauss"],
+            n["cached_gaussian"],
+        )
     )
     p = state["python"]
     random.setstate((p["version"], tuple(p["state"]), p["gauss"]))

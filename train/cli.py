@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from claravid.cli import add_debug_flag, run_cli
 from claravid.resources import shipped_names
@@ -51,7 +50,9 @@ def _run(args: argparse.Namespace) -> int:
     out = result.out_dir
     if result.best_miou is not None:
         bins = result.last_val.get("miou_bins") or {}
-        per_bin = ", ".join(f"{k} {v:.3f}" if v is not None else f"{k} n/a" for k, v in bins.items())
+        per_bin = ", ".join(
+            f"{k} {v:.3f}" if v is not None else f"{k} n/a" for k, v in bins.items()
+        )
         print(
             f"best val mIoU {result.best_miou:.3f} at step {result.best_step}; last validation "
             f"(step {result.last_val.get('step')}): mIoU {_num(result.last_val.get('miou'))}"

@@ -97,6 +97,7 @@ class TrainConfig:
     amp: bool = True  # bf16 where the GPU supports it, else fp16 + GradScaler; fp32 on CPU
     compile: bool = False  # torch.compile the trained module
     device: str | None = None  # null: cuda when available, else cpu
+    threads: int | None = None  # intra-op CPU threads of each process (null: PyTorch's default)
     log_every: int = 10  # steps between metrics.jsonl rows
     checkpoint_every: int = 500  # steps between last.pt writes (and at the end)
 
@@ -113,7 +114,9 @@ class ValConfig:
 
 @dataclass
 class LogConfig:
-    tensorboard: bool = False  # event files in out_dir/tb (pip install 'claravid-toolkit[tensorboard]')
+    tensorboard: bool = (
+        False  # event files in out_dir/tb (pip install 'claravid-toolkit[tensorboard]')
+    )
     progress: bool = True  # progress bar on rank 0
 
 
@@ -208,17 +211,39 @@ def _require(ok: bool, key: str, value: Any, rule: str) -> None:
 def check_config(cfg: DictConfig) -> None:
     """Values the types alone do not rule out: choices, ranges, required keys."""
     for key in ("out_dir", "data.root"):
-        _require(not OmegaConf.is_missing(cfg, key), key, "???", "required: set it in the file or as key=value")
+        _require(
+            not OmegaConf.is_missing(cfg, key),
+            key,
+            "???",
+            "required: set it in the file or as key=value",
+        )
     d, t, v, m = cfg.data, cfg.train, cfg.val, cfg.model
     _require(d.dataset in DATASETS, "data.dataset", d.dataset, f"one of {', '.join(DATASETS)}")
-    _require(d.val_dataset in DATASETS, "data.val_dataset", d.val_dataset, f"one of {', '.join(DATASETS)}")
-    _require(d.class_weights in CLASS_WEIGHTS, "data.class_weights", d.class_weights, f"one of {', '.join(CLASS_WEIGHTS)}")
+    _require(
+        d.val_dataset in DATASETS,
+        "data.val_dataset",
+        d.val_dataset,
+        f"one of {', '.join(DATASETS)}",
+    )
+    _require(
+        d.class_weights in CLASS_WEIGHTS,
+        "data.class_weights",
+        d.class_weights,
+        f"one of {', '.join(CLASS_WEIGHTS)}",
+    )
     _require(d.num_workers >= 0, "data.num_workers", d.num_workers, ">= 0")
     _require(d.crops_per_frame >= 1, "data.crops_per_frame", d.crops_per_frame, ">= 1")
     _require(d.val_limit is None or d.val_limit >= 1, "data.val_limit", d.val_limit, ">= 1 or null")
-    _require(t.schedule in SCHEDULES, "train.schedule", t.schedule, f"one of {', '.join(SCHEDULES)}")
+    _require(
+        t.schedule in SCHEDULES, "train.schedule", t.schedule, f"one of {', '.join(SCHEDULES)}"
+    )
     _require(t.steps is None or t.steps >= 1, "train.steps", t.steps, ">= 1 or null")
-    _require(1 <= t.min_steps <= t.max_steps, "train.min_steps", t.min_steps, "1 <= min_steps <= max_steps")
+    _require(
+        1 <= t.min_steps <= t.max_steps,
+        "train.min_steps",
+        t.min_steps,
+        "1 <= min_steps <= max_steps",
+    )
     _require(t.steps_per_frame > 0, "train.steps_per_frame", t.steps_per_frame, "> 0")
     _require(t.batch_size >= 1, "train.batch_size", t.batch_size, ">= 1")
     _require(t.grad_accum >= 1, "train.grad_accum", t.grad_accum, ">= 1")
@@ -226,20 +251,35 @@ def check_config(cfg: DictConfig) -> None:
         value = t[key]
         _require(math.isfinite(value) and value > 0, f"train.{key}", value, "a positive number")
     _require(t.weight_decay >= 0, "train.weight_decay", t.weight_decay, ">= 0")
-    _require(len(t.betas) == 2 and all(0 <= b < 1 for b in t.betas), "train.betas", list(t.betas), "two numbers in [0, 1)")
+    _require(
+        len(t.betas) == 2 and all(0 <= b < 1 for b in t.betas),
+        "train.betas",
+        list(t.betas),
+        "two numbers in [0, 1)",
+    )
     _require(t.warmup_steps >= 0, "train.warmup_steps", t.warmup_steps, ">= 0")
     _require(0 <= t.min_lr_ratio <= 1, "train.min_lr_ratio", t.min_lr_ratio, "in [0, 1]")
     _require(t.grad_clip >= 0, "train.grad_clip", t.grad_clip, ">= 0 (0: off)")
+    _require(t.threads is None or t.threads >= 1, "train.threads", t.threads, ">= 1 or null")
     _require(t.log_every >= 1, "train.log_every", t.log_every, ">= 1")
     _require(t.checkpoint_every >= 1, "train.checkpoint_every", t.checkpoint_every, ">= 1")
-    _require(t.device is None or t.device.split(":")[0] in ("cpu", "cuda"), "train.device", t.device, "cpu, cuda, cuda:N or null")
+    _require(
+        t.device is None or t.device.split(":")[0] in ("cpu", "cuda"),
+        "train.device",
+        t.device,
+        "cpu, cuda, cuda:N or null",
+    )
     _require(v.every >= 0, "val.every", v.every, ">= 0 (0: at the end only)")
     _require(v.window >= 1, "val.window", v.window, ">= 1")
     _require(v.bins >= 1, "val.bins", v.bins, ">= 1")
     _require(math.isfinite(v.scale) and 0 < v.scale <= 8, "val.scale", v.scale, "in (0, 8]")
-    _require(m.layers is None or len(m.layers) == 4, "model.layers", m.layers, "4 block indices or null")
+    _require(
+        m.layers is None or len(m.layers) == 4, "model.layers", m.layers, "4 block indices or null"
+    )
     a = d.augment
-    _require(a.crop_height >= 1 and a.crop_width >= 1, "data.augment.crop_height", a.crop_height, ">= 1")
+    _require(
+        a.crop_height >= 1 and a.crop_width >= 1, "data.augment.crop_height", a.crop_height, ">= 1"
+    )
 
 
 def derive_steps(cfg: DictConfig, num_frames: int) -> int:
@@ -266,7 +306,14 @@ def from_plain(data: dict[str, Any]) -> DictConfig:
 
 
 #: Keys a resumed run may change: where things are and how they are shown, not what is learnt.
-RESUMABLE_CHANGES = ("data.root", "data.val_root", "data.num_workers", "log.", "train.device")
+RESUMABLE_CHANGES = (
+    "data.root",
+    "data.val_root",
+    "data.num_workers",
+    "log.",
+    "train.device",
+    "train.threads",
+)
 
 
 def changed_keys(old: DictConfig, new: DictConfig) -> list[str]:

@@ -101,7 +101,7 @@ def _autocast(device: torch.device, enabled: bool) -> tuple[Any, bool]:
 
 def _seed_everything(seed: int) -> None:
     random.seed(seed)
-    np.random.seed(seed)
+    np.random.seed(seed)  # noqa: NPY002  (the legacy global RNG, for libraries that use it)
     torch.manual_seed(seed)
 
 
@@ -135,6 +135,8 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     say = say if main else (lambda *a, **k: None)
     device = info.device
     torch.backends.cudnn.benchmark = device.type == "cuda"
+    if cfg.train.threads:
+        torch.set_num_threads(cfg.train.threads)
     _seed_everything(cfg.seed)
 
     frames_per_step = check_batch(cfg, info.world_size)
@@ -233,7 +235,9 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
                 x = batch["image"].to(device, non_blocking=True)
                 y = batch["mask"].to(device, non_blocking=True)
                 # Gradients are all-reduced once per step, on the last micro-batch.
-                no_sync = micro < accum - 1 and isinstance(module, nn.parallel.DistributedDataParallel)
+                no_sync = micro < accum - 1 and isinstance(
+                    module, nn.parallel.DistributedDataParallel
+                )
                 with module.no_sync() if no_sync else contextlib.nullcontext():  # type: ignore[operator]
                     with autocast():
                         logits = module(x)
@@ -246,8 +250,8 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
             loss_value = _global_mean(torch.stack(losses).mean(), info)
             if not math.isfinite(loss_value):
                 raise TrainingDiverged(
-                    f"the loss became {loss_value} at step {step + 1} (lr {lr:.3g}); the weights of "
-                    f"step {step} are not updated. {_last_good(out)} Lower train.lr, keep "
+                    f"the loss became {loss_value} at step {step + 1} (lr {lr:.3g}); that step "
+                    f"is not applied. {_last_good(out)} Lower train.lr, keep "
                     "train.grad_clip on, or check the data, then start a new out_dir or --resume."
                 )
             scaler.unscale_(optimizer)

@@ -11,7 +11,9 @@ from omegaconf import DictConfig
 from torch import nn
 
 
-def lr_factor(step: int, total: int, warmup: int, schedule: str, power: float, floor: float) -> float:
+def lr_factor(
+    step: int, total: int, warmup: int, schedule: str, power: float, floor: float
+) -> float:
     """Multiplier of the base learning rate at ``step`` (0-based; the step about to be taken).
 
     Linear warmup over ``warmup`` steps (from 1/warmup, never 0: step 0 learns), then from 1 to

@@ -52,7 +52,9 @@ def prepare_out_dir(
     elif saved.is_file():
         previous = _load(saved)
         differ = C.changed_keys(previous, cfg) if previous is not None else ["an unreadable file"]
-        what = "this config" if not differ else f"another config (differs in {', '.join(differ[:6])})"
+        what = (
+            "this config" if not differ else f"another config (differs in {', '.join(differ[:6])})"
+        )
         raise UsageError(
             f"out_dir {out} already holds a run of {what}; pass --resume to continue it, "
             "or choose a new out_dir=... (or delete the folder)"

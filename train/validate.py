@@ -56,7 +56,7 @@ class Validator:
 
     def _complexities(self) -> np.ndarray:
         mine = shard_indices(len(self.paths))
-        results, errors = compute_complexities([self.paths[i] for i in mine], "delent")
+        results, _errors = compute_complexities([self.paths[i] for i in mine], "delent")
         values = {r.image_path: r.complexity for r in results}
         # An unreadable image has no complexity (NaN); its evaluation will name the file.
         ours = [values.get(self.paths[i], math.nan) for i in mine]

@@ -84,7 +84,7 @@ def test_config_by_name_comes_from_the_packaged_copy():
     assert path is None  # not a file path: the shipped resource
     assert text == shipped_file("demo").read_text()
     assert text == (ROOT / "configs" / "demo.yaml").read_text()
-    with pytest.raises(ConfigError, match="shipped: .*claravid_dpt_vitl14"):
+    with pytest.raises(ConfigError, match=r"shipped: .*claravid_dpt_vitl14"):
         find_config("nope")
 
 

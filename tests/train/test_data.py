@@ -58,7 +58,9 @@ def test_class_weights_by_hand():
     counts = np.array([700, 200, 100, 0])
     assert class_weights(counts, "none") is None
     inv = 1 / np.array([0.7, 0.2, 0.1])
-    np.testing.assert_allclose(class_weights(counts, "inverse"), [*(inv / inv.mean()), 0], rtol=1e-6)
+    np.testing.assert_allclose(
+        class_weights(counts, "inverse"), [*(inv / inv.mean()), 0], rtol=1e-6
+    )
     np.testing.assert_allclose(
         class_weights(counts, "median_frequency"), [0.2 / 0.7, 1.0, 2.0, 0], rtol=1e-6
     )

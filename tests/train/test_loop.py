@@ -23,8 +23,8 @@ def rows(out):
 @pytest.mark.slow
 def test_loss_decreases_and_run_folder_is_complete(claravid_root, tmp_path):
     out = tmp_path / "run"
-    cfg = load_config("demo", tiny(claravid_root, out, "train.steps=40", "train.lr=3e-3",
-                                   "train.log_every=1", "val.every=20", "model.freeze_backbone=true"))  # fmt: skip
+    extra = ["train.steps=40", "train.lr=3e-3", "train.log_every=1", "val.every=20"]
+    cfg = load_config("demo", tiny(claravid_root, out, *extra, "model.freeze_backbone=true"))
     result = train(cfg)
     losses = [r["loss"] for r in rows(out) if "loss" in r]
     assert len(losses) == 40
@@ -85,11 +85,16 @@ def test_user_mistakes_are_one_line_exit_2(claravid_root, tmp_path, capsys):
     cases = {
         "data.root": tiny(tmp_path / "nowhere", tmp_path / "a"),
         # Both missions held out: the train split is empty.
-        "holds no frame": tiny(claravid_root, tmp_path / "b", "data.split.val_missions=[rural_1]",
-                               "data.split.test_missions=[urban_1]"),  # fmt: skip
+        "holds no frame": tiny(
+            claravid_root,
+            tmp_path / "b",
+            "data.split.val_missions=[rural_1]",
+            "data.split.test_missions=[urban_1]",
+        ),
         "did you mean train.steps": tiny(claravid_root, tmp_path / "c", "train.step=3"),
-        "multiple of": tiny(claravid_root, tmp_path / "d", "train.batch_size=3",
-                            "data.crops_per_frame=2"),
+        "multiple of": tiny(
+            claravid_root, tmp_path / "d", "train.batch_size=3", "data.crops_per_frame=2"
+        ),
     }
     for message, args in cases.items():
         assert main(["--config", "demo", *args]) == 2, message

@@ -51,7 +51,8 @@ def assert_same_state(a, b):
 
 def training_rows(out):
     return [
-        {k: v for k, v in r.items() if k != "images_per_s"} for r in read_metrics(out / "metrics.jsonl")
+        {k: v for k, v in r.items() if k != "images_per_s"}
+        for r in read_metrics(out / "metrics.jsonl")
     ]
 
 
