@@ -16,7 +16,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -224,12 +223,6 @@ def collate_crops(items: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tenso
     return {key: torch.cat([it[key] for it in items]) for key in ("image", "mask")}
 
 
-def _init_worker(worker_id: int) -> None:
-    # One OpenCV thread per loader process: the processes already fill the cores, and more
-    # threads than cores make everyone wait (PyTorch sets its own to 1 in workers).
-    cv2.setNumThreads(1)
-
-
 def check_batch(cfg: DictConfig, world_size: int) -> int:
     """Frames per optimiser step; raises unless the batch splits into ranks × micro-batches × k."""
     t, k = cfg.train, cfg.data.crops_per_frame
@@ -265,8 +258,9 @@ def build_train_loader(
         num_workers=workers,
         collate_fn=collate_crops,
         pin_memory=pin_memory,
+        # No cv2.setNumThreads(1) in the workers: in a child forked after the parent used
+        # OpenCV's thread pool (delentropy of the val set) it deadlocks.
         persistent_workers=workers > 0,
-        worker_init_fn=_init_worker,
         prefetch_factor=4 if workers > 0 else None,
     )
 

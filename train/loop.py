@@ -35,7 +35,12 @@ from claravid.palettes import load_palette
 from eval import WindowConfig
 from eval.distributed import DistInfo, barrier, init_distributed
 from train import config as C
-from train.checkpoint import restore_model, save_training_checkpoint, set_rng_state
+from train.checkpoint import (
+    load_training_checkpoint,
+    restore_model,
+    save_training_checkpoint,
+    set_rng_state,
+)
 from train.data import (
     build_train_dataset,
     build_train_loader,
@@ -144,8 +149,11 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     cfg.train.steps = C.derive_steps(cfg, len(train_set))  # resolved: stored in config.yaml
     total = int(cfg.train.steps)
     out = Path(cfg.out_dir)
-    ckpt = prepare_out_dir(out, cfg, resume, write=main, say=say)
+    # Rank 0 checks and claims out_dir; the others then read the same checkpoint (if any).
+    ckpt = prepare_out_dir(out, cfg, resume, say=say) if main else None
     barrier()
+    if not main and resume and (out / "last.pt").is_file():
+        ckpt = load_training_checkpoint(out / "last.pt")
     start = int(ckpt["step"]) if ckpt else 0
     if start >= total:
         say(f"{out}: this run is already finished (step {start}/{total}); nothing to do")

@@ -26,7 +26,6 @@ def prepare_out_dir(
     cfg: DictConfig,
     resume: bool,
     *,
-    write: bool = True,
     say: Callable[[str], Any] = print,
 ) -> dict[str, Any] | None:
     """Check ``out`` for this run, write ``config.yaml``; the checkpoint to resume, or None.
@@ -59,9 +58,8 @@ def prepare_out_dir(
             f"out_dir {out} already holds a run of {what}; pass --resume to continue it, "
             "or choose a new out_dir=... (or delete the folder)"
         )
-    if write:
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(saved, C.to_yaml(cfg))
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(saved, C.to_yaml(cfg))
     return ckpt
 
 

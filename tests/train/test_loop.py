@@ -185,3 +185,16 @@ def test_every_shipped_config_trains_two_steps(name, claravid_root, uavid_root, 
     assert read_checkpoint(tmp_path / "run" / "last.pt")["config"]["model"]["backbone"] == (
         load_config(name).model.backbone
     )
+
+
+@pytest.mark.slow
+def test_loader_workers_draw_the_same_batches(claravid_root, tmp_path):
+    """Crops are seeded by position, not by worker: 2 workers train the very same weights."""
+    states = []
+    for workers in (0, 2):
+        out = tmp_path / f"w{workers}"
+        extra = ["train.steps=3", "val.every=0", f"data.num_workers={workers}"]
+        train(load_config("demo", tiny(claravid_root, out, *extra)))
+        states.append(read_checkpoint(out / "last.pt")["model"])
+    for key, value in states[0].items():
+        assert torch.equal(value, states[1][key]), key
