@@ -280,7 +280,9 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
 
             validate = done == total or (v.every > 0 and done % v.every == 0)
             if validate:
+                began = time.perf_counter()
                 last_val = {"step": done, **validator(model)}
+                tick += time.perf_counter() - began  # images/s counts training time only
                 if main:
                     log.write(last_val)  # type: ignore[union-attr]
                     bins = " ".join(f"{k} {_fmt(x)}" for k, x in last_val["miou_bins"].items())
