@@ -27,6 +27,7 @@ from claravid.transforms import AugmentConfig
 CLASS_WEIGHTS = ("none", "inverse", "median_frequency", "log_inverse")
 SCHEDULES = ("poly", "cosine")
 DATASETS = ("claravid", "uavid")
+SAMPLERS = ("uniform", "complexity_balanced")
 
 
 class ConfigError(ValueError):
@@ -62,6 +63,8 @@ class DataConfig:
     num_workers: int = 4  # DataLoader processes per rank (0: in the training process)
     crops_per_frame: int = 1  # k random crops from each decoded frame (1: the paper)
     class_weights: str = "none"  # none | inverse | median_frequency | log_inverse
+    sampler: str = "uniform"  # uniform | complexity_balanced (equal draws per delentropy bin)
+    sampler_bins: int = 3  # delentropy quantile bins of complexity_balanced
     augment: AugmentConfig = field(default_factory=AugmentConfig)
 
 
@@ -231,6 +234,8 @@ def check_config(cfg: DictConfig) -> None:
         d.class_weights,
         f"one of {', '.join(CLASS_WEIGHTS)}",
     )
+    _require(d.sampler in SAMPLERS, "data.sampler", d.sampler, f"one of {', '.join(SAMPLERS)}")
+    _require(d.sampler_bins >= 1, "data.sampler_bins", d.sampler_bins, ">= 1")
     _require(d.num_workers >= 0, "data.num_workers", d.num_workers, ">= 0")
     _require(d.crops_per_frame >= 1, "data.crops_per_frame", d.crops_per_frame, ">= 1")
     _require(d.val_limit is None or d.val_limit >= 1, "data.val_limit", d.val_limit, ">= 1 or null")

@@ -12,6 +12,7 @@ process with the same global batch draws.
 from __future__ import annotations
 
 import inspect
+import math
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -21,9 +22,12 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.data import DataLoader, Dataset, Sampler
 
+from claravid.dsp import compute_complexities
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.targets import UAVidSegmentation
 from claravid.transforms import AugmentConfig, eval_transforms, train_transforms
+from eval.bins import quantile_bins
+from eval.distributed import gather_in_order, shard_indices
 
 
 class EmptySplitError(ValueError):
@@ -131,6 +135,11 @@ class StepSampler(Sampler):
     consecutive positions. Position p is frame ``perm_e[p mod n]`` of epoch e = p div n (one
     permutation per epoch, seeded), so epochs roll over inside a step without a short batch.
 
+    With ``groups`` (``data.sampler: complexity_balanced``: the frames of each delentropy bin),
+    position p draws from group p mod G, as the (p div G)-th draw of that group's own epochs of
+    permutations: every G consecutive draws hold one frame of each group, whatever the group
+    sizes. Still a function of the position alone, so resume and DDP hold as above.
+
     Args:
         num_frames: frames in the training split (n).
         frames_per_step: F, over all ranks and micro-batches.
@@ -138,6 +147,7 @@ class StepSampler(Sampler):
         rank: this process's rank, W = world_size.
         grad_accum: A, micro-batches per optimiser step on each rank.
         start_step: first step to draw (resume).
+        groups: frame indices per group to draw from in turn (None: all frames uniformly).
     """
 
     def __init__(
@@ -149,7 +159,10 @@ class StepSampler(Sampler):
         world_size: int = 1,
         grad_accum: int = 1,
         start_step: int = 0,
+        groups: list[list[int]] | None = None,
     ) -> None:
+        if groups is not None and (not groups or not all(groups)):
+            raise ValueError("every sampler group needs at least one frame")
         if frames_per_step % (world_size * grad_accum):
             raise ValueError(
                 f"{frames_per_step} frames per step do not split into {world_size} rank(s) × "
@@ -159,15 +172,22 @@ class StepSampler(Sampler):
         self.rank, self.world_size, self.grad_accum = rank, world_size, grad_accum
         self.micro = frames_per_step // (world_size * grad_accum)
         self.start_step = start_step
-        self._epoch, self._perm = -1, np.empty(0, dtype=np.int64)
+        self.groups = [np.asarray(g, dtype=np.int64) for g in groups or [range(num_frames)]]
+        self._perms: dict[tuple[int, int], np.ndarray] = {}
 
     def frame(self, position: int) -> int:
         """The frame index drawn at a global position."""
-        epoch = position // self.n
-        if epoch != self._epoch:
-            gen = torch.Generator().manual_seed(self.seed * 1_000_003 + epoch)
-            self._perm, self._epoch = torch.randperm(self.n, generator=gen).numpy(), epoch
-        return int(self._perm[position % self.n])
+        g = position % len(self.groups)
+        group = self.groups[g]
+        draw = position // len(self.groups)
+        epoch = draw // len(group)
+        if (g, epoch) not in self._perms:
+            seed = self.seed * 1_000_003 + epoch + 7919 * g
+            perm = torch.randperm(len(group), generator=torch.Generator().manual_seed(seed))
+            # Keep only the current epoch of each group (the sampler runs for ever).
+            self._perms = {k: v for k, v in self._perms.items() if k[0] != g}
+            self._perms[g, epoch] = group[perm.numpy()]
+        return int(self._perms[g, epoch][draw % len(group)])
 
     def positions(self, step: int) -> list[int]:
         """This rank's global positions of ``step``, micro-batch after micro-batch."""
@@ -243,12 +263,16 @@ def build_train_loader(
     world_size: int = 1,
     start_step: int = 0,
     pin_memory: bool = False,
+    groups: list[list[int]] | None = None,
 ) -> DataLoader:
-    """An endless loader of micro-batches for this rank, starting at ``start_step``."""
+    """An endless loader of micro-batches for this rank, starting at ``start_step``.
+
+    ``groups``: frame indices per delentropy bin for ``data.sampler: complexity_balanced``.
+    """
     t, k = cfg.train, cfg.data.crops_per_frame
     frames_per_step = check_batch(cfg, world_size)
     sampler = StepSampler(
-        len(dataset), frames_per_step, cfg.seed, rank, world_size, t.grad_accum, start_step
+        len(dataset), frames_per_step, cfg.seed, rank, world_size, t.grad_accum, start_step, groups
     )
     workers = cfg.data.num_workers
     return DataLoader(
@@ -302,3 +326,30 @@ def class_weights(counts: np.ndarray, method: str) -> torch.Tensor | None:
     else:
         raise ValueError(f"unknown class weighting {method!r}")
     return torch.tensor(w, dtype=torch.float32)
+
+
+def sharded_delentropy(paths: list[str]) -> np.ndarray:
+    """Delentropy of each image (NaN if unreadable), each rank measuring every W-th one.
+
+    Values come from the DSP cache when the files were profiled before (``claravid-dsp``,
+    ``make demo``); every rank gets all values, in order.
+    """
+    mine = shard_indices(len(paths))
+    results, _errors = compute_complexities([paths[i] for i in mine], "delent")
+    values = {r.image_path: r.complexity for r in results}
+    ours = [values.get(paths[i], math.nan) for i in mine]
+    return np.asarray(gather_in_order(ours, mine), dtype=np.float64)
+
+
+def complexity_groups(dataset: Dataset, bins: int) -> list[list[int]]:
+    """Training frames split into ``bins`` delentropy quantile bins (``eval.quantile_bins``)."""
+    paths = image_paths(dataset)
+    values = sharded_delentropy(paths)
+    bad = [p for p, v in zip(paths, values, strict=True) if not math.isfinite(v)]
+    if bad:
+        raise ValueError(
+            f"complexity_balanced sampling cannot read {len(bad)} image(s), e.g. {bad[0]}"
+        )
+    if bins > len(paths):
+        raise ValueError(f"data.sampler_bins={bins} is more than the {len(paths)} training frames")
+    return [list(b.indices) for b in quantile_bins(values, paths, bins)]

@@ -48,6 +48,7 @@ from train.data import (
     check_batch,
     class_frequencies,
     class_weights,
+    complexity_groups,
 )
 from train.logs import RunLog, plot_curves, read_metrics
 from train.optim import build_optimizer, build_scheduler, clip_gradients
@@ -212,9 +213,12 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     v = cfg.val
     window = WindowConfig(v.window, v.stride, v.scale, v.batch_size, cfg.train.amp)
     validator = Validator(val_set, classes, window, v.bins, cfg.data.val_limit, device)
+    groups = None
+    if cfg.data.sampler == "complexity_balanced":
+        groups = complexity_groups(train_set, cfg.data.sampler_bins)
     loader = build_train_loader(
         train_set, cfg, rank=info.rank, world_size=info.world_size, start_step=start,
-        pin_memory=device.type == "cuda",
+        pin_memory=device.type == "cuda", groups=groups,
     )  # fmt: skip
     log = RunLog(out, start, cfg.log.tensorboard) if main else None
     plain_cfg = C.to_plain(cfg)

@@ -9,7 +9,6 @@ row, rank 0 logs it.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -17,10 +16,9 @@ import torch
 from torch import nn
 from torch.utils.data import Dataset
 
-from claravid.dsp import compute_complexities
 from eval import WindowConfig, bin_mious, evaluate_model, stratify
 from eval.distributed import gather_in_order, shard_indices
-from train.data import image_paths
+from train.data import image_paths, sharded_delentropy
 
 
 class Validator:
@@ -52,15 +50,8 @@ class Validator:
         else:
             self.indices = list(range(n))
         self.paths = [image_paths(dataset)[i] for i in self.indices]
-        self.delent = self._complexities()
-
-    def _complexities(self) -> np.ndarray:
-        mine = shard_indices(len(self.paths))
-        results, _errors = compute_complexities([self.paths[i] for i in mine], "delent")
-        values = {r.image_path: r.complexity for r in results}
         # An unreadable image has no complexity (NaN); its evaluation will name the file.
-        ours = [values.get(self.paths[i], math.nan) for i in mine]
-        return np.asarray(gather_in_order(ours, mine), dtype=np.float64)
+        self.delent = sharded_delentropy(self.paths)
 
     def __call__(self, model: nn.Module, progress: bool = False) -> dict[str, Any]:
         was_training = model.training

@@ -71,3 +71,23 @@ def test_class_weights_by_hand():
     )
     with pytest.raises(ValueError, match="no labelled pixel"):
         class_weights(np.zeros(3), "inverse")
+
+
+def test_complexity_balanced_draws_each_bin_in_turn():
+    groups = [[0, 1, 2, 3, 4, 5], [6, 7], [8]]  # bins of unequal size
+    s = StepSampler(9, 6, seed=2, groups=groups)
+    frames = [i for i, _ in draw(s, 60)]
+    for start in range(0, 60, 3):  # every 3 consecutive draws: one frame of each bin
+        assert [f in g for f, g in zip(frames[start : start + 3], groups, strict=True)] == [
+            True
+        ] * 3
+    assert sorted(frames[0:18:3]) == [0, 1, 2, 3, 4, 5]  # each bin cycles through its epochs
+    assert frames.count(8) == 20 and frames.count(6) == 10
+    # Resumable and shardable as the uniform sampler: a function of the position only.
+    resumed = StepSampler(9, 6, seed=2, groups=groups, start_step=4)
+    assert draw(resumed, 36) == draw(StepSampler(9, 6, seed=2, groups=groups), 60)[24:]
+    r1 = draw(StepSampler(9, 6, seed=2, rank=1, world_size=2, groups=groups), 6)
+    full = draw(StepSampler(9, 6, seed=2, groups=groups), 12)
+    assert r1 == full[3:6] + full[9:12]
+    with pytest.raises(ValueError, match="at least one frame"):
+        StepSampler(9, 6, seed=2, groups=[[0], []])

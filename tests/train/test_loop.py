@@ -198,3 +198,12 @@ def test_loader_workers_draw_the_same_batches(claravid_root, tmp_path):
         states.append(read_checkpoint(out / "last.pt")["model"])
     for key, value in states[0].items():
         assert torch.equal(value, states[1][key]), key
+
+
+def test_complexity_balanced_sampler_trains(claravid_root, tmp_path):
+    out = tmp_path / "run"
+    extra = ["train.steps=2", "val.every=0", "data.sampler=complexity_balanced"]
+    assert train(load_config("demo", tiny(claravid_root, out, *extra))).step == 2
+    bad = tiny(claravid_root, tmp_path / "b", *extra, "data.sampler_bins=1000")
+    with pytest.raises(ValueError, match="more than the 29 training frames"):
+        train(load_config("demo", bad))
