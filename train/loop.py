@@ -48,11 +48,12 @@ from train.data import (
     check_batch,
     class_frequencies,
     class_weights,
-    complexity_groups,
+    image_paths,
 )
 from train.logs import RunLog, plot_curves, read_metrics
 from train.optim import build_optimizer, build_scheduler, clip_gradients
 from train.outdir import prepare_out_dir
+from train.sampler import complexity_groups
 from train.validate import Validator
 
 IGNORE_INDEX = 255
@@ -215,7 +216,7 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     validator = Validator(val_set, classes, window, v.bins, cfg.data.val_limit, device)
     groups = None
     if cfg.data.sampler == "complexity_balanced":
-        groups = complexity_groups(train_set, cfg.data.sampler_bins)
+        groups = complexity_groups(image_paths(train_set), cfg.data.sampler_bins)
     loader = build_train_loader(
         train_set, cfg, rank=info.rank, world_size=info.world_size, start_step=start,
         pin_memory=device.type == "cuda", groups=groups,

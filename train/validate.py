@@ -18,7 +18,8 @@ from torch.utils.data import Dataset
 
 from eval import WindowConfig, bin_mious, evaluate_model, stratify
 from eval.distributed import gather_in_order, shard_indices
-from train.data import image_paths, sharded_delentropy
+from train.data import image_paths
+from train.sampler import sharded_delentropy
 
 
 class Validator:

@@ -8,7 +8,8 @@ import torch
 
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.transforms import AugmentConfig
-from train.data import CropDataset, StepSampler, class_weights, collate_crops
+from train.data import CropDataset, class_weights, collate_crops
+from train.sampler import StepSampler
 
 
 def draw(sampler, n):
