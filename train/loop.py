@@ -204,9 +204,10 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
         say(f"resuming {out / 'last.pt'} at step {start}/{total}")
 
     module: nn.Module = trained
+    ddp = None
     if info.world_size > 1:
         ids = [device.index] if device.type == "cuda" else None
-        module = nn.parallel.DistributedDataParallel(trained, device_ids=ids)
+        module = ddp = nn.parallel.DistributedDataParallel(trained, device_ids=ids)
     if cfg.train.compile:
         module = torch.compile(module)
     module.train()
@@ -248,10 +249,8 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
                 x = batch["image"].to(device, non_blocking=True)
                 y = batch["mask"].to(device, non_blocking=True)
                 # Gradients are all-reduced once per step, on the last micro-batch.
-                no_sync = micro < accum - 1 and isinstance(
-                    module, nn.parallel.DistributedDataParallel
-                )
-                with module.no_sync() if no_sync else contextlib.nullcontext():  # type: ignore[operator]
+                last = micro == accum - 1
+                with contextlib.nullcontext() if ddp is None or last else ddp.no_sync():
                     with autocast():
                         logits = module(x)
                     loss = F.cross_entropy(
