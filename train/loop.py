@@ -283,6 +283,13 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
             bar.update(1)
 
             validate = done == total or (v.every > 0 and done % v.every == 0)
+            save = done % cfg.train.checkpoint_every == 0 or done == total
+            # A finite loss can still leave inf weights (a huge lr): never validate or save them.
+            if (validate or save) and not _finite_parameters(model):
+                raise TrainingDiverged(
+                    f"the weights hold NaN/inf after step {done} (lr {lr:.3g}). "
+                    f"{_last_good(out)} Lower train.lr."
+                )
             if validate:
                 began = time.perf_counter()
                 last_val = {"step": done, **validator(model)}
@@ -296,12 +303,7 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
                     best_miou, best_step = miou, done
                     if main:
                         checkpoint(out / "best.pt", done)
-            if done % cfg.train.checkpoint_every == 0 or done == total:
-                if not _finite_parameters(model):
-                    raise TrainingDiverged(
-                        f"the weights hold NaN/inf after step {done} (lr {lr:.3g}). "
-                        f"{_last_good(out)} Lower train.lr."
-                    )
+            if save:
                 if main:
                     checkpoint(out / "last.pt", done)
                 barrier()
