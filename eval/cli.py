@@ -80,8 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
     infer = p.add_argument_group("inference")
     infer.add_argument("--window", type=_size, help="window N or HxW (default 630)")
     infer.add_argument("--stride", type=_size, help="window step (default 2/3 of the window)")
-    infer.add_argument("--scale", type=float, default=1.0, help="resize images first (0.5)")
-    infer.add_argument("--batch-size", type=int, default=4, help="windows per forward pass")
+    infer.add_argument("--scale", type=float, help="resize images first (default 1; paper 0.5)")
+    infer.add_argument("--batch-size", type=int, help="windows per forward pass (default 4)")
     infer.add_argument("--device", help="cpu or cuda (default: cuda when available)")
     infer.add_argument("--no-amp", action="store_true", help="no autocast on CUDA")
     rep = p.add_argument_group("report")
@@ -114,7 +114,7 @@ def _check_args(args: argparse.Namespace) -> str:
         raise UsageError(f"--bins must be at least 1, got {args.bins}")
     if args.edges is not None:
         args.edges = parse_edges(args.edges)
-    if args.workers < 0 or args.hardest < 0 or args.batch_size < 1:
+    if args.workers < 0 or args.hardest < 0 or (args.batch_size or 1) < 1:
         raise UsageError("--workers and --hardest must be >= 0 and --batch-size >= 1")
     args.measures = parse_measures(args.measures)
     source = given[0]
@@ -164,6 +164,11 @@ def _check_bins(args: argparse.Namespace, n: int) -> None:
         raise UsageError(f"{args.bins or 3} bins for {n} images: use --bins {n} or fewer")
 
 
+def _first(*values: Any) -> Any:
+    """The first value that is not None (the command line, then the checkpoint, then ours)."""
+    return next(v for v in values if v is not None)
+
+
 def _resolve_data(args: argparse.Namespace, defaults: dict[str, Any]) -> dict[str, Any]:
     """Command line first, then what the checkpoint recorded, then the defaults."""
     root = args.data or defaults.get("data")
@@ -173,12 +178,19 @@ def _resolve_data(args: argparse.Namespace, defaults: dict[str, Any]) -> dict[st
     dataset = args.dataset or defaults.get("dataset") or "claravid"
     if dataset not in DATASETS:
         dataset = "claravid"
+    selection = {}
+    if dataset == "claravid" and defaults.get("dataset", "claravid") == "claravid":
+        # ClaraVid as in training: the same selection and split settings, so --split val is
+        # exactly the frames training held out.
+        selection = {k: defaults[k] for k in ("missions", "altitude", "direction",
+                                              "split_config") if k in defaults}  # fmt: skip
     return {
         "root": Path(root),
         "dataset": dataset,
         "split": args.split or defaults.get("split") or "val",
         "palette": args.palette or defaults.get("palette"),
         "masks": args.masks,
+        "selection": selection,
     }
 
 
@@ -215,6 +227,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
         split=spec["split"],
         palette=spec["palette"],
         masks=spec["masks"],
+        selection=spec["selection"],
     )
     num_classes = data.palette.num_classes
     if model is not None and model.num_classes not in (None, num_classes):
@@ -229,7 +242,8 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     source: dict[str, Any] = {"kind": source_kind}
     if model is not None:
         fixed = getattr(model.model, "input_size", None)
-        size = args.window or fixed or (630, 630)
+        given = model.defaults
+        size = args.window or fixed or given.get("window") or (630, 630)
         if fixed is not None and tuple(size) != tuple(fixed):
             raise UsageError(
                 f"the ONNX model takes {fixed[0]}x{fixed[1]} inputs only: use --window "
@@ -237,9 +251,9 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
             )
         window = WindowConfig(
             size=size,
-            stride=args.stride,
-            scale=args.scale,
-            batch_size=args.batch_size,
+            stride=args.stride or (given.get("stride") if args.window is None else None),
+            scale=_first(args.scale, given.get("scale"), 1.0),
+            batch_size=_first(args.batch_size, given.get("batch_size"), 4),
             amp=not args.no_amp,
         )
         if model.patch_size:

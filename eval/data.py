@@ -126,6 +126,7 @@ def open_data(
     split: str = "val",
     palette: str | Path | None = None,
     masks: str | Path | None = None,
+    selection: dict[str, Any] | None = None,
 ) -> EvalData:
     """Open the images to evaluate.
 
@@ -136,6 +137,8 @@ def open_data(
             ignored for folders.
         palette: palette name or YAML (default ``claravid`` for ClaraVid, ``uavid`` else).
         masks: the folder of label images mirroring ``root`` (``folder`` only).
+        selection: ClaraVid ``missions``, ``altitude``, ``direction`` and ``split_config``
+            (e.g. what a training checkpoint used).
 
     Raises:
         ValueError: an unknown dataset kind, or a combination that cannot work.
@@ -148,7 +151,9 @@ def open_data(
     if dataset == "claravid":
 
         def make(transforms: Any) -> ClaraVidSegmentation:
-            return ClaraVidSegmentation(root, split=split, palette=pal, transforms=transforms)
+            return ClaraVidSegmentation(
+                root, split=split, palette=pal, transforms=transforms, **(selection or {})
+            )
 
         raw = make(None)
         paths = [str(f.paths["rgb"]) for f in raw.frames]

@@ -43,23 +43,43 @@ def _get(config: Any, *keys: str) -> Any:
 
 
 def checkpoint_defaults(checkpoint: Mapping[str, Any]) -> dict[str, Any]:
-    """Data root, palette, dataset kind and split a training checkpoint was made for.
+    """What a training checkpoint says about evaluating it: its validation data and windows.
 
-    Reads ``config["data"]`` of the resolved training config (``root``, ``palette``, and when
-    present ``dataset`` and ``val_split``); anything missing or of the wrong type is left out,
-    so the command line's values apply.
+    Reads the resolved training config (``checkpoint["config"]``): the validation dataset
+    (``data.val_dataset``, ``data.val_root`` or ``data.root``, ``data.val_split``), the
+    palette, the ClaraVid selection and split settings (so ``--split val`` is the very split
+    training held out), and the validation windows (``val.window``, ``val.stride``,
+    ``val.scale``, ``val.batch_size``). Anything missing or of the wrong type is left out, so
+    the command line's values or the defaults apply.
     """
     config = checkpoint.get("config")
     out: dict[str, Any] = {}
-    for name, keys in {
-        "data": ("data", "root"),
-        "palette": ("data", "palette"),
-        "dataset": ("data", "dataset"),
-        "split": ("data", "val_split"),
+    dataset = _get(config, "data", "val_dataset") or _get(config, "data", "dataset")
+    if dataset in ("claravid", "uavid", "folder"):
+        out["dataset"] = dataset
+    root = _get(config, "data", "val_root") or _get(config, "data", "root")
+    for name, value in {
+        "data": root,
+        "palette": _get(config, "data", "palette"),
+        "split": _get(config, "data", "val_split"),
     }.items():
-        value = _get(config, *keys)
-        if isinstance(value, str | Path) and str(value):
-            out[name] = str(value)
+        if isinstance(value, str) and value:
+            out[name] = value
+    split = _get(config, "data", "split")
+    if isinstance(split, Mapping):
+        fields = ("block_size", "fractions", "seed", "val_missions", "test_missions")
+        out["split_config"] = {k: split[k] for k in fields if k in split}
+    for name in ("missions", "altitude", "direction"):
+        value = _get(config, "data", name)
+        if isinstance(value, list | tuple | str):
+            out[name] = value
+    for name in ("window", "stride", "batch_size"):
+        value = _get(config, "val", name)
+        if isinstance(value, int) and not isinstance(value, bool) and value > 0:
+            out[name] = value
+    scale = _get(config, "val", "scale")
+    if isinstance(scale, int | float) and not isinstance(scale, bool) and scale > 0:
+        out["scale"] = float(scale)
     return out
 
 

@@ -26,7 +26,11 @@ def model_files(claravid_root, tmp_path_factory):  # noqa: F811
     (no config) and the dynamic-size ONNX export of the same model."""
     folder = tmp_path_factory.mktemp("models")
     model = tiny_model()
-    config = {"data": {"root": str(claravid_root), "palette": "uavid"}, "other": [1, 2]}
+    config = {
+        "data": {"root": str(claravid_root), "palette": "uavid", "split": {"seed": 0}},
+        "val": {"window": 28, "scale": 1.0, "batch_size": 8},
+        "other": [1, 2],
+    }
     files = {
         "checkpoint": models.save_checkpoint(model, folder / "best.pt", config=config, epoch=1),
         "plain": models.save_checkpoint(model, folder / "plain.pt"),

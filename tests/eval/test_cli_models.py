@@ -12,6 +12,7 @@ import torch
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.transforms import eval_transforms
 from eval.cli import main
+from eval.sources import checkpoint_defaults
 from eval.windows import WindowConfig, predict_labels
 from tests.eval.conftest import WINDOW
 
@@ -73,6 +74,33 @@ def test_checkpoint_rebuilds_data_and_palette_and_matches_a_direct_count(
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "## mIoU per complexity bin" in md and "## Per mission" in md
+
+
+def test_windows_come_from_the_checkpoint_unless_given(model_files, splits, tmp_path):
+    argv = ["--checkpoint", str(model_files["checkpoint"]), "--split", str(splits["first"]),
+            "--no-progress", "--bins", "1"]  # fmt: skip
+    assert main([*argv, "--output", str(tmp_path / "a")]) == 0
+    source = json.loads((tmp_path / "a" / "report.json").read_text())["source"]
+    assert source["window"] == {"size": [28, 28], "stride": [18, 18], "scale": 1.0}
+    assert main([*argv, "--output", str(tmp_path / "b"), "--window", "42", "--scale", "0.5"]) == 0
+    source = json.loads((tmp_path / "b" / "report.json").read_text())["source"]
+    assert source["window"] == {"size": [42, 42], "stride": [28, 28], "scale": 0.5}
+
+
+def test_checkpoint_defaults_read_a_training_config():
+    config = {
+        "data": {"root": "/c", "palette": "uavid", "val_dataset": "uavid", "val_root": "/u",
+                 "val_split": "val", "split": {"seed": 3, "block_size": 200.0, "junk": 1},
+                 "missions": ["urban_1"]},
+        "val": {"window": 630, "scale": 0.5, "stride": None, "batch_size": "x"},
+    }  # fmt: skip
+    assert checkpoint_defaults({"config": config}) == {
+        "dataset": "uavid", "data": "/u", "palette": "uavid", "split": "val",
+        "split_config": {"seed": 3, "block_size": 200.0}, "missions": ["urban_1"],
+        "window": 630, "scale": 0.5,
+    }  # fmt: skip
+    assert checkpoint_defaults({"config": "not a dict"}) == {}
+    assert checkpoint_defaults({}) == {}
 
 
 def test_plain_checkpoint_needs_data(model_files, tmp_path, capsys):
