@@ -28,40 +28,55 @@ def parse_measures(text: str | Sequence[str]) -> list[str]:
 
 
 class ComplexityJob:
-    """Complexity values of ``paths`` for each measure, computed in a background thread.
+    """Complexity values of ``paths`` for each measure, computed in background threads.
 
     Args:
         paths: image files (the RGB frames).
         measures: metric names (``delent``, ``glcment``, ``pixent``).
-        workers: worker processes for values missing from the cache (0: in the thread).
+        workers: worker processes for values missing from the cache; worth their start-up
+            (about a second each) on long runs. 0 or 1: no processes, ``threads`` threads.
+        threads: threads sharing the images when there are no worker processes (decoding,
+            blur, Sobel and the histogram release the GIL, so threads scale).
         cache: use the DSP cache (``$CLARAVID_CACHE/dsp.sqlite3``).
     """
 
     def __init__(
-        self, paths: Sequence[str], measures: Sequence[str], workers: int = 0, cache: bool = True
+        self,
+        paths: Sequence[str],
+        measures: Sequence[str],
+        workers: int = 0,
+        threads: int = 1,
+        cache: bool = True,
     ) -> None:
         self.paths = [str(p) for p in paths]
         self.measures = list(measures)
-        self._values: dict[str, list[float]] = {}
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(
-            target=self._run, args=(workers, cache), name="complexity", daemon=True
-        )
-        self._thread.start()
+        parts = 1 if workers > 1 else max(1, min(threads, len(self.paths)))
+        # Interleaved slices: neighbouring frames (similar cost) go to different threads.
+        self._slices = [list(range(i, len(self.paths), parts)) for i in range(parts)]
+        self._values: dict[str, list[float]] = {m: [0.0] * len(self.paths) for m in measures}
+        self._errors: list[BaseException] = []
+        self._threads = [
+            threading.Thread(
+                target=self._run, args=(part, workers, cache), name="complexity", daemon=True
+            )
+            for part in self._slices
+        ]
+        for thread in self._threads:
+            thread.start()
 
-    def _run(self, workers: int, cache: bool) -> None:
+    def _run(self, part: list[int], workers: int, cache: bool) -> None:
         try:
+            paths = [self.paths[i] for i in part]
             for measure in self.measures:
-                results, errors = compute_complexities(
-                    self.paths, measure, workers=workers, cache=cache
-                )
+                results, errors = compute_complexities(paths, measure, workers=workers, cache=cache)
                 if errors:
                     first = errors[0]
                     more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
                     raise ImageReadError(first.image_path, f"{first.error}{more}")
-                self._values[measure] = [r.complexity for r in results]
+                for i, result in zip(part, results, strict=True):
+                    self._values[measure][i] = result.complexity
         except BaseException as exc:  # re-raised in the caller's thread by result()
-            self._error = exc
+            self._errors.append(exc)
 
     def result(self) -> dict[str, list[float]]:
         """Wait for the values: ``{measure: [value per path]}``.
@@ -69,7 +84,8 @@ class ComplexityJob:
         Raises:
             ImageReadError: an image could not be read (the message names it).
         """
-        self._thread.join()
-        if self._error is not None:
-            raise self._error
+        for thread in self._threads:
+            thread.join()
+        if self._errors:
+            raise self._errors[0]
         return self._values

@@ -135,8 +135,14 @@ def collect(
     confusions: list[np.ndarray] = []
     values: dict[str, list[float]] = {}
     try:
-        # Complexity starts first and runs while the model (or the PNG reader) works.
-        job = ComplexityJob([data.paths[i] for i in mine], measures, workers=workers)
+        # Complexity starts first and runs while the model (or the PNG reader) works: in
+        # worker processes beside a model (a long run), in threads beside the PNG reader.
+        job = ComplexityJob(
+            [data.paths[i] for i in mine],
+            measures,
+            workers=workers if model is not None else 0,
+            threads=max(1, workers),
+        )
         if model is not None:
 
             def on_score(sample: dict[str, Any], pred: torch.Tensor, score: ImageScore) -> None:
