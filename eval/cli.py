@@ -216,6 +216,8 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
             overwrite=args.overwrite,
             what="--save-predictions",
         )
+    # Every rank has checked the untouched folders; only now may any rank write to them.
+    distributed.barrier()
     model = None
     if source_kind in ("checkpoint", "onnx"):
         threads = torch.get_num_threads() if info.device.type == "cpu" else None
