@@ -1,5 +1,6 @@
 """ClaraVidSegmentation: samples, palettes on real files, splits, cache, errors, DataLoader."""
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -139,3 +140,32 @@ def test_plot_with_prediction(claravid_root):
     assert isinstance(fig, Figure) and len(fig.axes) == 3
     present = {ds.classes[i] if i != 255 else "ignore" for i in sample["mask"].unique().tolist()}
     assert {t.get_text() for t in fig.legends[0].get_texts()} == present
+
+
+def test_unknown_id_count_is_exact_on_dynamic_pixels_and_through_the_cache(writable_root, tmp_path):
+    ds = ClaraVidSegmentation(
+        writable_root, split="all", palette="uavid", missions=["urban_1"], label_cache=tmp_path
+    )
+    frame = ds.frames[0]
+    pan = m.read_pan_seg(frame.paths["pan_seg"])
+    semantic = pan[..., 1].astype(np.uint8)
+    semantic[0, :4] = 12  # unused id on pixels marked dynamic below
+    semantic[1, :3] = 140  # 140 - 128 = 12: must not pass for a dynamic code
+    semantic[2, 0] = 254  # the code of unknown ids itself
+    m.write_pan_seg(frame.paths["pan_seg"], semantic, pan[..., 0])
+    dynamic = m.read_dynamic_mask(frame.paths["dynamic_mask"])
+    dynamic[:2, :4] = 0
+    m.write_dynamic_mask(frame.paths["dynamic_mask"], dynamic)
+    for _ in range(2):  # decoded, then read back from the label cache
+        with pytest.warns(UnknownClassWarning, match=r"^8 pixel\(s\) of .*000000\.png"):
+            mask = ds[0]["mask"]
+        assert (mask[0, :4] == 255).all() and (mask[1, :3] == 255).all() and mask[2, 0] == 255
+
+
+def test_label_file_of_the_wrong_kind_names_the_file(writable_root):
+    ds = ClaraVidSegmentation(writable_root, split="all", missions=["rural_1"])
+    pan_seg = ds.frames[2].paths["pan_seg"]
+    semantic = m.read_pan_seg(pan_seg)[..., 1].astype(np.uint16)
+    cv2.imwrite(str(pan_seg), np.dstack([semantic] * 3) * 257)  # 16-bit: once read as Building
+    with pytest.raises(CorruptFileError, match=r"000002\.png: expected an 8-bit RGB.*16-bit"):
+        ds[2]
