@@ -15,6 +15,7 @@ dynamic mask when the palette tells moving from static objects.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from collections.abc import Callable, Sequence
@@ -88,6 +89,12 @@ class ClaraVidSegmentation(Dataset):
         self.transforms = transforms
         self.split = str(split)
         if isinstance(split_config, dict):
+            unknown = set(split_config) - {f.name for f in dataclasses.fields(SplitConfig)}
+            if unknown:
+                raise ValueError(
+                    f"unknown split_config key(s) {sorted(unknown)}; valid: "
+                    f"{', '.join(f.name for f in dataclasses.fields(SplitConfig))}"
+                )
             split_config = SplitConfig(**split_config)
         self.split_config = split_config or SplitConfig()
         fields = ["rgb", "pan_seg"] + (["dynamic_mask"] if self.palette.uses_dynamic else [])

@@ -99,6 +99,12 @@ BASE = {"name": "p", "classes": [{"id": 0, "name": "a", "color": [1, 2, 3]}]}
         ({"mapping": {"Building": "a"}}, r"leaves \['Fence'.*unmapped"),
         ({"dynamic": {"Vehicles": "zzz"}}, r"'dynamic' entry 'Vehicles'"),
         ({"colours": []}, r"unknown key"),
+        ({"classes": [{"id": 0, "name": "a", "color": [0.5, 2, 3]}]}, r"'a' colour \[0\.5, 2, 3\]"),
+        ({"classes": [{"id": 0, "name": "a", "color": [True, 2, 3]}]}, r"'a' colour \[True"),
+        ({"classes": [{"id": 0, "name": None, "color": [1, 2, 3]}]}, r"entry 1 has name None"),
+        ({"classes": [{"id": 0.0, "name": "a", "color": [1, 2, 3]}]}, r"'a' has id 0\.0"),
+        ({"name": None}, r"'name' is None"),
+        ({"mapping": {"Building": ["a"]}}, r"'Building': \['a'\] is not a palette class"),
     ],
 )
 def test_bad_palette_names_the_entry(change, message):
@@ -122,3 +128,50 @@ def test_colorize():
     palette = load_palette("uavid")
     out = palette.colorize(np.array([[1, 255]]))
     assert out.tolist() == [[[128, 0, 0], [0, 0, 0]]]
+
+
+PALETTE_YAML = """\
+name: twice
+classes:
+  - {id: 0, name: a, color: [1, 2, 3]}
+  - {id: 1, name: b, color: [4, 5, 6]}
+mapping:
+%s
+"""
+
+
+def _mapping_lines(extra=""):
+    names = [c.name for c in CLASSES if c.name != "Unlabeled"]
+    return "\n".join(f"  {n}: a" for n in names) + extra
+
+
+def test_duplicate_yaml_keys_are_errors_naming_the_key(tmp_path):
+    path = tmp_path / "twice.yaml"
+    path.write_text(PALETTE_YAML % _mapping_lines())
+    assert load_palette(path).num_classes == 2  # the file is valid without the duplicate
+    # Building given twice: PyYAML alone would silently keep the second line (b).
+    path.write_text(PALETTE_YAML % _mapping_lines("\n  Building: b"))
+    with pytest.raises(
+        PaletteError,
+        match=r"twice\.yaml: duplicate key 'Building' \(first on line 6, again on line 25",
+    ):
+        load_palette(path)
+    # At any depth: inside a class entry too.
+    path.write_text(
+        (PALETTE_YAML % _mapping_lines()).replace("{id: 1, name: b,", "{id: 1, name: b, id: 2,")
+    )
+    with pytest.raises(PaletteError, match=r"twice\.yaml: duplicate key 'id'"):
+        load_palette(path)
+    path.write_text(PALETTE_YAML.replace("name: twice", "name: twice\nname: thrice") % "")
+    with pytest.raises(PaletteError, match=r"duplicate key 'name'"):
+        load_palette(path)
+
+
+def test_binary_palette_file_is_an_error_naming_it(tmp_path):
+    path = tmp_path / "image.yaml"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR")
+    with pytest.raises(PaletteError, match=r"image\.yaml: not a YAML text file \(binary"):
+        load_palette(path)
+    path.write_bytes(b"name: \xff\xfe")
+    with pytest.raises(PaletteError, match=r"image\.yaml: not a YAML text file"):
+        load_palette(path)

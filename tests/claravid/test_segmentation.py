@@ -1,5 +1,7 @@
 """ClaraVidSegmentation: samples, palettes on real files, splits, cache, errors, DataLoader."""
 
+import json
+
 import cv2
 import numpy as np
 import pytest
@@ -169,3 +171,23 @@ def test_label_file_of_the_wrong_kind_names_the_file(writable_root):
     cv2.imwrite(str(pan_seg), np.dstack([semantic] * 3) * 257)  # 16-bit: once read as Building
     with pytest.raises(CorruptFileError, match=r"000002\.png: expected an 8-bit RGB.*16-bit"):
         ds[2]
+
+
+def test_nan_extrinsics_and_bad_split_config_name_the_problem(writable_root):
+    pose = writable_root / "001_rural_1" / "extrinsics" / "55deg_mid_h" / "000001.json"
+    rows = json.loads(pose.read_text())
+    rows[0][3] = float("nan")
+    pose.write_text(json.dumps(rows))  # json writes the literal NaN, as some tools do
+    with pytest.raises(CorruptFileError, match=r"000001\.json: the 4×4 pose holds NaN"):
+        ClaraVidSegmentation(writable_root, split="train", missions=["rural_1"])
+    with pytest.raises(ValueError, match=r"unknown split_config key\(s\) \['test_mission'\]"):
+        ClaraVidSegmentation(writable_root, split="all", split_config={"test_mission": "urban_1"})
+
+
+def test_partial_download_with_a_missing_rgb(writable_root):
+    (writable_root / "003_urban_1" / "left_rgb" / "90deg_high_h" / "000000.jpg").unlink()
+    with pytest.raises(FileNotFoundError, match=r"90deg_high_h/000000\.jpg"):
+        ClaraVidSegmentation(writable_root, split="all")
+    with pytest.warns(UserWarning, match=r"left out 1 incomplete frame"):
+        ds = ClaraVidSegmentation(writable_root, split="all", skip_incomplete=True)
+    assert len(ds) == 2 * 6 * 3 - 1

@@ -84,3 +84,15 @@ def test_shipped_augment_yaml_matches_the_defaults():
 
     shipped = augment_config(Path(__file__).parents[2] / "configs" / "augment.yaml")
     assert shipped == augment_config()
+
+
+def test_config_file_with_a_duplicate_key_names_file_and_key(tmp_path):
+    (tmp_path / "aug.yaml").write_text("crop_height: 320\nhflip_p: 0.0\ncrop_height: 640\n")
+    with pytest.raises(
+        ValueError,
+        match=r"aug\.yaml: duplicate key .crop_height. \(first on line 1, again on line 3\)",
+    ):
+        augment_config(tmp_path / "aug.yaml")
+    (tmp_path / "bin.yaml").write_bytes(b"\x89PNG\x00\xff")
+    with pytest.raises(ValueError, match=r"bin\.yaml"):
+        augment_config(tmp_path / "bin.yaml")
