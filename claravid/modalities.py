@@ -58,12 +58,20 @@ def decode_image(
             default, as PIL (and so the official SDK) ignores the tag.
     """
     path = Path(path)
+    return decode_bytes(read_checked(path), path, flags, exif_orientation)
+
+
+def read_checked(path: str | Path) -> np.ndarray:
+    """A file's bytes, refusing empty files and truncated JPEG or PNG files (naming the file)."""
     data = read_bytes(path)
-    _check_complete(data, path)
-    return _decode(data, path, flags, exif_orientation)
+    _check_complete(data, Path(path))
+    return data
 
 
-def _decode(data: np.ndarray, path: Path, flags: int, exif_orientation: bool = False) -> np.ndarray:
+def decode_bytes(
+    data: np.ndarray, path: str | Path, flags: int, exif_orientation: bool = False
+) -> np.ndarray:
+    """Decode a file's bytes with OpenCV; ``path`` names the file in the error."""
     if not exif_orientation and flags != cv2.IMREAD_UNCHANGED:
         flags |= cv2.IMREAD_IGNORE_ORIENTATION
     image = cv2.imdecode(data, flags)
@@ -106,13 +114,11 @@ def _decode_png8(
     convert: 16-bit files (scaled to 8 bits), grey or palette files (expanded to colour), and
     JPEG bytes under a ``.png`` name (lossy: label values change at every edge).
     """
-    path = Path(path)
-    data = read_bytes(path)
-    _check_complete(data, path)
+    data = read_checked(path)
     header = png_header(data)
     if header is None or header[0] != 8 or header[1] not in color_types:
         raise CorruptFileError(path, f"expected {expected}, found {describe_bytes(data)}")
-    return _decode(data, path, flags)
+    return decode_bytes(data, path, flags)
 
 
 _PAN_SEG = "an 8-bit RGB PNG (R class id, G + 256·B instance id)"
