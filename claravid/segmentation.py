@@ -57,8 +57,9 @@ class ClaraVidSegmentation(Dataset):
         split: ``train``, ``val``, ``test`` (spatial blocks, see ``claravid.splits``),
             ``all``, or the path of a text file listing frames.
         missions: mission keys; None: all present.
-        altitude: ``low``, ``mid``, ``high``; None: all.
-        direction: ``h``, ``v``; None: all.
+        altitude: ``low``, ``mid``, ``high``; None: all present (a named key that matches
+            no folder is an error listing what exists).
+        direction: ``h``, ``v``; None: all present.
         palette: a palette name (``claravid``, ``uavid``), YAML path or ``Palette``.
         transforms: called on each sample dict.
         split_config: block size, fractions, seed, held-out missions (a ``SplitConfig`` or
@@ -66,7 +67,8 @@ class ClaraVidSegmentation(Dataset):
         label_cache: keep each frame's labels as a single-channel PNG under this directory
             (True: ``$CLARAVID_CACHE`` or ``~/.cache/claravid``) after the first read;
             later epochs skip decoding the panoptic RGB PNG.
-        skip_incomplete: leave out frames missing a modality instead of raising.
+        skip_incomplete: leave out frames missing a file of a modality it reads (RGB,
+            panoptic, dynamic mask), counted in one warning, instead of raising.
     """
 
     def __init__(
