@@ -52,7 +52,7 @@ def test_dynamic_export_other_sizes(tmp_path):
     for shape in [(1, 3, 56, 56), (4, 3, 84, 42), (1, 3, 14, 98)]:
         x = rng.standard_normal(shape).astype(np.float32)
         np.testing.assert_allclose(runner(x), _torch_logits(model, x), atol=1e-4)
-    with pytest.raises(ValueError, match="patch size 14: pad it to 56x70"):
+    with pytest.raises(ValueError, match="patch size 14: pad or resize it to 56x70"):
         runner(np.zeros((1, 3, 50, 60), np.float32))
 
 
