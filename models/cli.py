@@ -38,9 +38,8 @@ def run_cli(
     user's input was wrong. Anything else is a bug and keeps its traceback.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser.add_argument("--debug", action="store_true", help="show the traceback of an error")
     args = parser.parse_args(argv)
-    debug = args.debug or os.environ.get("CLARAVID_DEBUG", "") not in ("", "0")
+    debug = getattr(args, "debug", False) or os.environ.get("CLARAVID_DEBUG", "") not in ("", "0")
     original = warnings.showwarning
 
     def show(message, category, filename, lineno, file=None, line=None):
@@ -64,6 +63,13 @@ def run_cli(
     finally:
         warnings.showwarning = original
     return EXIT_OK if code is None else int(code)
+
+
+def add_debug_flag(parser: argparse.ArgumentParser) -> None:
+    """``--debug``: show the Python traceback of an error (also ``CLARAVID_DEBUG=1``)."""
+    parser.add_argument(
+        "--debug", action="store_true", help="show the Python traceback of an error"
+    )
 
 
 def check_output_file(path: str | os.PathLike, what: str = "--output") -> Path:

@@ -28,6 +28,7 @@ import torch
 from models.cli import (
     EXIT_FAILED,
     UsageError,
+    add_debug_flag,
     check_output_file,
     positive_float,
     positive_int,
@@ -235,6 +236,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-check", action="store_true", help="skip the ONNX Runtime check")
     parser.add_argument("--tolerance", type=positive_float, default=1e-3,
                         help="max allowed abs difference of logits (default 1e-3)")  # fmt: skip
+    add_debug_flag(parser)
     return parser
 
 
