@@ -35,6 +35,11 @@ def test_fixed_size_export(tmp_path, capsys):
     np.testing.assert_allclose(runner(x), _torch_logits(model, x), atol=1e-4)
     with pytest.raises(ValueError, match=r"exported for 42x70 inputs, got 56x70.*--dynamic"):
         runner(np.zeros((1, 3, 56, 70), np.float32))
+    # The same input checks as the PyTorch model (one implementation, models/inputs.py).
+    with pytest.raises(TypeError, match=r"dtype uint8: convert to float and normalise"):
+        runner(np.zeros((1, 3, 42, 70), np.uint8))
+    with pytest.raises(ValueError, match=r"got shape \[3, 42, 70\]"):
+        runner(np.zeros((3, 42, 70), np.float32))
     with torch.no_grad():  # a changed model no longer matches the file
         model.head.head[-1].bias += 1.0
     with pytest.raises(ExportCheckError, match="differs from PyTorch by 1"):
