@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 from pathlib import Path
 
 from claravid.cli import UsageError, add_debug_flag, check_output_file, run_cli
@@ -104,7 +105,9 @@ def _check_outputs(args: argparse.Namespace, output: Path | None) -> None:
         check_output_file(output, what="--output")
         if output.is_file() and not args.overwrite:
             try:
-                load_results(output)
+                with warnings.catch_warnings():  # only its kind matters, not its profile
+                    warnings.simplefilter("ignore")
+                    load_results(output)
             except (OSError, ValueError):
                 raise UsageError(
                     f"--output {output} exists and is not a complexity results file; choose "

@@ -34,7 +34,15 @@ from claravid.layout import (
 from claravid.synth.render import flight_poses, render
 from claravid.synth.scenery import build_world
 
-__all__ = ["MARKER", "check_output_root", "main", "parse_size", "positive_int", "synthesize"]
+__all__ = [
+    "MARKER",
+    "check_output_root",
+    "main",
+    "non_negative_int",
+    "parse_size",
+    "positive_int",
+    "synthesize",
+]
 
 #: File the generator leaves at the root of every tree it writes: running it again over its own
 #: output is fine, over anything else (a real ClaraVid download) it needs ``overwrite``.
