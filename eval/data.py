@@ -9,7 +9,6 @@ viewpoint to group by. :class:`EvalData` gathers these behind one interface.
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +19,7 @@ import torch
 from torch.utils.data import Dataset
 
 from claravid import targets
+from claravid.masks import read_mask as read_label_mask
 from claravid.palettes import Palette, load_palette
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.transforms import eval_transforms
@@ -102,21 +102,70 @@ def _relative_key(path: Path, root: Path) -> str:
     return rel.with_suffix("").as_posix()
 
 
-def _accepts(cls: type, name: str) -> bool:
-    try:
-        return name in inspect.signature(cls).parameters
-    except (TypeError, ValueError):
-        return False
+@dataclass
+class _Opened:
+    raw: Any
+    transformed: Dataset
+    paths: list[str]
+    keys: list[str]
+    read_mask: Callable[[int], Any]
+    attributes: dict[str, list[str]] = field(default_factory=dict)
 
 
-def _sample_mask(dataset: Dataset) -> Callable[[int], Any]:
-    def read(index: int) -> Any:
-        sample = dataset[index]
-        if "mask" not in sample:
-            raise ValueError(f"{sample['path']} has no ground truth: evaluation needs labels")
-        return sample["mask"]
+def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -> _Opened:
+    def make(transforms: Any) -> ClaraVidSegmentation:
+        return ClaraVidSegmentation(
+            root, split=split, palette=pal, transforms=transforms, **selection
+        )
 
-    return read
+    raw = make(None)
+    attributes = {
+        "mission": [f.mission for f in raw.frames],
+        "viewpoint": [f.viewpoint for f in raw.frames],
+    }
+    return _Opened(
+        raw,
+        make(eval_transforms()),
+        [str(f.paths["rgb"]) for f in raw.frames],
+        [f.key for f in raw.frames],
+        raw.read_mask,
+        attributes,
+    )
+
+
+def _uavid(root: Path, split: str, pal: Palette) -> _Opened:
+    def make(transforms: Any) -> targets.UAVidSegmentation:
+        return targets.UAVidSegmentation(root, split=split, palette=pal, transforms=transforms)
+
+    raw = make(None)
+    if not raw.has_labels:
+        raise ValueError(f"UAVid {split} has no labels to evaluate against; use val or train")
+    return _Opened(
+        raw,
+        make(eval_transforms()),
+        [str(p) for p in raw.images],
+        [_relative_key(p, root) for p in raw.images],  # as the samples' "key"
+        lambda i: read_label_mask(raw.label_path(raw.images[i]), pal),
+    )
+
+
+def _folder(root: Path, masks: Path | None, palette: Any, pal: Palette) -> _Opened:
+    if masks is None:
+        raise ValueError("--dataset folder needs --masks: the folder of label images")
+    if palette is None:
+        raise ValueError("--dataset folder needs --palette: the palette its masks are written in")
+
+    def make(transforms: Any) -> targets.FolderSegmentation:
+        return targets.FolderSegmentation(root, masks, palette=pal, transforms=transforms)
+
+    raw = make(None)
+    return _Opened(
+        raw,
+        make(eval_transforms()),
+        [str(p) for p in raw.images],
+        list(raw.keys),
+        lambda i: read_label_mask(raw.masks[i], pal),
+    )
 
 
 def open_data(
@@ -133,9 +182,10 @@ def open_data(
     Args:
         root: the ClaraVid root, the folder holding ``uavid_*``, or a folder of images.
         dataset: ``claravid``, ``uavid`` or ``folder``.
-        split: ``train``/``val``/``test``/``all`` (ClaraVid; UAVid has train/val/test);
-            ignored for folders.
-        palette: palette name or YAML (default ``claravid`` for ClaraVid, ``uavid`` else).
+        split: ``train``/``val``/``test``/``all`` or a split file (ClaraVid; UAVid has
+            train/val/test); ignored for folders.
+        palette: palette name or YAML (default ``claravid`` for ClaraVid, ``uavid`` for UAVid;
+            required for folders).
         masks: the folder of label images mirroring ``root`` (``folder`` only).
         selection: ClaraVid ``missions``, ``altitude``, ``direction`` and ``split_config``
             (e.g. what a training checkpoint used).
@@ -147,61 +197,24 @@ def open_data(
         raise ValueError(f"unknown --dataset {dataset!r}; use one of {', '.join(DATASETS)}")
     root = Path(root).absolute()  # report paths must not depend on the working directory
     pal = load_palette(palette or ("claravid" if dataset == "claravid" else "uavid"))
-    describe: dict[str, Any] = {"dataset": dataset, "data": str(root), "split": split}
+    describe: dict[str, Any] = {"dataset": dataset, "data": str(root), "split": str(split)}
     if dataset == "claravid":
-
-        def make(transforms: Any) -> ClaraVidSegmentation:
-            return ClaraVidSegmentation(
-                root, split=split, palette=pal, transforms=transforms, **(selection or {})
-            )
-
-        raw = make(None)
-        paths = [str(f.paths["rgb"]) for f in raw.frames]
-        keys = [f.key for f in raw.frames]
-        attributes = {
-            "mission": [f.mission for f in raw.frames],
-            "viewpoint": [f.viewpoint for f in raw.frames],
-        }
-        read_mask: Callable[[int], Any] = raw.read_mask
-        transformed: Dataset = make(eval_transforms())
+        opened = _claravid(root, split, pal, selection or {})
+    elif dataset == "uavid":
+        opened = _uavid(root, split, pal)
     else:
-        if dataset == "uavid":
-            cls: Any = targets.UAVidSegmentation
-            kwargs: dict[str, Any] = {"split": split}
-        else:
-            cls = getattr(targets, "FolderSegmentation", None)
-            if cls is None:
-                raise ValueError(
-                    "--dataset folder needs claravid.targets.FolderSegmentation, which this "
-                    "installation lacks; update claravid-toolkit"
-                )
-            kwargs = {"masks": masks}
-            describe["split"] = None
-            describe["masks"] = None if masks is None else str(masks)
-        if _accepts(cls, "palette"):
-            kwargs["palette"] = pal
-        elif pal.name != "uavid":
-            raise ValueError(f"{cls.__name__} reads only the uavid palette, not {pal.name!r}")
-
-        def make(transforms: Any) -> Dataset:
-            return cls(root, transforms=transforms, **kwargs)
-
-        raw = make(None)
-        paths = [str(p) for p in raw.images]
-        keys = [_relative_key(Path(p), root) for p in raw.images]
-        attributes = {}
-        read_mask = raw.read_mask if hasattr(raw, "read_mask") else _sample_mask(raw)
-        transformed = make(eval_transforms())
-    if not paths:
+        opened = _folder(root, None if masks is None else Path(masks).absolute(), palette, pal)
+        describe.update(split=None, masks=str(Path(masks).absolute()))
+    if not opened.paths:
         raise ValueError(f"no images to evaluate in {root} (split {split})")
     return EvalData(
         name=dataset,
         palette=pal,
-        dataset=KeyedDataset(transformed, keys),
-        raw=KeyedDataset(raw, keys),
-        paths=paths,
-        keys=keys,
-        read_mask_fn=read_mask,
-        attributes=attributes,
+        dataset=KeyedDataset(opened.transformed, opened.keys),
+        raw=KeyedDataset(opened.raw, opened.keys),
+        paths=opened.paths,
+        keys=opened.keys,
+        read_mask_fn=opened.read_mask,
+        attributes=opened.attributes,
         describe=describe,
     )

@@ -3,7 +3,6 @@ merging and re-binning saved confusions equal a direct run, torchrun equals one 
 
 import json
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -15,6 +14,7 @@ from eval.cli import main
 from eval.sources import checkpoint_defaults
 from eval.windows import WindowConfig, predict_labels
 from tests.eval.conftest import WINDOW
+from tests.torchrun import torchrun
 
 FIRST = ["001_rural_1/45deg_low_h/000000", "001_rural_1/45deg_low_v/000001",
          "001_rural_1/90deg_high_v/000002"]  # fmt: skip
@@ -177,8 +177,7 @@ def test_torchrun_two_processes_equal_one(model_files, splits, tmp_path):
             str(splits["both"]), "--window", WINDOW, "--no-progress", "--device", "cpu",
             "--save-predictions", str(tmp_path / "preds2")]  # fmt: skip
     run = subprocess.run(
-        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
-         *argv, "--output", str(tmp_path / "two")],
+        [*torchrun(2), *argv, "--output", str(tmp_path / "two")],
         capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert run.returncode == 0, run.stderr[-3000:]

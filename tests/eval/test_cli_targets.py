@@ -1,4 +1,4 @@
-"""``claravid-eval --dataset uavid``: keys mirror UAVid's relative paths; a hand-made case."""
+"""``claravid-eval --dataset uavid|folder``: keys mirror relative paths; hand-made cases."""
 
 import json
 
@@ -49,3 +49,26 @@ def test_uavid_predictions_by_hand(uavid, tmp_path):
     assert report["overall"]["miou"] == pytest.approx((768 / 1152 + 0.5) / 2)
     assert report["bins"][0]["miou"] == report["overall"]["miou"]
     assert main([*argv[:-3], "--group-by", "mission", "--output", str(tmp_path / "x")]) == 2
+
+
+def test_folder_dataset_with_id_masks(tmp_path):
+    """FolderSegmentation: images/a/x.jpg with masks/a/x.png (udd6 ids); keys mirror paths."""
+    images, masks, preds = tmp_path / "images", tmp_path / "masks", tmp_path / "preds"
+    truth = np.zeros((20, 30), np.uint8)
+    truth[:, 10:] = 3  # a third Other (0), two thirds Vegetation (3)
+    for folder in (images, masks, preds):
+        (folder / "a").mkdir(parents=True)
+    cv2.imwrite(str(images / "a" / "x.jpg"), np.full((20, 30, 3), 128, np.uint8))
+    cv2.imwrite(str(masks / "a" / "x.png"), truth)
+    cv2.imwrite(str(preds / "a" / "x.png"), np.full_like(truth, 3))  # all Vegetation
+    out = tmp_path / "rep"
+    argv = ["--predictions", str(preds), "--dataset", "folder", "--data", str(images),
+            "--masks", str(masks), "--palette", "udd6", "--bins", "1", "--output", str(out),
+            "--no-progress"]  # fmt: skip
+    assert main(argv) == 0
+    report = json.loads((out / "report.json").read_text())
+    # Other: TP 0, FN 200 -> 0; Vegetation: TP 400, FP 200 -> 2/3; the 4 absent classes: NaN.
+    assert report["overall"]["miou"] == pytest.approx((0 + 2 / 3) / 2)
+    assert report["palette"] == "udd6" and len(report["classes"]) == 6
+    no_palette = [a for a in argv if a not in ("--palette", "udd6")]
+    assert main([*no_palette[:-3], "--output", str(tmp_path / "x")]) == 2
