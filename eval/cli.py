@@ -286,21 +286,25 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
         source=source,
     )
     if not main_rank:
-        distributed.barrier()
+        distributed.barrier()  # rank 0 writes the report meanwhile
         return 0
-    result = collected.result
-    _check_bins(args, len(result.paths))
-    report = build_report(result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by)
-    dirs = [d for d in (args.predictions, args.save_predictions) if d is not None]
-    items = hardest_items(result, data, args.hardest, collected.hardest, dirs)
-    write_outputs(args.output, report, result, items, data.palette.colors)
-    if args.save_predictions is not None:
-        marker = {"format": "claravid-predictions", "palette": data.palette.name,
-                  "classes": list(data.palette.names), "source": source}  # fmt: skip
-        atomic_write_text(args.save_predictions / PREDICTIONS_MARKER, json.dumps(marker, indent=2))
-        print(f"predictions: {args.save_predictions}")
-    _print_done(args.output, report)
-    distributed.barrier()
+    try:
+        result = collected.result
+        _check_bins(args, len(result.paths))
+        report = build_report(result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by)
+        dirs = [d for d in (args.predictions, args.save_predictions) if d is not None]
+        items = hardest_items(result, data, args.hardest, collected.hardest, dirs)
+        write_outputs(args.output, report, result, items, data.palette.colors)
+        if args.save_predictions is not None:
+            marker = {"format": "claravid-predictions", "palette": data.palette.name,
+                      "classes": list(data.palette.names), "source": source}  # fmt: skip
+            atomic_write_text(
+                args.save_predictions / PREDICTIONS_MARKER, json.dumps(marker, indent=2)
+            )
+            print(f"predictions: {args.save_predictions}")
+        _print_done(args.output, report)
+    finally:
+        distributed.barrier()  # the other ranks wait for the report, even when it failed
     if collected.skipped:
         shown = ", ".join(collected.skipped[:5])
         print(

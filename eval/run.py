@@ -75,6 +75,23 @@ class Collected:
     hardest: dict[int, np.ndarray]
 
 
+def _from_worker(exc: Exception) -> Exception:
+    """A DataLoader worker's data error (an unreadable image) as the one-line error it was.
+
+    The DataLoader re-raises it with the worker's traceback in the message (or, when the
+    exception cannot be rebuilt from one string, as a RuntimeError); its last line is
+    ``module.ErrorType: message``.
+    """
+    text = str(exc)
+    if "DataLoader worker" not in text.split("\n", 1)[0]:
+        return exc
+    last = text.rstrip().splitlines()[-1]
+    name, _, message = last.partition(": ")
+    if name.rsplit(".", 1)[-1].endswith(("Error", "Exception")) and message:
+        return ValueError(message)
+    return exc
+
+
 def _raise_any(error: BaseException | None) -> None:
     """Raise on every rank when any rank failed (the others would wait forever otherwise)."""
     me = distributed.current().rank
@@ -169,7 +186,7 @@ def collect(
             )
         values = job.result()
     except Exception as exc:
-        error = exc
+        error = _from_worker(exc)
     _raise_any(error)
 
     rows = [(confusions[j], {m: values[m][j] for m in values}) for j in range(len(mine))]

@@ -193,3 +193,17 @@ def test_torchrun_two_processes_equal_one(model_files, splits, tmp_path):
         np.testing.assert_array_equal(a["confusions"], b["confusions"])
         assert a["paths"].tolist() == b["paths"].tolist()
     assert torch.distributed.is_available()
+
+
+@pytest.mark.slow
+def test_unreadable_image_is_named_with_loader_workers(
+    model_files, writable_root, tmp_path, capsys
+):
+    rgb = writable_root / "003_urban_1" / "left_rgb" / "45deg_low_h" / "000001.jpg"
+    rgb.write_bytes(rgb.read_bytes()[:300])  # truncated JPEG, read in a DataLoader worker
+    argv = ["--checkpoint", str(model_files["checkpoint"]), "--data", str(writable_root),
+            "--split", "all", "--window", WINDOW, "--workers", "2", "--no-progress",
+            "--output", str(tmp_path / "rep")]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(rgb) in err[0] and "truncated" in err[0]
