@@ -164,7 +164,7 @@ def main() -> None:
         per_view = max(1, -(-args.frames // 4))
         start = time.perf_counter()
         synthesize(root, seed=0, frames_per_viewpoint=per_view, size=(4032, 3024),
-                   missions=["urban_1"], altitudes=["low", "mid"])  # fmt: skip
+                   missions=["urban_1"], altitude=["low", "mid"])  # fmt: skip
         data = open_data(root, split="all", palette="uavid")
         print(f"generated {len(data)} frames of 4032×3024 in {time.perf_counter() - start:.1f} s")
         # Predictions: the labels with every 7th row shifted by one class (a known, imperfect map).
