@@ -281,6 +281,8 @@ def write_outputs(
     for name in ("bins", "scatter", "heatmap", "hardest"):
         if name in written:
             plots[name] = PLOTS[name]
+        else:  # a plot of an earlier report in this folder would no longer match it
+            (out / PLOTS[name]).unlink(missing_ok=True)
     written["markdown"] = atomic_write_text(out / "report.md", report_markdown(report, plots))
     written["report"] = write_json(out / REPORT, report)
     return written
