@@ -71,7 +71,7 @@ def plot_scatter(report: dict[str, Any], path: str | Path, measure: str = "delen
         slope, intercept = np.polyfit(x[keep], y[keep], 1)
         xs = np.linspace(x[keep].min(), x[keep].max(), 50)
         ax.plot(xs, slope * xs + intercept, color="tab:red", label=f"fit: {slope:+.3f} per bit")
-        ax.legend(loc="lower left")
+        ax.legend(loc="best")
     corr = report["correlation"].get(measure, {})
     ax.set_title(
         f"per-image mIoU vs {measure}: Pearson {_fmt(corr.get('pearson'))}, "
