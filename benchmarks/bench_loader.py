@@ -88,7 +88,7 @@ def main() -> None:
         root = Path(tmp) / "claravid"
         start = time.perf_counter()
         synthesize(root, seed=0, frames_per_viewpoint=args.frames, size=(4032, 3024),
-                   missions=["urban_1"], altitudes=["low"], directions=["h"])  # fmt: skip
+                   missions=["urban_1"], altitude=["low"], direction=["h"])  # fmt: skip
         print(f"generated {args.frames} frames of 4032×3024 in {time.perf_counter() - start:.1f} s")
         transforms = train_transforms()
         palette = load_palette("claravid")

@@ -17,7 +17,7 @@ _LAZY = {
     "ClaravidDataset": "claravid.sdk",
     "ClaraVidSegmentation": "claravid.segmentation",
     "UAVidSegmentation": "claravid.targets",
-    "ImageFolder": "claravid.targets",
+    "FolderSegmentation": "claravid.targets",
     "Palette": "claravid.palettes",
     "load_palette": "claravid.palettes",
     "DatasetNotFoundError": "claravid.errors",

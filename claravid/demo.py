@@ -9,30 +9,61 @@ Delentropic Scene Profile of each mission to ``OUT/dsp_<mission>.json`` and
 from __future__ import annotations
 
 import argparse
+import shutil
 from collections import Counter
 from pathlib import Path
 
 from matplotlib.figure import Figure
 
+from claravid.cli import UsageError, add_debug_flag, check_output_dir, run_cli
 from claravid.dsp import plot_profile, profile_images
+from claravid.dsp.plot import save_figure
 from claravid.layout import ALTITUDES, DIRECTIONS, MISSIONS, MODALITIES, viewpoint_folder
 from claravid.plot import save_sample_sheet
 from claravid.segmentation import ClaraVidSegmentation
-from claravid.synth import parse_size, positive_int, synthesize
+from claravid.synth import MARKER as SYNTH_MARKER
+from claravid.synth import non_negative_int, parse_size, positive_int, synthesize
+
+#: Left in OUT: the folder is the demo's, so a later run may write there again.
+MARKER = ".claravid-demo"
+#: Written in OUT/data once the scene is complete, with the settings it was made with.
+STAMP = ".demo-complete"
 
 
-def prepare_data(out: Path, size: tuple[int, int], frames: int, seed: int) -> Path:
-    """Generate the demo scene unless a complete one with these settings is there."""
+def prepare_data(
+    out: Path, size: tuple[int, int], frames: int, seed: int, overwrite: bool = False
+) -> Path:
+    """Generate the demo scene unless a complete one with these settings is there.
+
+    ``OUT/data`` is the demo's own (checked by :func:`check_demo_folder`): a scene of other
+    settings, or one whose generation was interrupted, is removed first, so no frame of an
+    earlier run is left among the new ones.
+    """
     data = out / "data"
-    stamp = data / ".demo-complete"
+    stamp = data / STAMP
     settings = f"size={size} frames={frames} seed={seed}"
     if stamp.is_file() and stamp.read_text() == settings:
         print(f"demo scene: reusing {data}")
         return data
+    if data.is_dir() and ((data / SYNTH_MARKER).is_file() or stamp.is_file()):
+        shutil.rmtree(data)
     print(f"demo scene: generating {data} ({settings})")
-    synthesize(data, seed=seed, frames_per_viewpoint=frames, size=size, progress=True)
+    synthesize(
+        data, seed=seed, frames_per_viewpoint=frames, size=size, progress=True, overwrite=overwrite
+    )
     stamp.write_text(settings)
     return data
+
+
+def check_demo_folder(out: Path, overwrite: bool = False) -> Path:
+    """Refuse an output folder with files the demo did not write (unless ``overwrite``).
+
+    The demo writes ``samples.png``, ``dsp_*.json`` and ``dsp_profiles.png`` into ``OUT`` and
+    leaves :data:`MARKER` there; a ``data/`` folder with the demo's stamp (older demo runs)
+    counts as ours too.
+    """
+    ours = (out / "data" / STAMP).is_file()
+    return check_output_dir(out, marker=MARKER, overwrite=overwrite or ours)
 
 
 def print_summary(dataset: ClaraVidSegmentation) -> None:
@@ -69,14 +100,25 @@ def print_profiles(data: Path, out: Path, workers: int) -> None:
     axes = fig.subplots(2, (len(runs) + 1) // 2, squeeze=False).ravel()
     for ax, (mission, result) in zip(axes, runs.items(), strict=False):
         plot_profile(result.values, result.profile, ax=ax, title=mission)
-    path = out / "dsp_profiles.png"
-    fig.savefig(path, dpi=80)
+    path = save_figure(fig, out / "dsp_profiles.png", dpi=80)
     print(f"profile plots: {path}")
 
 
-def run(out: Path, size: tuple[int, int], frames: int, seed: int, workers: int = 0) -> None:
+def run(
+    out: Path,
+    size: tuple[int, int],
+    frames: int,
+    seed: int,
+    workers: int = 0,
+    overwrite: bool = False,
+) -> None:
     """Generate (or reuse) the scene, summarise it, save the sample sheet and the profiles."""
-    data = prepare_data(out, size, frames, seed)
+    if workers < 0:
+        raise UsageError(f"--workers must be >= 0 (0: in this process), got {workers}")
+    check_demo_folder(out, overwrite)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / MARKER).write_text("Written by claravid-demo.\n")
+    data = prepare_data(out, size, frames, seed, overwrite)
     dataset = ClaraVidSegmentation(data, split="all", palette="claravid")
     print_summary(dataset)
     # One frame per mission, in the UAVid taxonomy (moving and static cars apart).
@@ -88,20 +130,42 @@ def run(out: Path, size: tuple[int, int], frames: int, seed: int, workers: int =
     sheet = save_sample_sheet(samples, uavid.palette, out / "samples.png")
     print(f"\nsample sheet (UAVid palette): {sheet}")
     print_profiles(data, out, workers)
+    print(f"\nresults in {out}")
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The ``claravid-demo`` argument parser."""
     parser = argparse.ArgumentParser(prog="claravid-demo", description=__doc__.split("\n")[0])
     parser.add_argument("out", type=Path, help="output folder, e.g. runs/demo")
     parser.add_argument("--size", type=parse_size, default=(640, 480), help="WIDTHxHEIGHT")
     parser.add_argument("--frames-per-viewpoint", type=positive_int, default=3)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument(
         "--workers", type=int, default=0, help="processes for the profiles (0: none)"
     )
-    args = parser.parse_args(argv)
-    run(args.out, args.size, args.frames_per_viewpoint, args.seed, args.workers)
-    return 0
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into a non-empty folder the demo did not write",
+    )
+    add_debug_flag(parser)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``claravid-demo``; returns the exit status."""
+
+    def _run(args: argparse.Namespace) -> None:
+        run(
+            args.out,
+            args.size,
+            args.frames_per_viewpoint,
+            args.seed,
+            args.workers,
+            args.overwrite,
+        )
+
+    return run_cli("claravid-demo", _run, build_parser(), argv)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,12 @@ class DatasetNotFoundError(FileNotFoundError):
     def __init__(self, what: str, searched: str | Path, hint: str = "") -> None:
         searched = Path(searched)
         parent = searched if searched.is_dir() else searched.parent
-        found = sorted(p.name for p in parent.iterdir())[:20] if parent.is_dir() else []
+        # Hidden entries (.claravid-synth, .DS_Store) are not what the user is looking for.
+        found = (
+            sorted(p.name for p in parent.iterdir() if not p.name.startswith("."))[:20]
+            if parent.is_dir()
+            else []
+        )
         where = f"; {parent} contains: {', '.join(found)}" if found else f"; {parent} is empty"
         if not parent.is_dir():
             where = f"; {parent} does not exist"

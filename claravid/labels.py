@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from claravid import modalities
+from claravid.cachedir import cache_dir
 from claravid.layout import CLASS_BY_ID, DYNAMIC_MASK_DYNAMIC, UNLABELED_ID
 
 DYNAMIC_OFFSET = 128
@@ -88,11 +89,6 @@ def warn_unknown(codes: np.ndarray, source: str | Path) -> int:
     return count
 
 
-def default_cache_dir() -> Path:
-    """``$CLARAVID_CACHE`` or ``~/.cache/claravid``."""
-    return Path(os.environ.get("CLARAVID_CACHE", Path.home() / ".cache" / "claravid"))
-
-
 def source_fingerprint(*paths: Path | None) -> str:
     """A short hash of files' resolved paths, sizes and mtimes (None entries skipped)."""
     parts = []
@@ -111,7 +107,7 @@ class LabelCache:
     """
 
     def __init__(self, directory: str | Path | None = None) -> None:
-        self.directory = Path(directory) if directory is not None else default_cache_dir()
+        self.directory = Path(directory) if directory is not None else cache_dir()
         self.directory = self.directory / "label_codes"
 
     def path_for(self, pan_seg: Path, dynamic_mask: Path | None) -> Path:

@@ -58,14 +58,72 @@ def decode_image(
             default, as PIL (and so the official SDK) ignores the tag.
     """
     path = Path(path)
+    return decode_bytes(read_checked(path), path, flags, exif_orientation)
+
+
+def read_checked(path: str | Path) -> np.ndarray:
+    """A file's bytes, refusing empty files and truncated JPEG or PNG files (naming the file)."""
     data = read_bytes(path)
-    _check_complete(data, path)
+    _check_complete(data, Path(path))
+    return data
+
+
+def decode_bytes(
+    data: np.ndarray, path: str | Path, flags: int, exif_orientation: bool = False
+) -> np.ndarray:
+    """Decode a file's bytes with OpenCV; ``path`` names the file in the error."""
     if not exif_orientation and flags != cv2.IMREAD_UNCHANGED:
         flags |= cv2.IMREAD_IGNORE_ORIENTATION
     image = cv2.imdecode(data, flags)
     if image is None:
         raise CorruptFileError(path, "OpenCV could not decode it (corrupt or not an image)")
     return image
+
+
+PNG_COLOR_TYPES = {0: "grey", 2: "RGB", 3: "palette", 4: "grey+alpha", 6: "RGBA"}
+_RGB_TYPES = frozenset({2, 6})  # RGBA: the same R, G, B bytes; alpha is ignored
+_ANY_TYPE = frozenset(PNG_COLOR_TYPES)
+
+
+def png_header(data: np.ndarray) -> tuple[int, int] | None:
+    """(bit depth, colour type) from a PNG's IHDR chunk, or None when the bytes are no PNG."""
+    head = data[:26].tobytes()
+    if len(head) < 26 or not head.startswith(_PNG_SIGNATURE) or head[12:16] != b"IHDR":
+        return None
+    return head[24], head[25]
+
+
+def describe_bytes(data: np.ndarray) -> str:
+    """What a file's bytes are, for error messages: ``a 16-bit RGB PNG``, ``JPEG data``."""
+    header = png_header(data)
+    if header is not None:
+        depth, color_type = header
+        article = "an" if str(depth).startswith("8") else "a"
+        return f"{article} {depth}-bit {PNG_COLOR_TYPES.get(color_type, f'type-{color_type}')} PNG"
+    if data[:2].tobytes() == _JPEG_SOI:
+        return "JPEG data"
+    return "no PNG data"
+
+
+def _decode_png8(
+    path: str | Path, flags: int, color_types: frozenset[int], expected: str
+) -> np.ndarray:
+    """Decode a label PNG after checking, from its header, that it has the documented encoding.
+
+    The header check costs nothing next to decoding, and catches what OpenCV would silently
+    convert: 16-bit files (scaled to 8 bits), grey or palette files (expanded to colour), and
+    JPEG bytes under a ``.png`` name (lossy: label values change at every edge).
+    """
+    data = read_checked(path)
+    header = png_header(data)
+    if header is None or header[0] != 8 or header[1] not in color_types:
+        raise CorruptFileError(path, f"expected {expected}, found {describe_bytes(data)}")
+    return decode_bytes(data, path, flags)
+
+
+_PAN_SEG = "an 8-bit RGB PNG (R class id, G + 256·B instance id)"
+_DEPTH = "an 8-bit RGB PNG (24-bit depth code over R, G, B)"
+_DYNAMIC = "an 8-bit PNG mask (255 static, 0 dynamic)"
 
 
 # OpenCV >= 4.10 decodes straight to RGB order, saving a full-frame channel swap.
@@ -94,7 +152,7 @@ def read_depth(path: str | Path) -> np.ndarray:
 
     Computed in float32 in the SDK's order (sum, divide, multiply) so values are bit-equal.
     """
-    bgr = decode_image(path, cv2.IMREAD_COLOR).astype(np.int32)
+    bgr = _decode_png8(path, cv2.IMREAD_COLOR, _RGB_TYPES, _DEPTH).astype(np.int32)
     code = bgr[..., 2] + (bgr[..., 1] << 8) + (bgr[..., 0] << 16)
     depth = code.astype(np.float32)  # < 2^24: exact in float32, as the SDK's float32 sum
     depth /= np.float32(DEPTH_SCALE)
@@ -103,8 +161,12 @@ def read_depth(path: str | Path) -> np.ndarray:
 
 
 def read_pan_seg(path: str | Path) -> np.ndarray:
-    """Panoptic labels: int32 H×W×2; ``[..., 0]`` instance (G + 256·B), ``[..., 1]`` class (R)."""
-    bgr = decode_image(path, cv2.IMREAD_COLOR)
+    """Panoptic labels: int32 H×W×2; ``[..., 0]`` instance (G + 256·B), ``[..., 1]`` class (R).
+
+    The file must be an 8-bit RGB (or RGBA) PNG; anything else (16-bit, grey, palette, JPEG
+    bytes) is a ``CorruptFileError`` naming the file, never silently wrong labels.
+    """
+    bgr = _decode_png8(path, cv2.IMREAD_COLOR, _RGB_TYPES, _PAN_SEG)
     pan = np.empty((*bgr.shape[:2], 2), dtype=np.int32)
     np.left_shift(bgr[..., 0], 8, out=pan[..., 0], dtype=np.int32)
     pan[..., 0] += bgr[..., 1]
@@ -114,18 +176,18 @@ def read_pan_seg(path: str | Path) -> np.ndarray:
 
 def read_semantic(path: str | Path) -> np.ndarray:
     """Only the class ids of a panoptic PNG: uint8 H×W (the R channel), without the int32 pair."""
-    return np.ascontiguousarray(decode_image(path, cv2.IMREAD_COLOR)[..., 2])
+    bgr = _decode_png8(path, cv2.IMREAD_COLOR, _RGB_TYPES, _PAN_SEG)
+    return np.ascontiguousarray(bgr[..., 2])
 
 
 def read_dynamic_mask(path: str | Path) -> np.ndarray:
     """The dynamic mask: uint8 H×W, 255 static and 0 dynamic.
 
     Converted like PIL's ``convert('L')``: grey files as they are; colour files with PIL's
-    ITU-R 601-2 integer luma (which differs from OpenCV's in rounding).
+    ITU-R 601-2 integer luma (which differs from OpenCV's in rounding). Anything but an 8-bit
+    PNG (16-bit, JPEG bytes) is a ``CorruptFileError`` naming the file.
     """
-    image = decode_image(path, cv2.IMREAD_UNCHANGED)
-    if image.dtype != np.uint8:
-        raise CorruptFileError(path, f"expected an 8-bit mask, found {image.dtype} pixels")
+    image = _decode_png8(path, cv2.IMREAD_UNCHANGED, _ANY_TYPE, _DYNAMIC)
     if image.ndim == 2:
         return image
     b, g, r = (image[..., i].astype(np.uint32) for i in range(3))
@@ -138,10 +200,15 @@ def read_extrinsics(path: str | Path) -> np.ndarray:
     if not path.is_file():
         raise FileNotFoundError(f"file not found: {path}")
     try:
-        matrix = np.asarray(json.loads(path.read_text()), dtype=np.float64)
-        return matrix.astype(np.float32).reshape(4, 4)
+        matrix = np.asarray(json.loads(path.read_text()), dtype=np.float64).reshape(4, 4)
     except (ValueError, TypeError) as error:
         raise CorruptFileError(path, f"expected a 4×4 nested list of numbers ({error})") from None
+    with np.errstate(over="ignore"):  # beyond float32's range: inf, rejected just below
+        pose = matrix.astype(np.float32)
+    # JSON readers accept NaN and Infinity; a pose with them would put frames nowhere.
+    if not np.isfinite(pose).all():
+        raise CorruptFileError(path, "the 4×4 pose holds NaN or infinite values")
+    return pose
 
 
 def read_intrinsics(*_args: object) -> np.ndarray:

@@ -25,11 +25,11 @@ from typing import Any
 
 import cv2
 import numpy as np
-import yaml
 
 from claravid.labels import DYNAMIC_OFFSET
 from claravid.layout import CLASSES, UNLABELED_ID
 from claravid.resources import shipped_file, shipped_names
+from claravid.yamlfile import YamlFileError, load_yaml
 
 IGNORE = "ignore"
 
@@ -89,6 +89,11 @@ class Palette:
         return table[np.asarray(train_ids, dtype=np.int64).clip(0, 255)]
 
 
+def _is_int(value: Any) -> bool:
+    # YAML reads `true` as a bool, which Python counts as an int; 1.5 or "7" are not ids.
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
 def _fail(source: str, message: str) -> PaletteError:
     return PaletteError(f"palette {source}: {message}")
 
@@ -98,18 +103,26 @@ def _parse_classes(entries: Any, source: str) -> tuple[list[str], np.ndarray]:
         raise _fail(source, "'classes' must be a non-empty list of {id, name, color}")
     by_id: dict[int, tuple[str, list[int]]] = {}
     seen_names: set[str] = set()
-    for entry in entries:
+    for number, entry in enumerate(entries, 1):
         if not isinstance(entry, dict) or {"id", "name", "color"} - entry.keys():
-            raise _fail(source, f"class entry {entry!r} needs 'id', 'name' and 'color'")
-        class_id, name, color = entry["id"], str(entry["name"]), entry["color"]
-        if not isinstance(class_id, int) or not 0 <= class_id < UNLABELED_ID:
-            raise _fail(source, f"class {name!r} has id {class_id!r}; use 0..254")
+            raise _fail(source, f"class entry {number} {entry!r} needs 'id', 'name' and 'color'")
+        class_id, name, color = entry["id"], entry["name"], entry["color"]
+        if not isinstance(name, str) or not name.strip():
+            raise _fail(source, f"class entry {number} has name {name!r}; give a non-empty name")
+        if not _is_int(class_id) or not 0 <= class_id < UNLABELED_ID:
+            raise _fail(source, f"class {name!r} has id {class_id!r}; use an integer 0..254")
         if class_id in by_id:
             raise _fail(source, f"duplicate id {class_id} ({by_id[class_id][0]!r} and {name!r})")
         if name in seen_names:
             raise _fail(source, f"duplicate class name {name!r}")
-        if not (isinstance(color, list) and len(color) == 3 and all(0 <= c <= 255 for c in color)):
-            raise _fail(source, f"class {name!r} colour {color!r} is not [R, G, B] in 0..255")
+        if not (
+            isinstance(color, list)
+            and len(color) == 3
+            and all(_is_int(c) and 0 <= c <= 255 for c in color)
+        ):
+            raise _fail(
+                source, f"class {name!r} colour {color!r} is not [R, G, B], integers in 0..255"
+            )
         by_id[class_id] = (name, color)
         seen_names.add(name)
     if sorted(by_id) != list(range(len(by_id))):
@@ -138,6 +151,8 @@ def _parse_mapping(
                 source,
                 f"'{section}' entry {src!r}: not a ClaraVid class ({', '.join(claravid_names)})",
             )
+        if not isinstance(dst, str):
+            raise _fail(source, f"'{section}' entry {src!r}: {dst!r} is not a palette class name")
         if dst == IGNORE:
             resolved[src] = UNLABELED_ID
         elif dst in train_id:
@@ -163,6 +178,8 @@ def palette_from_dict(config: dict[str, Any], source: str = "<dict>") -> Palette
     unknown_keys = set(config) - {"name", "ignore_index", "classes", "mapping", "dynamic"}
     if unknown_keys:
         raise _fail(source, f"unknown key(s) {sorted(unknown_keys)}")
+    if "name" in config and (not isinstance(config["name"], str) or not config["name"].strip()):
+        raise _fail(source, f"'name' is {config['name']!r}; give the palette a non-empty name")
     if config.get("ignore_index", UNLABELED_ID) != UNLABELED_ID:
         raise _fail(source, f"ignore_index must be {UNLABELED_ID}")
     names, colors = _parse_classes(config.get("classes"), source)
@@ -207,7 +224,7 @@ def load_palette(palette: str | Path | Palette) -> Palette:
     if not path.is_file():
         raise PaletteError(f"palette file not found: {path}")
     try:
-        config = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as error:
-        raise PaletteError(f"palette {path}: not valid YAML ({error})") from None
+        config = load_yaml(path)
+    except YamlFileError as error:
+        raise PaletteError(f"palette {error}") from None
     return palette_from_dict(config, str(path))

@@ -7,9 +7,12 @@ Same constructor, frame order, keys, dtypes, shapes and values as the official S
                          fields=["rgb", "pan_seg"])
     item = ds[0]  # {"rgb": uint8 H×W×3, "pan_seg": int32 H×W×2, "frame_idx": 0}
 
-Differences, all additive: missing folders and files raise errors that name them (the SDK
-fails later, or returns fewer frames silently); ``frames`` gives each frame's mission and
-viewpoint; ``skip_incomplete`` leaves out frames that miss a modality.
+Selection as in the SDK: a default (None) means every mission, altitude and direction present
+on disk, so partial downloads work. Differences, all additive: a key named explicitly that
+matches no folder, and a frame missing one of the requested modalities (whichever one), raise
+errors that name what exists or what is missing (the SDK fails later, or returns fewer frames
+silently); ``frames`` gives each frame's mission and viewpoint; ``skip_incomplete`` leaves out
+frames that miss a modality, counted in one warning.
 """
 
 from __future__ import annotations
@@ -36,16 +39,16 @@ class ClaravidDataset:
 
     Args:
         root: the ClaraVid root, holding the mission folders.
-        missions: mission keys (``rural_1`` … ``urban_high_1``); None: all.
-        altitude: ``low``, ``mid``, ``high``; None: all.
-        direction: ``h``, ``v``; None: all.
+        missions: mission keys (``rural_1`` … ``urban_high_1``); None: all present.
+        altitude: ``low``, ``mid``, ``high``; None: all present.
+        direction: ``h``, ``v``; None: all present.
         fields: ``rgb``, ``depth``, ``seg_color``, ``pan_seg``, ``dynamic_mask``,
             ``extrinsics``, ``intrinsics``; None: all.
         paths_func: as in the SDK, a function building the list of per-frame path dicts
             (called with ``root, missions=, fields=, viewpoint_altitude=,
             viewpoint_direction=``); None: the standard layout.
-        skip_incomplete: leave out frames that miss a modality (with a warning) instead of
-            raising an error naming the missing file.
+        skip_incomplete: leave out frames that miss a modality (one warning counts them)
+            instead of raising an error naming the missing file.
     """
 
     SEMANTIC_PALLETE = CLASSES  # the SDK's (misspelt) name for the class table
@@ -54,10 +57,10 @@ class ClaravidDataset:
     def __init__(
         self,
         root: str | Path,
-        missions: Sequence[str] | None = None,
-        altitude: Sequence[str] | None = None,
-        direction: Sequence[str] | None = None,
-        fields: Sequence[str] | None = None,
+        missions: Sequence[str] | str | None = None,
+        altitude: Sequence[str] | str | None = None,
+        direction: Sequence[str] | str | None = None,
+        fields: Sequence[str] | str | None = None,
         paths_func: Callable[..., list[dict[str, Path]]] | None = None,
         *,
         skip_incomplete: bool = False,
@@ -69,7 +72,7 @@ class ClaravidDataset:
         self.missions = list(dict.fromkeys(f.mission for f in self.frames))
         self.altitude = _as_list(altitude) or list(ALTITUDES)
         self.direction = _as_list(direction) or list(DIRECTIONS)
-        self.fields = list(fields) if fields else list(MODALITIES)
+        self.fields = list(dict.fromkeys(_as_list(fields))) or list(MODALITIES)
         if paths_func is not None:
             self.path_list = paths_func(
                 self.root,

@@ -15,9 +15,10 @@ dynamic mask when the palette tells moving from static objects.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,10 +29,10 @@ from torch.utils.data import Dataset
 from tqdm.auto import tqdm
 
 from claravid import modalities
+from claravid.cachedir import cache_dir
 from claravid.index import Frame, list_frames
 from claravid.labels import (
     LabelCache,
-    default_cache_dir,
     read_label_codes,
     source_fingerprint,
     warn_unknown,
@@ -39,9 +40,8 @@ from claravid.labels import (
 from claravid.layout import MISSIONS, frame_file
 from claravid.palettes import Palette, load_palette
 from claravid.plot import plot_sample
+from claravid.samples import Transform, finish_sample, image_tensor
 from claravid.splits import SplitConfig, select_split
-
-Transform = Callable[[dict[str, Any]], dict[str, Any]]
 
 
 class ClaraVidSegmentation(Dataset):
@@ -57,8 +57,9 @@ class ClaraVidSegmentation(Dataset):
         split: ``train``, ``val``, ``test`` (spatial blocks, see ``claravid.splits``),
             ``all``, or the path of a text file listing frames.
         missions: mission keys; None: all present.
-        altitude: ``low``, ``mid``, ``high``; None: all.
-        direction: ``h``, ``v``; None: all.
+        altitude: ``low``, ``mid``, ``high``; None: all present (a named key that matches
+            no folder is an error listing what exists).
+        direction: ``h``, ``v``; None: all present.
         palette: a palette name (``claravid``, ``uavid``), YAML path or ``Palette``.
         transforms: called on each sample dict.
         split_config: block size, fractions, seed, held-out missions (a ``SplitConfig`` or
@@ -66,7 +67,8 @@ class ClaraVidSegmentation(Dataset):
         label_cache: keep each frame's labels as a single-channel PNG under this directory
             (True: ``$CLARAVID_CACHE`` or ``~/.cache/claravid``) after the first read;
             later epochs skip decoding the panoptic RGB PNG.
-        skip_incomplete: leave out frames missing a modality instead of raising.
+        skip_incomplete: leave out frames missing a file of a modality it reads (RGB,
+            panoptic, dynamic mask), counted in one warning, instead of raising.
     """
 
     def __init__(
@@ -88,6 +90,12 @@ class ClaraVidSegmentation(Dataset):
         self.transforms = transforms
         self.split = str(split)
         if isinstance(split_config, dict):
+            unknown = set(split_config) - {f.name for f in dataclasses.fields(SplitConfig)}
+            if unknown:
+                raise ValueError(
+                    f"unknown split_config key(s) {sorted(unknown)}; valid: "
+                    f"{', '.join(f.name for f in dataclasses.fields(SplitConfig))}"
+                )
             split_config = SplitConfig(**split_config)
         self.split_config = split_config or SplitConfig()
         fields = ["rgb", "pan_seg"] + (["dynamic_mask"] if self.palette.uses_dynamic else [])
@@ -138,18 +146,14 @@ class ClaraVidSegmentation(Dataset):
                 "not belong to this image (re-extract the frame)"
             )
         sample: dict[str, Any] = {
-            # A [3,H,W] view of the decoded H×W×3 array: transforms crop it without a copy.
-            "image": torch.from_numpy(rgb).permute(2, 0, 1),
+            "image": image_tensor(rgb),
             "mask": torch.from_numpy(mask),
             "path": str(frame.paths["rgb"]),
             "mission": frame.mission,
             "viewpoint": frame.viewpoint,
             "key": frame.key,
         }
-        if self.transforms is not None:
-            sample = self.transforms(sample)
-        sample["mask"] = sample["mask"].long()
-        return sample
+        return finish_sample(sample, self.transforms)
 
     def class_frequencies(self, progress: bool = True) -> np.ndarray:
         """Pixels of each train id over this split (int64 [K]), computed once and cached.
@@ -160,7 +164,7 @@ class ClaraVidSegmentation(Dataset):
         key = hashlib.sha1(self.palette.lut.tobytes())
         for frame in self.frames:
             key.update(source_fingerprint(*self._label_sources(frame)).encode())
-        cache_file = default_cache_dir() / "class_frequencies" / f"{key.hexdigest()}.json"
+        cache_file = cache_dir() / "class_frequencies" / f"{key.hexdigest()}.json"
         if cache_file.is_file():
             return np.asarray(json.loads(cache_file.read_text())["counts"], dtype=np.int64)
         counts = np.zeros(self.palette.num_classes, dtype=np.int64)

@@ -15,6 +15,8 @@ Also: a text file listing the frames of a published split, and hold-out by missi
 
 from __future__ import annotations
 
+import math
+import numbers
 from collections import defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -34,9 +36,10 @@ class SplitConfig:
 
     Attributes:
         block_size: side of the square blocks of camera positions, in metres.
-        fractions: target share of each mission's frames in train, val and test.
+        fractions: target share of each mission's frames in train, val and test; finite,
+            non-negative, summing to 1.
         seed: shuffles the blocks; the same seed gives the same split.
-        val_missions: missions held out whole as the validation split.
+        val_missions: missions held out whole as the validation split (a string: one).
         test_missions: missions held out whole as the test split. With any held-out
             mission, every other mission goes whole to train.
     """
@@ -44,22 +47,51 @@ class SplitConfig:
     block_size: float = 150.0
     fractions: tuple[float, float, float] = (0.7, 0.15, 0.15)
     seed: int = 0
-    val_missions: Sequence[str] = field(default_factory=tuple)
-    test_missions: Sequence[str] = field(default_factory=tuple)
+    val_missions: Sequence[str] | str = field(default_factory=tuple)
+    test_missions: Sequence[str] | str = field(default_factory=tuple)
 
     def __post_init__(self) -> None:
-        if not self.block_size > 0:
-            raise ValueError(f"block_size must be positive metres, got {self.block_size}")
-        if len(self.fractions) != 3 or min(self.fractions) < 0 or sum(self.fractions) <= 0:
+        if not _is_number(self.block_size) or not 0 < self.block_size < math.inf:
             raise ValueError(
-                f"fractions must be three non-negative shares (train, val, test), got "
-                f"{self.fractions}"
+                f"block_size must be a positive number of metres, got {self.block_size!r}"
             )
-        both = set(map(canonical_mission, self.val_missions)) & set(
-            map(canonical_mission, self.test_missions)
-        )
+        try:
+            fractions = tuple(self.fractions) if not isinstance(self.fractions, str) else ()
+        except TypeError:  # a single number
+            fractions = ()
+        if len(fractions) != 3 or not all(_is_number(f) for f in fractions):
+            raise ValueError(
+                f"fractions must be three numbers (train, val, test), got {self.fractions!r}"
+            )
+        if not all(0 <= f < math.inf for f in fractions):  # NaN fails both comparisons
+            raise ValueError(f"fractions must be finite and non-negative, got {self.fractions!r}")
+        total = math.fsum(fractions)
+        # No silent rescaling: (0.8, 0.1, 0.2) is more likely a typo than a wish for 73/9/18 %.
+        if not math.isclose(total, 1.0, abs_tol=1e-6):
+            raise ValueError(
+                f"fractions {self.fractions!r} sum to {total:g}, not 1; give train, val and "
+                "test shares that add up to 1, e.g. (0.7, 0.15, 0.15)"
+            )
+        # A single string is one mission, as in the datasets' `missions` argument.
+        val = tuple(map(canonical_mission, _as_tuple(self.val_missions)))
+        test = tuple(map(canonical_mission, _as_tuple(self.test_missions)))
+        both = set(val) & set(test)
         if both:
             raise ValueError(f"missions {sorted(both)} are held out as both val and test")
+        # Frozen: normalised values are set once, here.
+        object.__setattr__(self, "fractions", fractions)
+        object.__setattr__(self, "val_missions", val)
+        object.__setattr__(self, "test_missions", test)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def _as_tuple(missions: Sequence[str] | str | None) -> tuple[str, ...]:
+    if missions is None:
+        return ()
+    return (missions,) if isinstance(missions, str) else tuple(missions)
 
 
 def assign_blocks(frames: Sequence[Frame], positions: np.ndarray, config: SplitConfig) -> list[str]:
@@ -75,7 +107,7 @@ def assign_blocks(frames: Sequence[Frame], positions: np.ndarray, config: SplitC
         by_mission[frame.mission][tuple(blocks[i])].append(i)
 
     fractions = np.asarray(config.fractions, dtype=np.float64)
-    targets = np.cumsum(fractions / fractions.sum())
+    targets = np.cumsum(fractions)
     result = [""] * len(frames)
     for mission, mission_blocks in by_mission.items():
         keys = sorted(mission_blocks)
@@ -118,6 +150,11 @@ def read_split_file(path: str | Path) -> list[str]:
                 "<stem> or a file path relative to the ClaraVid root"
             )
         keys.append("/".join(parts))
+    if not keys:
+        raise ValueError(
+            f"split file {path} lists no frame; write one frame per line "
+            "(<mission folder>/<viewpoint>/<stem>)"
+        )
     return keys
 
 

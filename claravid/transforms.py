@@ -26,6 +26,8 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
+from claravid.yamlfile import YamlFileError, load_yaml
+
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
@@ -67,7 +69,10 @@ def augment_config(overrides: Any = None) -> AugmentConfig:
     if overrides is None:
         return AugmentConfig(**OmegaConf.to_container(base))
     if isinstance(overrides, str | os.PathLike):
-        overrides = OmegaConf.load(overrides)
+        try:  # the strict loader names the file, and a duplicate key with its lines
+            overrides = load_yaml(overrides) or {}
+        except YamlFileError as error:
+            raise ValueError(f"invalid augmentation config {error}") from None
     try:
         merged = OmegaConf.merge(base, overrides)
     except Exception as error:  # omegaconf raises several unrelated types

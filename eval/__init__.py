@@ -7,6 +7,22 @@ The core that training validates through::
     scores = evaluate_model(model, val_dataset, num_classes=8, config=WindowConfig(scale=0.5))
     report = stratify([s.path for s in scores], np.stack([s.confusion for s in scores]),
                       classes, {"delent": values}, bins=3)
+
+The product on top (``claravid-eval``, ``claravid-predict``; see :mod:`eval.cli`)::
+
+    from eval.data import open_data            # ClaraVid / UAVid / folder: keys, labels
+    from eval.run import collect, write_outputs
+    from eval.report import build_report
+
+    data = open_data("/data/claravid", split="val", palette="uavid")
+    collected = collect(data, predictions="preds/")    # or model=eval.sources.load_source(...)
+    report = build_report(collected.result, bins=3)
+    write_outputs("report/", report, collected.result)
+
+Modules: ``data`` (what is evaluated), ``sources`` (checkpoint / ONNX), ``predictions``
+(label maps on disk), ``complexity`` (delentropy beside inference), ``run`` (one evaluation,
+sharded under torchrun), ``report`` (JSON, confusions, merge), ``markdown``, ``plots``,
+``compare``, ``cli``, ``predict``.
 """
 
 from eval.bins import Bin, bin_names, fixed_bins, parse_edges, quantile_bins

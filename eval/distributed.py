@@ -6,6 +6,7 @@ group everything here is the single-process identity, so the same code runs ever
 
 from __future__ import annotations
 
+import atexit
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -51,8 +52,16 @@ def init_distributed(device: str | None = None) -> DistInfo:
         torch.cuda.set_device(local_rank)
     if not dist.is_initialized():
         dist.init_process_group("nccl" if use_cuda else "gloo")
+        # A group left to interpreter shutdown can abort the process ("terminate called
+        # without an active exception" from gloo's threads): tear it down first.
+        atexit.register(_destroy)
     dev = torch.device("cuda", local_rank) if use_cuda else torch.device("cpu")
     return DistInfo(dist.get_rank(), dist.get_world_size(), local_rank, dev)
+
+
+def _destroy() -> None:
+    if dist.is_available() and dist.is_initialized():
+        dist.destroy_process_group()
 
 
 def current() -> DistInfo:

@@ -48,6 +48,7 @@ def evaluate_model(
     ignore_index: int = IGNORE_INDEX,
     progress: bool = False,
     on_prediction: Callable[[dict[str, Any], torch.Tensor], None] | None = None,
+    on_score: Callable[[dict[str, Any], torch.Tensor, ImageScore], None] | None = None,
 ) -> list[ImageScore]:
     """Predict every image of ``dataset`` with sliding windows and count its confusion.
 
@@ -63,6 +64,8 @@ def evaluate_model(
         ignore_index: ground-truth value left out of the confusion.
         progress: show a progress bar.
         on_prediction: called with each sample and its predicted ids [H,W] (to save them).
+        on_score: called with each sample, its predicted ids and its `ImageScore` (e.g. to
+            keep the hardest images' predictions for a report).
 
     Returns:
         One `ImageScore` per image, in dataset order.
@@ -82,8 +85,14 @@ def evaluate_model(
             raise ValueError(f"{sample['path']} has no ground truth: evaluation needs labels")
         prediction = predict_labels(model, sample["image"].to(device), config)
         target = torch.as_tensor(sample["mask"]).to(device)
+        if prediction.device.type == "cpu" and num_classes <= 255:
+            # Byte ids take metrics' fast CPU path (an int64 map would be checked and cast).
+            prediction = prediction.to(torch.uint8)
         conf = confusion_matrix(prediction, target, num_classes, ignore_index)
-        results.append(ImageScore(str(sample["path"]), sample_key(sample), conf.cpu().numpy()))
+        score = ImageScore(str(sample["path"]), sample_key(sample), conf.cpu().numpy())
+        results.append(score)
         if on_prediction is not None:
             on_prediction(sample, prediction)
+        if on_score is not None:
+            on_score(sample, prediction, score)
     return results

@@ -19,6 +19,7 @@ from typing import Any
 import torch
 
 from models.segmenter import Segmenter, build_model
+from models.torchfile import read_tensor_file
 
 FORMAT = "claravid-model"
 VERSION = 1
@@ -88,18 +89,17 @@ def save_checkpoint(
 
 
 def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
-    """Read and validate a checkpoint dict (no code runs: ``weights_only=True``)."""
+    """Read and validate a checkpoint dict (no code runs: ``weights_only=True``).
+
+    Raises:
+        FileNotFoundError: no such file.
+        CheckpointError: a folder, an empty, truncated or foreign file, a newer format version,
+            or entries of the wrong type.
+    """
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"checkpoint {path} not found")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise CheckpointError(
-            f"cannot read {path} as a claravid checkpoint ({exc.__class__.__name__}: {exc})"
-        ) from exc
+    ckpt = read_tensor_file(path, "checkpoint", CheckpointError)
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
-        keys = sorted(ckpt)[:8] if isinstance(ckpt, dict) else type(ckpt).__name__
+        keys = sorted(map(str, ckpt))[:8] if isinstance(ckpt, dict) else type(ckpt).__name__
         raise CheckpointError(
             f"{path} is not a claravid model checkpoint (found {keys}); a bare DINOv2 weights "
             "file goes to build_model(weights=...), not load_checkpoint"
@@ -110,6 +110,14 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
             f"{path} has checkpoint format version {version}, newer than this code's {VERSION}: "
             "upgrade claravid-toolkit to read it"
         )
+    state = ckpt.get("model")
+    if not isinstance(ckpt.get("model_args"), dict) or not isinstance(state, dict):
+        raise CheckpointError(
+            f"{path} is damaged: 'model_args' and 'model' must be dicts; save it again with "
+            "models.save_checkpoint"
+        )
+    if not all(torch.is_tensor(v) for v in state.values()):
+        raise CheckpointError(f"{path} is damaged: 'model' holds values that are not tensors")
     return ckpt
 
 
@@ -119,7 +127,10 @@ def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = 
     args = dict(ckpt["model_args"])
     included = bool(ckpt.get("backbone_included", True))
     # A stored backbone overwrites whatever init we build, so skip loading the source file.
-    model = build_model(**{**args, "weights": None if included else args["weights"]})
+    try:
+        model = build_model(**{**args, "weights": None if included else args.get("weights")})
+    except TypeError as exc:  # model_args written by hand or by another program
+        raise CheckpointError(f"{path} has model_args that build_model rejects: {exc}") from None
     model.model_args = args
     state = ckpt["model"]
     own = model.state_dict()
@@ -130,5 +141,12 @@ def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = 
             f"{path} does not match its model_args: missing {missing[:10]}, "
             f"unexpected {unexpected[:10]}"
         )
+    shapes = [
+        f"{k}: file {tuple(state[k].shape)} vs model {tuple(own[k].shape)}"
+        for k in sorted(set(state) & set(own))
+        if state[k].shape != own[k].shape
+    ]
+    if shapes:
+        raise CheckpointError(f"{path} does not match its model_args: {'; '.join(shapes[:5])}")
     model.load_state_dict(state, strict=included)
     return model.to(map_location)

@@ -12,8 +12,11 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
+import shutil
 import sys
+import tempfile
 import warnings
 from contextlib import contextmanager
 from pathlib import Path
@@ -22,6 +25,15 @@ from typing import Any
 import numpy as np
 import torch
 
+from models.cli import (
+    EXIT_FAILED,
+    UsageError,
+    add_debug_flag,
+    check_output_file,
+    positive_float,
+    positive_int,
+    run_cli,
+)
 from models.onnx_runtime import META_PREFIX, OnnxSegmenter
 from models.segmenter import Segmenter
 
@@ -69,7 +81,8 @@ def export_onnx(
 
     Args:
         model: A `Segmenter`.
-        path: Output ``.onnx`` (large models also write ``<path>.data`` next to it).
+        path: Output ``.onnx`` (large models also write ``<path>.data`` next to it), written
+            atomically: only a complete (and, with ``check``, checked) export replaces it.
         height: Example (and, unless dynamic, the only) input height; a patch multiple.
         width: Example input width.
         dynamic: Also make H and W dynamic (multiples of the patch size).
@@ -80,13 +93,57 @@ def export_onnx(
         ``{"path", "max_abs_diff", "check_shape"}`` (diff and shape None when not checked).
 
     Raises:
-        ValueError: the size is not a multiple of the patch size.
-        ExportCheckError: ORT's logits differ from PyTorch's by more than ``tolerance``.
+        ValueError: the size is not a positive multiple of the patch size, or the tolerance is
+            not a finite number > 0.
+        ExportCheckError: ORT's logits differ from PyTorch's by more than ``tolerance`` (nothing
+            is written then).
     """
-    p = model.patch_size
-    model.backbone.check_input_size(height, width)
+    _check_settings(model, height, width, tolerance)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    # Written in a temp folder beside the target and moved into place once written (and checked):
+    # an interrupted or failed export never leaves half a file, nor replaces a good one. The
+    # folder keeps the final file name, which external weights (<name>.data) reference.
+    staging = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        staged = staging / path.name
+        _export(model, staged, height, width, dynamic)
+        result: dict[str, Any] = {"path": path, "max_abs_diff": None, "check_shape": None}
+        if check:
+            try:
+                result.update(check_export(model, staged, height, width, dynamic, tolerance))
+            except ExportCheckError as exc:  # name the file the user asked for, not the temp one
+                raise ExportCheckError(str(exc).replace(str(staged), str(path))) from None
+        for item in sorted(staging.iterdir(), key=lambda f: f == staged):  # the .onnx last
+            os.replace(item, path.parent / item.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return result
+
+
+def _check_settings(model: Segmenter, height: object, width: object, tolerance: object) -> None:
+    """Reject nonsense sizes and tolerances before the (slow) export."""
+    for name, value in (("height", height), ("width", width)):
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value <= 0:
+            raise ValueError(
+                f"{name} must be a positive multiple of the patch size {model.patch_size}, "
+                f"got {value!r}"
+            )
+    model.backbone.check_input_size(int(height), int(width))  # type: ignore[arg-type]
+    if (
+        not isinstance(tolerance, (int, float))
+        or isinstance(tolerance, bool)
+        or not math.isfinite(tolerance)
+        or tolerance <= 0
+    ):
+        raise ValueError(
+            f"tolerance must be a finite number > 0 (the largest allowed max-abs difference of "
+            f"logits, e.g. 1e-3), got {tolerance!r}"
+        )
+
+
+def _export(model: Segmenter, path: Path, height: int, width: int, dynamic: bool) -> None:
+    p = model.patch_size
     param = next(model.parameters())
     example = torch.randn(2, 3, height, width, device=param.device)
     batch = torch.export.Dim("batch", min=1, max=4096)
@@ -110,10 +167,6 @@ def export_onnx(
             verbose=False,
         )
     _write_metadata(path, model, None if dynamic else (height, width))
-    result: dict[str, Any] = {"path": path, "max_abs_diff": None, "check_shape": None}
-    if check:
-        result.update(check_export(model, path, height, width, dynamic, tolerance))
-    return result
 
 
 def _write_metadata(path: Path, model: Segmenter, size: tuple[int, int] | None) -> None:
@@ -165,38 +218,59 @@ def check_export(
     return {"max_abs_diff": diff, "check_shape": shape}
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``claravid-export CHECKPOINT --output model.onnx [--height --width --dynamic]``."""
+def build_parser() -> argparse.ArgumentParser:
+    """The ``claravid-export`` argument parser."""
     parser = argparse.ArgumentParser(
-        prog="claravid-export", description="Export a claravid segmenter checkpoint to ONNX."
+        prog="claravid-export",
+        description="Export a claravid segmenter checkpoint to ONNX, checked with ONNX Runtime.",
+        epilog="Exit status: 0 ok; 1 the export differs from PyTorch beyond --tolerance (nothing "
+        "written); 2 a bad argument, an unreadable checkpoint or an unusable --output.",
     )
     parser.add_argument("checkpoint", help="checkpoint written by models.save_checkpoint")
     parser.add_argument("--output", "-o", required=True, help="output .onnx file")
-    parser.add_argument("--height", type=int, default=630, help="input height (patch multiple)")
-    parser.add_argument("--width", type=int, default=630, help="input width (patch multiple)")
+    parser.add_argument("--height", type=positive_int, default=630,
+                        help="input height, a patch multiple (default 630)")  # fmt: skip
+    parser.add_argument("--width", type=positive_int, default=630,
+                        help="input width, a patch multiple (default 630)")  # fmt: skip
     parser.add_argument("--dynamic", action="store_true", help="dynamic height and width")
     parser.add_argument("--no-check", action="store_true", help="skip the ONNX Runtime check")
-    parser.add_argument("--tolerance", type=float, default=1e-3, help="max abs logits diff")
-    args = parser.parse_args(argv)
+    parser.add_argument("--tolerance", type=positive_float, default=1e-3,
+                        help="max allowed abs difference of logits (default 1e-3)")  # fmt: skip
+    add_debug_flag(parser)
+    return parser
 
-    from models.checkpoint import CheckpointError, load_checkpoint
 
+def _run(args: argparse.Namespace) -> int:
+    from models.checkpoint import load_checkpoint
+
+    output = check_output_file(args.output)
+    if output.suffix.lower() != ".onnx":
+        # A typo here (the checkpoint's own name, an image) would replace a file of another kind.
+        raise UsageError(f"--output {output} must end in .onnx")
+    checkpoint = Path(args.checkpoint)
+    if output.exists() and checkpoint.exists() and output.samefile(checkpoint):
+        raise UsageError(f"--output {output} is the checkpoint itself; choose another file")
+    model = load_checkpoint(checkpoint)
     try:
-        model = load_checkpoint(args.checkpoint)
         result = export_onnx(
             model,
-            args.output,
+            output,
             height=args.height,
             width=args.width,
             dynamic=args.dynamic,
             check=not args.no_check,
             tolerance=args.tolerance,
         )
-    except (FileNotFoundError, CheckpointError, ValueError, ExportCheckError) as exc:
-        print(f"claravid-export: error: {exc}", file=sys.stderr)
-        return 2
+    except ExportCheckError as exc:
+        print(f"claravid-export: error: {exc}; nothing was written", file=sys.stderr)
+        return EXIT_FAILED
     print(f"wrote {result['path']}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``claravid-export CHECKPOINT --output model.onnx [--height --width --dynamic]``."""
+    return run_cli("claravid-export", _run, build_parser(), argv)
 
 
 if __name__ == "__main__":

@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from models.inputs import check_image_batch
+
 META_PREFIX = "claravid."
 
 
@@ -56,26 +58,19 @@ class OnnxSegmenter:
         )
 
     def check_input(self, images: np.ndarray) -> None:
-        """Raise ``ValueError`` when ``images`` cannot go through this model."""
-        if images.ndim != 4 or images.shape[1] != 3:
-            raise ValueError(f"expected images [B,3,H,W], got shape {tuple(images.shape)}")
+        """Raise ``TypeError``/``ValueError`` when ``images`` cannot go through this model."""
+        check_image_batch(images, self.patch_size, np.ndarray)
         h, w = images.shape[-2:]
         if self.input_size is not None and (h, w) != self.input_size:
             raise ValueError(
                 f"this ONNX model was exported for {self.input_size[0]}x{self.input_size[1]} "
                 f"inputs, got {h}x{w}: resize/crop to that size or re-export with --dynamic"
             )
-        p = self.patch_size
-        if h % p or w % p:
-            raise ValueError(
-                f"input size {h}x{w} is not a multiple of the patch size {p}: pad it to "
-                f"{-(-h // p) * p}x{-(-w // p) * p}"
-            )
 
     def __call__(self, images: Any) -> np.ndarray:
         """Logits for a batch (numpy array or torch tensor, float32, normalised)."""
         if hasattr(images, "detach"):
             images = images.detach().cpu().numpy()
+        self.check_input(images)  # before the cast, so uint8 pixels are refused, not converted
         images = np.ascontiguousarray(images, dtype=np.float32)
-        self.check_input(images)
         return self.session.run(None, {self.input_name: images})[0]

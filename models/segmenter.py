@@ -58,6 +58,13 @@ class Segmenter(nn.Module):
         return self
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Logits [B,K,H,W] of normalised float images [B,3,H,W] (H, W patch multiples).
+
+        Raises:
+            TypeError: ``x`` is not a floating-point tensor (e.g. a numpy array or uint8).
+            ValueError: ``x`` is not 4-D with 3 channels, or H/W are not patch multiples.
+        """
+        self.backbone.check_input(x)  # before anything indexes x (skipped while exporting)
         h, w = x.shape[-2:]
         with torch.no_grad():
             feats = self.backbone.get_intermediate_layers(x, self.layers, return_class_token=True)

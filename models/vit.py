@@ -19,6 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from models.inputs import check_image_batch, check_image_size
 from models.weights import download_official, load_backbone_state, read_state_dict
 
 # Architecture of each official size; the name suffix `_reg` adds 4 register tokens.
@@ -248,13 +249,15 @@ class DinoVisionTransformer(nn.Module):
 
     def check_input_size(self, height: int, width: int) -> None:
         """Raise ``ValueError`` naming the padded size when H or W is not a patch multiple."""
-        p = self.patch_size
-        if height % p or width % p:
-            ph, pw = math.ceil(height / p) * p, math.ceil(width / p) * p
-            raise ValueError(
-                f"input size {height}x{width} is not a multiple of the patch size {p}: "
-                f"pad or resize it to {ph}x{pw} (or crop to {height // p * p}x{width // p * p})"
-            )
+        check_image_size(height, width, self.patch_size)
+
+    def check_input(self, x: Any) -> None:
+        """Raise ``TypeError``/``ValueError`` unless ``x`` is float [B,3,H,W] on the patch grid.
+
+        Skipped while tracing, exporting or compiling (shapes may be symbolic there).
+        """
+        if not _is_exporting():
+            check_image_batch(x, self.patch_size, torch.Tensor)
 
     def interpolate_pos_encoding(self, grid_h: int, grid_w: int) -> torch.Tensor:
         """Positional embedding [1, 1 + grid_h*grid_w, D] for a patch grid, official semantics."""
@@ -319,9 +322,8 @@ class DinoVisionTransformer(nn.Module):
 
     def prepare_tokens(self, x: torch.Tensor) -> torch.Tensor:
         """Image [B,3,H,W] -> tokens [B, 1 + R + N, D] with positional embedding added."""
+        self.check_input(x)
         h, w = x.shape[-2:]
-        if not _is_exporting():
-            self.check_input_size(int(h), int(w))
         tokens = self.patch_embed(x)
         tokens = torch.cat((self.cls_token.expand(tokens.shape[0], -1, -1), tokens), dim=1)
         pos = self.interpolate_pos_encoding(h // self.patch_size, w // self.patch_size)
@@ -356,6 +358,7 @@ class DinoVisionTransformer(nn.Module):
         bad = [i for i in take if not 0 <= i < depth]
         if bad or not take:
             raise ValueError(f"block indices {take} must be in [0, {depth - 1}] and non-empty")
+        self.check_input(x)
         h, w = x.shape[-2:]
         tokens = self.prepare_tokens(x)
         outputs = []

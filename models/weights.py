@@ -14,6 +14,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from models.torchfile import read_tensor_file
+
 BASE_URL = "https://dl.fbaipublicfiles.com/dinov2"
 
 # Hugging Face parameter name inside one block -> official name.
@@ -119,26 +121,30 @@ def official_to_hf(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
 
 
 def read_state_dict(path: str | os.PathLike) -> dict[str, torch.Tensor]:
-    """Read an official ``.pth`` or a Hugging Face ``.safetensors`` into official keys."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"weights file {path} not found; pass an existing .pth/.safetensors path, "
-            "'official' to download the official checkpoint, or None for a random init"
-        )
-    if path.suffix == ".safetensors":
-        from safetensors.torch import load_file
+    """Read an official ``.pth`` or a Hugging Face ``.safetensors`` into official keys.
 
-        state = load_file(str(path), device="cpu")
-    else:
-        try:
-            state = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:
-            raise WeightsError(f"cannot read {path} as a PyTorch state dict: {exc}") from exc
+    Raises:
+        FileNotFoundError: no such file.
+        WeightsError: a folder, an empty, truncated or foreign file, or not a dict of tensors.
+    """
+    path = Path(path)
+    state = read_tensor_file(
+        path,
+        "weights file",
+        WeightsError,
+        missing_hint="; pass an existing .pth/.safetensors path, 'official' to download the "
+        "official checkpoint, or None for a random init",
+    )
     if isinstance(state, dict) and isinstance(state.get("model"), dict):
         state = state["model"]
     if not isinstance(state, dict):
         raise WeightsError(f"{path} holds a {type(state).__name__}, not a state dict")
+    bad = [k for k, v in state.items() if not isinstance(k, str) or not torch.is_tensor(v)]
+    if bad:
+        raise WeightsError(
+            f"{path} is not a state dict of tensors: entries {bad[:5]} are not name -> tensor; "
+            "pass a DINOv2 weights file (official .pth or Hugging Face model.safetensors)"
+        )
     # Heads built on Dinov2Model (e.g. Dinov2ForImageClassification) prefix the backbone.
     if any(k.startswith("dinov2.") for k in state):
         state = {k.removeprefix("dinov2."): v for k, v in state.items() if k.startswith("dinov2.")}

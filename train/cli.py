@@ -60,17 +60,10 @@ def _run(args: argparse.Namespace) -> int:
         )
     print(f"results in {out}: config.yaml, metrics.jsonl, curves.png, last.pt, best.pt")
     best = out / "best.pt" if (out / "best.pt").is_file() else out / "last.pt"
-    print(f"evaluate: claravid-eval --checkpoint {best}{_eval_data(cfg)} --output {out / 'eval'}")
+    # claravid-eval reads the validation data, palette, split and windows from the checkpoint.
+    print(f"evaluate: claravid-eval --checkpoint {best} --output {out / 'report'}")
     print(f"export:   claravid-export {best} --output {best.with_suffix('.onnx')}")
     return 0
-
-
-def _eval_data(cfg) -> str:
-    """Arguments naming the validation data when the checkpoint's training data is not it."""
-    if cfg.data.val_dataset == cfg.data.dataset and cfg.data.val_root is None:
-        return ""
-    root = cfg.data.val_root or cfg.data.root
-    return f" --dataset {cfg.data.val_dataset} --data {root} --split {cfg.data.val_split}"
 
 
 def _num(value: float | None) -> str:

@@ -16,6 +16,10 @@ import warnings
 from collections.abc import Iterable
 from pathlib import Path
 
+from claravid.cachedir import cache_dir
+
+__all__ = ["ComplexityCache", "cache_dir", "cache_key"]  # cache_dir: re-exported, one helper
+
 #: Bump when a metric's values change, so old entries are never reused.
 ALGORITHM_VERSION = 1
 
@@ -29,12 +33,6 @@ CREATE TABLE IF NOT EXISTS complexity (
 """
 
 CacheKey = tuple[str, int, int, str, int, int, int]
-
-
-def cache_dir() -> Path:
-    """``$CLARAVID_CACHE`` if set, else ``~/.cache/claravid``."""
-    env = os.environ.get("CLARAVID_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "claravid"
 
 
 def cache_key(path: str | Path, metric: str, blur: bool, ksize: int) -> CacheKey | None:

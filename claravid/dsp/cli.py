@@ -18,10 +18,11 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 from pathlib import Path
 
+from claravid.cli import UsageError, add_debug_flag, check_output_file, run_cli
 from claravid.dsp.collection import (
-    NoImagesError,
     ProfileRun,
     find_images,
     load_results,
@@ -73,6 +74,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--no-cache", action="store_true", help="neither read nor write the cache")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an --output file that is not a results JSON",
+    )
+    add_debug_flag(parser)
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument(
         "--merge", nargs="+", type=Path, metavar="JSON", help="join shard outputs into one profile"
@@ -92,37 +99,74 @@ def _summary(run: ProfileRun) -> str:
     )
 
 
-def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+def _check_outputs(args: argparse.Namespace, output: Path | None) -> None:
+    """Fail before the computation when an output cannot be written (or is not ours to replace)."""
+    if output is not None:
+        check_output_file(output, what="--output")
+        if output.is_file() and not args.overwrite:
+            try:
+                with warnings.catch_warnings():  # only its kind matters, not its profile
+                    warnings.simplefilter("ignore")
+                    load_results(output)
+            except (OSError, ValueError):
+                raise UsageError(
+                    f"--output {output} exists and is not a complexity results file; choose "
+                    "another name or pass --overwrite to replace it"
+                ) from None
+    if args.plot is not None:
+        check_output_file(args.plot, what="--plot")
+        from claravid.dsp.plot import plot_format
+
+        plot_format(args.plot)
+
+
+def _run(args: argparse.Namespace) -> int:
+    if args.workers < 0:
+        raise UsageError(f"--workers must be >= 0 (0 or 1: in this process), got {args.workers}")
     if args.compare:
         from claravid.dsp.compare import compare_table
 
         if args.input is not None:
-            parser.error("--compare takes JSON files only; drop the INPUT argument")
+            raise UsageError("--compare takes JSON files only; drop the INPUT argument")
+        if args.output is not None or args.plot is not None:
+            raise UsageError("--compare prints a table; --output and --plot do not apply")
         runs = [load_results(p) for p in args.compare]
         print(compare_table(runs, [str(p) for p in args.compare]))
         return 0
 
     output = args.output
+    json_input = (
+        args.input is not None and args.input.is_file() and args.input.suffix.lower() == ".json"
+    )
     if args.merge:
         if args.input is not None:
-            parser.error("--merge takes JSON files only; drop the INPUT argument")
-        run = merge_runs([load_results(p) for p in args.merge])
+            raise UsageError("--merge takes JSON files only; drop the INPUT argument")
         output = output or Path(DEFAULT_OUTPUT)
     elif args.input is None:
-        parser.error("give an INPUT (folder, list file or results JSON), --merge or --compare")
-    elif args.input.is_file() and args.input.suffix.lower() == ".json":
-        run = load_results(args.input)
+        raise UsageError("give an INPUT (folder, list file or results JSON), --merge or --compare")
+    elif json_input:
+        if args.shard:
+            raise UsageError("--shard applies to a folder or a list file, not to a results JSON")
     else:
         # Cheap argument errors first, before a long directory walk.
         k, n = parse_shard(args.shard) if args.shard else (0, 1)
         if not args.no_blur:
             check_blur_ksize(args.blur_ksize)
+        if args.shard:
+            output = output or Path(f"complexity_results.shard-{k}-of-{n}.json")
+        output = output or Path(DEFAULT_OUTPUT)
+    _check_outputs(args, output)
+
+    if args.merge:
+        run = merge_runs([load_results(p) for p in args.merge])
+    elif json_input:
+        run = load_results(args.input)
+    else:
         paths = find_images(args.input, args.pattern)
         shard = None
         if args.shard:
             shard = {"index": k, "count": n, "num_candidates": len(paths)}
             paths = select_shard(paths, k, n)
-            output = output or Path(f"complexity_results.shard-{k}-of-{n}.json")
         run = profile_images(
             paths,
             args.metric,
@@ -133,7 +177,6 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             progress=not args.quiet,
         )
         run.shard = shard
-        output = output or Path(DEFAULT_OUTPUT)
 
     for err in run.errors:
         print(f"skipped {err.image_path}: {err.error}", file=sys.stderr)
@@ -153,13 +196,7 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``claravid-dsp``; returns the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        return _run(args, parser)
-    except (NoImagesError, ValueError) as exc:
-        print(f"claravid-dsp: error: {exc}", file=sys.stderr)
-        return 2
+    return run_cli("claravid-dsp", _run, build_parser(), argv)
 
 
 if __name__ == "__main__":

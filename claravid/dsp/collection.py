@@ -21,6 +21,7 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
+from claravid.cli import atomic_write_text
 from claravid.dsp.cache import ComplexityCache, cache_key
 from claravid.dsp.metrics import (
     ImageReadError,
@@ -99,11 +100,8 @@ class ProfileRun:
         return out
 
     def save(self, path: str | Path) -> Path:
-        """Write :meth:`to_json` (strict JSON: no NaN) and return the path."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(self.to_json(), indent=2, allow_nan=False) + "\n")
-        return path
+        """Write :meth:`to_json` (strict JSON: no NaN) atomically and return the path."""
+        return atomic_write_text(path, json.dumps(self.to_json(), indent=2, allow_nan=False) + "\n")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -122,6 +120,11 @@ def find_images(input_path: str | Path, pattern: str = "*.jpg") -> list[Path]:
     """
     root = Path(input_path)
     if root.is_dir():
+        if not pattern or Path(pattern).is_absolute():
+            raise ValueError(
+                f"--pattern {pattern!r} must be a non-empty glob relative to {root}, e.g. "
+                "'*.jpg' or 'left_rgb/**/*.jpg'"
+            )
         found = sorted({p.resolve() for p in root.glob(pattern) if p.is_file()})
         if not found:
             raise NoImagesError(
@@ -130,7 +133,16 @@ def find_images(input_path: str | Path, pattern: str = "*.jpg") -> list[Path]:
             )
         return found
     if root.is_file():
-        lines = [ln.strip() for ln in root.read_text(encoding="utf-8").splitlines()]
+        try:
+            text = root.read_text(encoding="utf-8")
+        except UnicodeDecodeError:
+            raise NoImagesError(
+                f"input {root} is not a text file listing image paths (it is binary, perhaps an "
+                f"image): give its folder ({root.parent}) with --pattern, or a list file"
+            ) from None
+        if "\x00" in text:
+            raise NoImagesError(f"input {root} is a binary file, not a text list of image paths")
+        lines = [ln.strip() for ln in text.splitlines()]
         paths = []
         for line in filter(None, lines):
             p = Path(line)
@@ -292,43 +304,94 @@ def profile_images(
 # JSON in, merge
 
 
+_FOREIGN_HINT = (
+    "expected a JSON object with 'metric' and 'results': [{'image_path', 'complexity'}, ...], "
+    "as written by claravid-dsp or the official compute_complexity_profile.py"
+)
+_ERROR_KEYS = ("image_path", "error")
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 def load_results(path: str | Path) -> ProfileRun:
     """Read a results JSON written by this tool or by the official script (profile refitted).
 
+    Every field is checked, so a JSON file of another program fails here with a message naming
+    the file and the first entry that does not fit, not later with a KeyError.
+
     Raises:
-        ValueError: the file is not JSON or lacks the official keys.
+        FileNotFoundError: no such file.
+        ValueError: the file is a folder, not JSON, or not a results file (the message says which
+            entry is wrong and what was expected).
     """
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{path} is a folder, not a results JSON; give the .json file")
+    if not path.exists():
+        raise FileNotFoundError(f"results JSON {path} not found")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"cannot read results JSON {path}: {exc}") from exc
-    if not isinstance(data, dict) or not isinstance(data.get("results"), list):
-        raise ValueError(
-            f"{path} is not a complexity results file: expected a JSON object with 'metric' and "
-            "'results' (as written by claravid-dsp or compute_complexity_profile.py)"
+
+    def foreign(reason: str) -> ValueError:
+        return ValueError(f"{path} is not a complexity results file ({reason}); {_FOREIGN_HINT}")
+
+    if not isinstance(data, dict):
+        raise foreign(f"it holds a JSON {type(data).__name__}, not an object")
+    if not isinstance(data.get("results"), list):
+        raise foreign("no 'results' list")
+    metric = data.get("metric", "delent")
+    if not isinstance(metric, str):
+        raise foreign(f"'metric' is {metric!r}, not a name")
+    check_metric(metric)
+    use_blur, ksize = data.get("use_blur", True), data.get("blur_ksize", 3)
+    if not isinstance(use_blur, bool) or not _is_int(ksize):
+        raise foreign(
+            f"'use_blur' {use_blur!r} must be true/false and 'blur_ksize' {ksize!r} an int"
         )
-    metric = check_metric(str(data.get("metric", "delent")))
     results, errors = [], []
-    for row in data["results"]:
+    for i, row in enumerate(data["results"]):
+        if not isinstance(row, dict) or not isinstance(row.get("image_path"), str):
+            raise foreign(f"results[{i}] is {_short(row)}, not an object with an 'image_path'")
         value = row.get("complexity")
+        if value is not None and not _is_number(value):
+            raise foreign(f"results[{i}].complexity is {_short(value)}, not a number")
         # The official script writes NaN for images it could not load.
-        if value is None or not math.isfinite(float(value)):
-            errors.append(ImageError(str(row.get("image_path")), "no value in the results file"))
+        if value is None or not math.isfinite(value):
+            errors.append(ImageError(row["image_path"], "no value in the results file"))
             continue
-        results.append(
-            ImageResult(str(row["image_path"]), float(value), row.get("height"), row.get("width"))
-        )
-    errors += [ImageError(str(e["image_path"]), str(e["error"])) for e in data.get("errors", [])]
-    return ProfileRun(
-        metric,
-        bool(data.get("use_blur", True)),
-        int(data.get("blur_ksize", 3)),
-        results,
-        errors,
-        shard=data.get("shard"),
-        source=str(path),
-    )
+        size = row.get("height"), row.get("width")
+        if size != (None, None) and not all(_is_int(v) and v > 0 for v in size):
+            raise foreign(f"results[{i}] has height/width {size}, not positive integers")
+        results.append(ImageResult(row["image_path"], float(value), *size))
+    listed = data.get("errors", [])
+    if not isinstance(listed, list):
+        raise foreign(f"'errors' is {_short(listed)}, not a list")
+    for i, e in enumerate(listed):
+        if not isinstance(e, dict) or not all(isinstance(e.get(k), str) for k in _ERROR_KEYS):
+            raise foreign(f"errors[{i}] is {_short(e)}, not an object with 'image_path', 'error'")
+        errors.append(ImageError(e["image_path"], e["error"]))
+    shard = data.get("shard")
+    if shard is not None and not (
+        isinstance(shard, dict)
+        and _is_int(shard.get("index"))
+        and _is_int(shard.get("count"))
+        and 0 <= shard["index"] < shard["count"]
+    ):
+        raise foreign(f"'shard' is {_short(shard)}, not {{'index': k, 'count': n}} with 0 <= k < n")
+    return ProfileRun(metric, use_blur, ksize, results, errors, shard=shard, source=str(path))
+
+
+def _short(value: object, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def merge_runs(runs: Sequence[ProfileRun]) -> ProfileRun:

@@ -227,12 +227,18 @@ def pixel_entropy(gray: np.ndarray) -> float:
 _FUNCTIONS = {"delent": delentropy, "glcment": glcm_entropy, "pixent": pixel_entropy}
 
 
-class ImageReadError(ValueError):
-    """An image file is missing, empty, truncated or not decodable; the message says which."""
+class ImageReadError(CorruptFileError):
+    """An image file is missing, empty, truncated or not decodable; the message says which.
+
+    A ``CorruptFileError``, so one ``except CorruptFileError`` catches every unreadable file of
+    the toolkit. Kept as its own name because it also covers files that are missing or not
+    regular files, which the DSP collection reports per image (and lists under ``errors``)
+    rather than raising, and because its message gives no re-copy advice for a missing file.
+    """
 
     def __init__(self, path: str | Path, reason: str) -> None:
-        super().__init__(f"cannot read {path}: {reason}")
-        self.path = str(path)
+        ValueError.__init__(self, f"cannot read {path}: {reason}")
+        self.path = Path(path)
         self.reason = reason
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from claravid.cli import atomic_save
 from claravid.dsp.metrics import METRIC_NAMES
 from claravid.dsp.profile import Profile, fit_profile
 
@@ -31,7 +32,8 @@ def plot_profile(
     Args:
         values: per-image complexities (non-finite values are left out).
         profile: the fitted profile; fitted from ``values`` when None.
-        path: PNG (or any matplotlib format) to write; parent folders are created.
+        path: PNG (or any matplotlib format, from the suffix) to write atomically; parent
+            folders are created.
         title: figure title; default "Scene complexity profile - <metric name>".
         metric: metric key, for the default title and the x label.
         dpi: resolution of the saved file.
@@ -79,7 +81,28 @@ def plot_profile(
     ax.legend(loc="best", fontsize=9)
     ax.set_title(title or f"Scene complexity profile - {name} ({vals.size} images)")
     if path is not None:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=dpi)
+        save_figure(fig, path, dpi=dpi)
     return fig
+
+
+def plot_format(path: str | Path) -> str:
+    """The matplotlib format of ``path`` from its suffix; ValueError when none is supported.
+
+    Check it before long work: matplotlib only complains when saving.
+    """
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    suffix = Path(path).suffix.lower().lstrip(".")
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if suffix not in formats:
+        raise ValueError(
+            f"cannot save a plot as {path}: give a file name ending in one of "
+            f"{', '.join('.' + f for f in sorted(formats))} (e.g. profile.png)"
+        )
+    return suffix
+
+
+def save_figure(fig, path: str | Path, dpi: int = 150) -> Path:
+    """Save ``fig`` to ``path`` atomically, in the format its suffix names."""
+    fmt = plot_format(path)
+    return atomic_save(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format=fmt))

@@ -1,11 +1,13 @@
 """Synthetic ClaraVid: procedurally drawn aerial scenes written in the exact on-disk format.
 
-``claravid-synth OUT --seed S --frames-per-viewpoint N --size WxH [--missions ...]`` (or
-:func:`synthesize`) writes ``OUT/<mission>/<modality>/<altitude>_<direction>/<stem>.<ext>``
-for every file modality. Each mission is a top-down world (roads with lane lines, buildings
-with shadows, trees, fields, water, vehicles and pedestrians, some of them moving, plus the
-mission's props) seen from a flight grid, from sparse rural and forest scenes to dense
-towers, so scene-complexity bins mean something. Output is byte-identical for a seed.
+``claravid-synth OUT --seed S --frames-per-viewpoint N --size WxH [--missions ...] [--altitude
+...] [--direction ...]`` (or :func:`synthesize`) writes
+``OUT/<mission>/<modality>/<altitude>_<direction>/<stem>.<ext>`` for every file modality, and a
+:data:`MARKER` file at ``OUT`` so that it never writes over a tree it did not make. Each mission
+is a top-down world (roads with lane lines, buildings with shadows, trees, fields, water,
+vehicles and pedestrians, some of them moving, plus the mission's props) seen from a flight
+grid, from sparse rural and forest scenes to dense towers, so scene-complexity bins mean
+something. Output is byte-identical for a seed.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from claravid import modalities
+from claravid.cli import add_debug_flag, run_cli
 from claravid.layout import (
     ALTITUDES,
     DIRECTIONS,
@@ -31,7 +34,21 @@ from claravid.layout import (
 from claravid.synth.render import flight_poses, render
 from claravid.synth.scenery import build_world
 
-__all__ = ["main", "parse_size", "positive_int", "synthesize"]
+__all__ = [
+    "MARKER",
+    "check_output_root",
+    "main",
+    "non_negative_int",
+    "parse_size",
+    "positive_int",
+    "synthesize",
+]
+
+#: File the generator leaves at the root of every tree it writes: running it again over its own
+#: output is fine, over anything else (a real ClaraVid download) it needs ``overwrite``.
+MARKER = ".claravid-synth"
+# Fixed text (no date, no settings): trees of one seed stay byte-identical.
+_MARKER_TEXT = "Written by claravid-synth: synthetic data, safe to regenerate.\n"
 
 
 def _ground_resolution(size: tuple[int, int]) -> float:
@@ -40,18 +57,24 @@ def _ground_resolution(size: tuple[int, int]) -> float:
     return float(np.clip(0.75 * 50.0 / focal, 0.2, 1.0))
 
 
-def _choose(values: Sequence[str] | None, valid: dict[str, str], what: str) -> list[str]:
+def _choose(values: str | Sequence[str] | None, valid: dict[str, str], what: str) -> list[str]:
+    # Not claravid.index._choose: the datasets' validator takes a single key as a one-key list
+    # (same here) but lets an empty list select nothing, while a generator asked to write nothing
+    # is a mistake, so an empty selection is an error here; duplicates are dropped so no frame
+    # is rendered twice.
     if values is None:
         return list(valid)
-    if isinstance(values, str) or not values:
-        raise ValueError(f"{what} must be a non-empty list of keys from {', '.join(valid)}")
+    if isinstance(values, str):
+        values = [values]
+    if not values:
+        raise ValueError(f"{what} must name at least one of {', '.join(valid)} (or be None: all)")
     bad = [v for v in values if v not in valid]
     if bad:
-        raise ValueError(f"unknown {what} {bad[0]!r}; valid {what}: {', '.join(valid)}")
+        raise ValueError(f"unknown {what} {bad[0]!r}; valid: {', '.join(valid)}")
     return list(dict.fromkeys(values))
 
 
-def _check(size: object, frames_per_viewpoint: object) -> tuple[int, int]:
+def _check(size: object, frames_per_viewpoint: object, seed: object) -> tuple[int, int]:
     if (
         not isinstance(size, (tuple, list))
         or len(size) != 2
@@ -68,7 +91,33 @@ def _check(size: object, frames_per_viewpoint: object) -> tuple[int, int]:
         raise ValueError(
             f"frames_per_viewpoint must be a positive integer, got {frames_per_viewpoint!r}"
         )
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     return int(size[0]), int(size[1])
+
+
+def check_output_root(out: str | Path, overwrite: bool = False) -> Path:
+    """Refuse to write into a folder that holds files the generator did not write.
+
+    A folder is ours when it holds :data:`MARKER` (written before the first frame, so an
+    interrupted run is ours too). Anything else that is not empty, e.g. a real ClaraVid
+    download, is refused unless ``overwrite``: frames of the same names would be replaced.
+
+    Raises:
+        NotADirectoryError: ``out`` is a file.
+        FileExistsError: ``out`` is a non-empty folder without the marker and not ``overwrite``.
+    """
+    root = Path(out)
+    if root.exists() and not root.is_dir():
+        raise NotADirectoryError(f"output {root} is a file; give a folder to write the tree in")
+    ours = (root / MARKER).is_file()
+    if root.is_dir() and not ours and not overwrite and any(root.iterdir()):
+        raise FileExistsError(
+            f"output {root} is not empty and was not written by claravid-synth (no {MARKER}); "
+            "its files would be replaced: choose a new folder, or pass --overwrite "
+            "(overwrite=True) if you mean it"
+        )
+    return root
 
 
 def synthesize(
@@ -77,33 +126,43 @@ def synthesize(
     seed: int = 0,
     frames_per_viewpoint: int = 4,
     size: tuple[int, int] = IMAGE_SIZE,
-    missions: Sequence[str] | None = None,
-    altitudes: Sequence[str] | None = None,
-    directions: Sequence[str] | None = None,
+    missions: str | Sequence[str] | None = None,
+    altitude: str | Sequence[str] | None = None,
+    direction: str | Sequence[str] | None = None,
     progress: bool = False,
+    overwrite: bool = False,
 ) -> Path:
     """Write a synthetic ClaraVid tree and return its root.
 
     Args:
-        out: root folder to write (created; existing files of the same names are replaced).
-        seed: scene seed; the same seed and arguments give byte-identical files.
+        out: root folder to write (created). A folder the generator wrote before (it holds
+            :data:`MARKER`) is written again, files of the same names replaced; any other
+            non-empty folder is refused unless ``overwrite``.
+        seed: scene seed (>= 0); the same seed and arguments give byte-identical files.
         frames_per_viewpoint: frames (stems ``000000``, ``000001``...) per altitude×direction.
         size: (width, height) of every image; intrinsics are ClaraVid's scaled to it.
-        missions: SDK keys, aliases or folder names; default all eight.
-        altitudes: ``low``, ``mid``, ``high``; default all.
-        directions: ``h``, ``v``; default both.
+        missions: SDK keys, aliases or folder names (one or a list); default all eight.
+        altitude: ``low``, ``mid``, ``high`` (one or a list); default all, as in the datasets.
+        direction: ``h``, ``v`` (one or a list); default both.
         progress: show a tqdm progress bar over frames.
+        overwrite: write into a non-empty folder the generator did not write.
 
     Raises:
-        ValueError: a bad size, frame count, mission, altitude or direction.
+        ValueError: a bad size, frame count, seed, mission, altitude or direction.
+        FileExistsError: ``out`` holds files not written by the generator (see ``overwrite``).
+        NotADirectoryError: ``out`` is a file.
     """
-    width, height = _check(size, frames_per_viewpoint)
-    if missions is not None and (isinstance(missions, str) or not missions):
-        raise ValueError(f"missions must be a non-empty list of keys from {', '.join(MISSIONS)}")
+    width, height = _check(size, frames_per_viewpoint, seed)
+    if isinstance(missions, str):
+        missions = [missions]
+    if missions is not None and not missions:
+        raise ValueError(f"missions must name at least one of {', '.join(MISSIONS)} (or be None)")
     keys = list(dict.fromkeys(canonical_mission(m) for m in (missions or MISSIONS)))
-    alts = _choose(altitudes, ALTITUDES, "altitudes")
-    dirs = _choose(directions, DIRECTIONS, "directions")
-    root = Path(out)
+    alts = _choose(altitude, ALTITUDES, "altitude")
+    dirs = _choose(direction, DIRECTIONS, "direction")
+    root = check_output_root(out, overwrite)
+    root.mkdir(parents=True, exist_ok=True)
+    (root / MARKER).write_text(_MARKER_TEXT, encoding="utf-8")
     total = len(keys) * len(alts) * len(dirs) * frames_per_viewpoint
     bar = None
     if progress:
@@ -163,6 +222,17 @@ def parse_size(text: str) -> tuple[int, int]:
     return width, height
 
 
+def non_negative_int(text: str) -> int:
+    """argparse type for an integer >= 0 (a seed)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
 def positive_int(text: str) -> int:
     """argparse type for a positive integer."""
     try:
@@ -174,36 +244,49 @@ def positive_int(text: str) -> int:
     return value
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Command line: ``claravid-synth OUT --seed S --frames-per-viewpoint N --size WxH ...``."""
+def build_parser() -> argparse.ArgumentParser:
+    """The ``claravid-synth`` argument parser."""
     parser = argparse.ArgumentParser(
-        prog="claravid-synth", description="Write a synthetic ClaraVid dataset tree."
+        prog="claravid-synth",
+        description="Write a synthetic ClaraVid dataset tree.",
+        epilog="Exit status: 0 ok; 2 a bad argument or an output folder that is not ours.",
     )
     parser.add_argument("out", type=Path, help="root folder to write")
-    parser.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="scene seed (default 0)")
     parser.add_argument("--frames-per-viewpoint", type=positive_int, default=4, metavar="N",
                         help="frames per altitude and direction (default 4)")  # fmt: skip
     parser.add_argument("--size", type=parse_size, default=IMAGE_SIZE, metavar="WxH",
                         help="image size (default the native 4032x3024)")  # fmt: skip
     parser.add_argument("--missions", nargs="+", metavar="MISSION",
                         help=f"default all: {' '.join(MISSIONS)}")  # fmt: skip
-    parser.add_argument("--altitudes", nargs="+", choices=list(ALTITUDES), help="default all")
-    parser.add_argument("--directions", nargs="+", choices=list(DIRECTIONS), help="default both")
+    # Singular, like the datasets' altitude= and direction= arguments.
+    parser.add_argument("--altitude", nargs="+", choices=list(ALTITUDES), help="default all")
+    parser.add_argument("--direction", nargs="+", choices=list(DIRECTIONS), help="default both")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="write into a non-empty folder that is not ours"
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    args = parser.parse_args(argv)
-    try:
-        missions = [canonical_mission(m) for m in args.missions] if args.missions else None
-    except ValueError as error:
-        parser.error(str(error))
+    add_debug_flag(parser)
+    return parser
+
+
+def _run(args: argparse.Namespace) -> int:
+    missions = [canonical_mission(m) for m in args.missions] if args.missions else None
     root = synthesize(
         args.out,
         seed=args.seed,
         frames_per_viewpoint=args.frames_per_viewpoint,
         size=args.size,
         missions=missions,
-        altitudes=args.altitudes,
-        directions=args.directions,
+        altitude=args.altitude,
+        direction=args.direction,
         progress=not args.quiet,
+        overwrite=args.overwrite,
     )
     print(root, file=sys.stdout)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: ``claravid-synth OUT --seed S --frames-per-viewpoint N --size WxH ...``."""
+    return run_cli("claravid-synth", _run, build_parser(), argv)

@@ -4,7 +4,7 @@ import json
 
 from PIL import Image
 
-from claravid.demo import main
+from claravid.demo import main, prepare_data
 
 
 def test_demo_end_to_end(tmp_path, capsys):
@@ -22,3 +22,31 @@ def test_demo_end_to_end(tmp_path, capsys):
     assert Image.open(out / "dsp_profiles.png").size[0] > 600
     assert main([str(out), "--size", "64x48", "--frames-per-viewpoint", "1"]) == 0
     assert "reusing" in capsys.readouterr().out
+
+
+def test_demo_refuses_a_folder_it_did_not_write(tmp_path, capsys):
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "samples.png").write_bytes(b"my picture")
+    assert main([str(theirs), "--size", "64x48", "--frames-per-viewpoint", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "claravid-demo: error:" in err and "--overwrite" in err and "Traceback" not in err
+    assert (theirs / "samples.png").read_bytes() == b"my picture"
+    assert sorted(p.name for p in theirs.iterdir()) == ["samples.png"]
+    assert main([str(tmp_path / "d"), "--workers", "-1"]) == 2
+    assert "--workers must be >= 0" in capsys.readouterr().err
+
+
+def test_new_settings_leave_no_frame_of_the_old_scene(tmp_path, monkeypatch):
+    import functools
+
+    import claravid.demo as demo
+
+    # One mission and viewpoint is enough to see stale frames, and 16x faster than all.
+    small = functools.partial(demo.synthesize, missions="rural_1", altitude="low", direction="h")
+    monkeypatch.setattr(demo, "synthesize", small)
+    data = prepare_data(tmp_path, (16, 12), frames=2, seed=0)
+    assert {p.stem for p in data.rglob("*.jpg")} == {"000000", "000001"}
+    prepare_data(tmp_path, (16, 12), frames=1, seed=0)
+    assert {p.stem for p in data.rglob("*.jpg")} == {"000000"}
+    assert (data / ".demo-complete").read_text() == "size=(16, 12) frames=1 seed=0"

@@ -6,6 +6,7 @@ arrays so our OpenCV path is compared value for value.
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 from PIL import Image
@@ -130,11 +131,81 @@ def test_truncated_image_names_the_file(tmp_path, rng, suffix):
 
 
 def test_garbage_and_empty_and_missing_files(tmp_path):
-    (tmp_path / "g.png").write_bytes(b"not an image at all")
-    with pytest.raises(CorruptFileError, match=r"g\.png.*could not decode"):
-        modalities.read_pan_seg(tmp_path / "g.png")
+    (tmp_path / "g.jpg").write_bytes(b"not an image at all")
+    with pytest.raises(CorruptFileError, match=r"g\.jpg.*could not decode"):
+        modalities.read_rgb(tmp_path / "g.jpg")
     (tmp_path / "e.jpg").write_bytes(b"")
     with pytest.raises(CorruptFileError, match=r"e\.jpg.*empty"):
         modalities.read_rgb(tmp_path / "e.jpg")
     with pytest.raises(FileNotFoundError, match=r"nope\.png"):
         modalities.read_depth(tmp_path / "nope.png")
+
+
+def test_garbage_label_files_name_what_they_are(tmp_path):
+    (tmp_path / "g.png").write_bytes(b"not an image at all")
+    with pytest.raises(CorruptFileError, match=r"g\.png: expected an 8-bit RGB PNG.*no PNG data"):
+        modalities.read_pan_seg(tmp_path / "g.png")
+
+
+def _labels(rng):
+    return rng.integers(0, 23, (12, 16), dtype=np.uint8)
+
+
+def _write_16bit(path, s):
+    cv2.imwrite(str(path), np.dstack([s, s, s]).astype(np.uint16) * 257)
+
+
+def _write_jpeg_bytes(path, s):
+    path.write_bytes(cv2.imencode(".jpg", np.dstack([s] * 3))[1].tobytes())
+
+
+@pytest.mark.parametrize(
+    ("write", "found"),
+    [
+        # 16-bit: OpenCV would scale every class id to 0 (all Building) without the check.
+        (_write_16bit, r"a 16-bit RGB PNG"),
+        (lambda p, s: cv2.imwrite(str(p), s), r"an 8-bit grey PNG"),
+        (lambda p, s: Image.fromarray(s, "P").save(p), r"an? \d-bit palette PNG"),
+        (_write_jpeg_bytes, r"JPEG data"),
+    ],
+    ids=["16bit", "grey", "palette", "jpeg"],
+)
+def test_panoptic_png_of_the_wrong_kind_is_an_error(tmp_path, rng, write, found):
+    path = tmp_path / "000001.png"
+    write(path, _labels(rng))
+    expected = rf"000001\.png: expected an 8-bit RGB PNG \(R class id.*found {found}"
+    for reader in (modalities.read_pan_seg, modalities.read_semantic):
+        with pytest.raises(CorruptFileError, match=expected):
+            reader(path)
+    with pytest.raises(CorruptFileError, match=r"000001\.png: expected an 8-bit RGB PNG \(24-bit"):
+        modalities.read_depth(path)
+
+
+def test_rgba_panoptic_reads_like_rgb(tmp_path, rng):
+    semantic, instance = _labels(rng), rng.integers(0, 600, (12, 16))
+    modalities.write_pan_seg(tmp_path / "rgb.png", semantic, instance)
+    bgr = cv2.imread(str(tmp_path / "rgb.png"), cv2.IMREAD_COLOR)
+    cv2.imwrite(str(tmp_path / "rgba.png"), np.dstack([bgr, np.full((12, 16), 255, np.uint8)]))
+    pan = modalities.read_pan_seg(tmp_path / "rgba.png")
+    np.testing.assert_array_equal(pan[..., 1], semantic)
+    np.testing.assert_array_equal(pan[..., 0], instance)
+
+
+def test_dynamic_mask_must_be_an_8bit_png(tmp_path):
+    mask = np.full((8, 8), 255, np.uint8)
+    mask[2:4] = 0
+    cv2.imwrite(str(tmp_path / "d16.png"), mask.astype(np.uint16) * 257)
+    with pytest.raises(CorruptFileError, match=r"d16\.png: expected an 8-bit PNG mask.*16-bit"):
+        modalities.read_dynamic_mask(tmp_path / "d16.png")
+    (tmp_path / "dj.png").write_bytes(cv2.imencode(".jpg", mask)[1].tobytes())
+    with pytest.raises(CorruptFileError, match=r"dj\.png: expected an 8-bit PNG mask.*JPEG data"):
+        modalities.read_dynamic_mask(tmp_path / "dj.png")
+
+
+@pytest.mark.parametrize("bad", ["NaN", "Infinity", "1e300"])
+def test_extrinsics_with_nan_or_inf_name_the_file(tmp_path, bad):
+    rows = [[1, 0, 0, 5], [0, 1, 0, 6], [0, 0, 1, 7], [0, 0, 0, 1]]
+    text = json.dumps(rows).replace("5", bad, 1)
+    (tmp_path / "pose.json").write_text(text)
+    with pytest.raises(CorruptFileError, match=r"pose\.json: the 4×4 pose holds NaN or infinite"):
+        modalities.read_extrinsics(tmp_path / "pose.json")

@@ -99,6 +99,12 @@ BASE = {"name": "p", "classes": [{"id": 0, "name": "a", "color": [1, 2, 3]}]}
         ({"mapping": {"Building": "a"}}, r"leaves \['Fence'.*unmapped"),
         ({"dynamic": {"Vehicles": "zzz"}}, r"'dynamic' entry 'Vehicles'"),
         ({"colours": []}, r"unknown key"),
+        ({"classes": [{"id": 0, "name": "a", "color": [0.5, 2, 3]}]}, r"'a' colour \[0\.5, 2, 3\]"),
+        ({"classes": [{"id": 0, "name": "a", "color": [True, 2, 3]}]}, r"'a' colour \[True"),
+        ({"classes": [{"id": 0, "name": None, "color": [1, 2, 3]}]}, r"entry 1 has name None"),
+        ({"classes": [{"id": 0.0, "name": "a", "color": [1, 2, 3]}]}, r"'a' has id 0\.0"),
+        ({"name": None}, r"'name' is None"),
+        ({"mapping": {"Building": ["a"]}}, r"'Building': \['a'\] is not a palette class"),
     ],
 )
 def test_bad_palette_names_the_entry(change, message):
@@ -109,7 +115,9 @@ def test_bad_palette_names_the_entry(change, message):
 
 
 def test_unknown_palette_name_and_bad_yaml(tmp_path):
-    with pytest.raises(PaletteError, match=r"unknown palette 'cityscapes'.*claravid, uavid"):
+    with pytest.raises(
+        PaletteError, match=r"unknown palette 'cityscapes'.*aeroscapes, claravid, uavid, udd6, vdd"
+    ):
         load_palette("cityscapes")
     (tmp_path / "bad.yaml").write_text("classes: [unclosed")
     with pytest.raises(PaletteError, match=r"bad\.yaml: not valid YAML"):
@@ -122,3 +130,100 @@ def test_colorize():
     palette = load_palette("uavid")
     out = palette.colorize(np.array([[1, 255]]))
     assert out.tolist() == [[[128, 0, 0], [0, 0, 0]]]
+
+
+PALETTE_YAML = """\
+name: twice
+classes:
+  - {id: 0, name: a, color: [1, 2, 3]}
+  - {id: 1, name: b, color: [4, 5, 6]}
+mapping:
+%s
+"""
+
+
+def _mapping_lines(extra=""):
+    names = [c.name for c in CLASSES if c.name != "Unlabeled"]
+    return "\n".join(f"  {n}: a" for n in names) + extra
+
+
+def test_duplicate_yaml_keys_are_errors_naming_the_key(tmp_path):
+    path = tmp_path / "twice.yaml"
+    path.write_text(PALETTE_YAML % _mapping_lines())
+    assert load_palette(path).num_classes == 2  # the file is valid without the duplicate
+    # Building given twice: PyYAML alone would silently keep the second line (b).
+    path.write_text(PALETTE_YAML % _mapping_lines("\n  Building: b"))
+    with pytest.raises(
+        PaletteError,
+        match=r"twice\.yaml: duplicate key 'Building' \(first on line 6, again on line 25",
+    ):
+        load_palette(path)
+    # At any depth: inside a class entry too.
+    path.write_text(
+        (PALETTE_YAML % _mapping_lines()).replace("{id: 1, name: b,", "{id: 1, name: b, id: 2,")
+    )
+    with pytest.raises(PaletteError, match=r"twice\.yaml: duplicate key 'id'"):
+        load_palette(path)
+    path.write_text(PALETTE_YAML.replace("name: twice", "name: twice\nname: thrice") % "")
+    with pytest.raises(PaletteError, match=r"duplicate key 'name'"):
+        load_palette(path)
+
+
+def test_binary_palette_file_is_an_error_naming_it(tmp_path):
+    path = tmp_path / "image.yaml"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR")
+    with pytest.raises(PaletteError, match=r"image\.yaml: not a YAML text file \(binary"):
+        load_palette(path)
+    path.write_bytes(b"name: \xff\xfe")
+    with pytest.raises(PaletteError, match=r"image\.yaml: not a YAML text file"):
+        load_palette(path)
+
+
+# FORMAT.md §6: the real datasets' ids, and our reduction of every ClaraVid class written out.
+UDD6 = ["Other", "Facade", "Road", "Vegetation", "Vehicle", "Roof"]
+VDD = ["Other", "Wall", "Road", "Vegetation", "Vehicle", "Roof", "Water"]
+AEROSCAPES = ["Background", "Person", "Bike", "Car", "Drone", "Boat", "Animal", "Obstacle",
+              "Construction", "Vegetation", "Road", "Sky"]  # fmt: skip
+OTHER = ["Fence", "Wire", "Pedestrian", "Pole", "SideWalk", "TrafficSign", "GreenEnergy",
+         "GuardRail", "Urban props", "Tent", "Constr props"]  # fmt: skip
+UDD6_FROM = {"Building": "Roof", "Road": "Road", "RoadLine": "Road", "Bridge": "Road",
+             "Vegetation": "Vegetation", "Terrain": "Vegetation", "Vehicles": "Vehicle",
+             "Water": "Other"} | dict.fromkeys(OTHER, "Other")  # fmt: skip
+VDD_FROM = UDD6_FROM | {"Water": "Water"}
+AEROSCAPES_FROM = {
+    "Building": "Construction", "Bridge": "Construction", "Tent": "Construction",
+    "Constr props": "Construction", "Pedestrian": "Person", "Vehicles": "Car", "Road": "Road",
+    "RoadLine": "Road", "SideWalk": "Road", "Vegetation": "Vegetation", "Terrain": "Vegetation",
+    "Fence": "Obstacle", "Wire": "Obstacle", "Pole": "Obstacle", "TrafficSign": "Obstacle",
+    "GuardRail": "Obstacle", "GreenEnergy": "Obstacle", "Urban props": "Obstacle",
+    "Water": "Background",
+}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("name", "classes", "reduction"),
+    [
+        ("udd6", UDD6, UDD6_FROM),
+        ("vdd", VDD, VDD_FROM),
+        ("aeroscapes", AEROSCAPES, AEROSCAPES_FROM),
+    ],
+)
+def test_real_target_palettes(name, classes, reduction):
+    palette = load_palette(name)
+    assert palette.name == name and list(palette.names) == classes
+    assert not palette.uses_dynamic
+    checked = 0
+    for cls in CLASSES:
+        got = remap(palette, [[cls.id]], np.array([[0]], np.uint8))[0, 0]  # dynamic: same
+        if cls.name == "Unlabeled":
+            assert got == 255
+            continue
+        assert got == classes.index(reduction[cls.name]), cls.name
+        checked += 1
+    assert checked == 19
+
+
+def test_udd6_colours_are_the_datasets():
+    colours = load_palette("udd6").colors.tolist()
+    assert colours == [[0, 0, 0], [102, 102, 156], [128, 64, 128], [107, 142, 35], [0, 0, 142],
+                       [70, 70, 70]]  # fmt: skip

@@ -1,5 +1,7 @@
 """ClaravidDataset: the official SDK's frame order, defaults, keys, dtypes and values."""
 
+import shutil
+
 import numpy as np
 import pytest
 
@@ -83,7 +85,7 @@ def test_paths_func_is_honoured(claravid_root):
     assert len(ds) == 1
 
 
-def test_missing_root_mission_modality_viewpoint(claravid_root, writable_root, tmp_path):
+def test_missing_root_mission_modality(claravid_root, writable_root, tmp_path):
     with pytest.raises(DatasetNotFoundError, match=r"ClaraVid root not found: searched .*nowhere"):
         ClaravidDataset(tmp_path / "nowhere")
     with pytest.raises(
@@ -94,16 +96,49 @@ def test_missing_root_mission_modality_viewpoint(claravid_root, writable_root, t
         ClaravidDataset(claravid_root, missions=["urbn_1"])
     with pytest.raises(ValueError, match=r"unknown altitude \['top'\]"):
         ClaravidDataset(claravid_root, altitude=["top"])
-    import shutil
-
+    with pytest.raises(ValueError, match=r"no direction selected"):
+        ClaravidDataset(claravid_root, direction=[])
     shutil.rmtree(writable_root / "001_rural_1" / "depth")
     with pytest.raises(DatasetNotFoundError, match=r"modality 'depth' of mission 'rural_1'.*depth"):
         ClaravidDataset(writable_root)
-    shutil.rmtree(writable_root / "003_urban_1" / "left_rgb" / "55deg_mid_v")
+
+
+def remove_viewpoint(root, mission_folder, viewpoint):
+    """Delete one viewpoint of a mission in every modality: a partial download."""
+    removed = 0
+    for modality in MODALITIES.values():
+        if modality.folder:
+            shutil.rmtree(root / mission_folder / modality.folder / viewpoint)
+            removed += 1
+    assert removed == 6
+
+
+def test_partial_download_defaults_mean_all_present(writable_root):
+    # urban_1 was downloaded without its vertical mid-altitude pass.
+    remove_viewpoint(writable_root, "003_urban_1", "55deg_mid_v")
+    ds = ClaravidDataset(writable_root, altitude=["mid"], fields=["rgb", "pan_seg"])
+    # rural_1: mid_h + mid_v, urban_1: mid_h only; 3 frames each.
+    assert [(f.mission, f.viewpoint) for f in ds.frames] == (
+        [("rural_1", "55deg_mid_h")] * 3 + [("rural_1", "55deg_mid_v")] * 3
+        + [("urban_1", "55deg_mid_h")] * 3
+    )  # fmt: skip
+    assert len(ClaravidDataset(writable_root, missions="urban_1", fields="rgb")) == 5 * 3
+
+
+def test_explicit_key_matching_no_folder_names_what_exists(writable_root):
+    for mission in ("001_rural_1", "003_urban_1"):
+        for direction in ("h", "v"):
+            remove_viewpoint(writable_root, mission, f"90deg_high_{direction}")
+    assert len(ClaravidDataset(writable_root, fields=["rgb"])) == 2 * 4 * 3
     with pytest.raises(
-        DatasetNotFoundError, match=r"viewpoint '55deg_mid_v'.*contains: 45deg_low_h"
+        DatasetNotFoundError,
+        match=r"altitude 'high' .*rural_1: 45deg_low_h, 45deg_low_v, 55deg_mid_h, 55deg_mid_v",
     ):
-        ClaravidDataset(writable_root, missions=["urban_1"], altitude=["mid"], fields=["rgb"])
+        ClaravidDataset(writable_root, altitude=["low", "high"], fields=["rgb"])
+    for view in ("45deg_low_v", "55deg_mid_v"):
+        remove_viewpoint(writable_root, "003_urban_1", view)
+    with pytest.raises(DatasetNotFoundError, match=r"direction 'v' .*urban_1: 45deg_low_h, 55deg"):
+        ClaravidDataset(writable_root, missions=["urban_1"], direction="v")
 
 
 def test_missing_frame_file_error_or_skip(writable_root):
@@ -111,9 +146,27 @@ def test_missing_frame_file_error_or_skip(writable_root):
     victim.unlink()
     with pytest.raises(FileNotFoundError, match=r"000001\.png"):
         ClaravidDataset(writable_root, missions=["urban_1"])
-    with pytest.warns(UserWarning, match=r"left out 1 incomplete"):
+    with pytest.warns(UserWarning, match=r"left out 1 incomplete frame\(s\)"):
         ds = ClaravidDataset(writable_root, missions=["urban_1"], skip_incomplete=True)
     assert len(ds) == 6 * 3 - 1
+
+
+def test_listing_is_symmetric_across_modalities(writable_root):
+    # The anchor (first field) misses a file: the frame must not vanish silently.
+    rgb = writable_root / "003_urban_1" / "left_rgb" / "45deg_low_h" / "000002.jpg"
+    rgb.unlink()
+    with pytest.raises(FileNotFoundError, match=r"(?s)1 frame\(s\) miss 1 file.*000002\.jpg"):
+        ClaravidDataset(writable_root, missions=["urban_1"], fields=["rgb", "depth"])
+    # A whole viewpoint folder absent in one modality: every frame of it is incomplete.
+    shutil.rmtree(writable_root / "001_rural_1" / "depth" / "90deg_high_v")
+    with pytest.raises(FileNotFoundError, match=r"(?s)3 frame\(s\) miss 3 file.*90deg_high_v"):
+        ClaravidDataset(writable_root, missions=["rural_1"], fields=["rgb", "depth"])
+    with pytest.warns(UserWarning, match=r"left out 4 incomplete frame\(s\) missing 4 file"):
+        ds = ClaravidDataset(writable_root, fields=["rgb", "depth"], skip_incomplete=True)
+    assert len(ds) == 2 * 6 * 3 - 4
+    assert not {"90deg_high_v"} & {f.viewpoint for f in ds.frames if f.mission == "rural_1"}
+    # Fields that do not include the damaged modalities are unaffected.
+    assert len(ClaravidDataset(writable_root, fields=["pan_seg"])) == 2 * 6 * 3
 
 
 def test_index_out_of_range(claravid_root):

@@ -1,5 +1,8 @@
 """ClaraVidSegmentation: samples, palettes on real files, splits, cache, errors, DataLoader."""
 
+import json
+
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -139,3 +142,52 @@ def test_plot_with_prediction(claravid_root):
     assert isinstance(fig, Figure) and len(fig.axes) == 3
     present = {ds.classes[i] if i != 255 else "ignore" for i in sample["mask"].unique().tolist()}
     assert {t.get_text() for t in fig.legends[0].get_texts()} == present
+
+
+def test_unknown_id_count_is_exact_on_dynamic_pixels_and_through_the_cache(writable_root, tmp_path):
+    ds = ClaraVidSegmentation(
+        writable_root, split="all", palette="uavid", missions=["urban_1"], label_cache=tmp_path
+    )
+    frame = ds.frames[0]
+    pan = m.read_pan_seg(frame.paths["pan_seg"])
+    semantic = pan[..., 1].astype(np.uint8)
+    semantic[0, :4] = 12  # unused id on pixels marked dynamic below
+    semantic[1, :3] = 140  # 140 - 128 = 12: must not pass for a dynamic code
+    semantic[2, 0] = 254  # the code of unknown ids itself
+    m.write_pan_seg(frame.paths["pan_seg"], semantic, pan[..., 0])
+    dynamic = m.read_dynamic_mask(frame.paths["dynamic_mask"])
+    dynamic[:2, :4] = 0
+    m.write_dynamic_mask(frame.paths["dynamic_mask"], dynamic)
+    for _ in range(2):  # decoded, then read back from the label cache
+        with pytest.warns(UnknownClassWarning, match=r"^8 pixel\(s\) of .*000000\.png"):
+            mask = ds[0]["mask"]
+        assert (mask[0, :4] == 255).all() and (mask[1, :3] == 255).all() and mask[2, 0] == 255
+
+
+def test_label_file_of_the_wrong_kind_names_the_file(writable_root):
+    ds = ClaraVidSegmentation(writable_root, split="all", missions=["rural_1"])
+    pan_seg = ds.frames[2].paths["pan_seg"]
+    semantic = m.read_pan_seg(pan_seg)[..., 1].astype(np.uint16)
+    cv2.imwrite(str(pan_seg), np.dstack([semantic] * 3) * 257)  # 16-bit: once read as Building
+    with pytest.raises(CorruptFileError, match=r"000002\.png: expected an 8-bit RGB.*16-bit"):
+        ds[2]
+
+
+def test_nan_extrinsics_and_bad_split_config_name_the_problem(writable_root):
+    pose = writable_root / "001_rural_1" / "extrinsics" / "55deg_mid_h" / "000001.json"
+    rows = json.loads(pose.read_text())
+    rows[0][3] = float("nan")
+    pose.write_text(json.dumps(rows))  # json writes the literal NaN, as some tools do
+    with pytest.raises(CorruptFileError, match=r"000001\.json: the 4×4 pose holds NaN"):
+        ClaraVidSegmentation(writable_root, split="train", missions=["rural_1"])
+    with pytest.raises(ValueError, match=r"unknown split_config key\(s\) \['test_mission'\]"):
+        ClaraVidSegmentation(writable_root, split="all", split_config={"test_mission": "urban_1"})
+
+
+def test_partial_download_with_a_missing_rgb(writable_root):
+    (writable_root / "003_urban_1" / "left_rgb" / "90deg_high_h" / "000000.jpg").unlink()
+    with pytest.raises(FileNotFoundError, match=r"90deg_high_h/000000\.jpg"):
+        ClaraVidSegmentation(writable_root, split="all")
+    with pytest.warns(UserWarning, match=r"left out 1 incomplete frame"):
+        ds = ClaraVidSegmentation(writable_root, split="all", skip_incomplete=True)
+    assert len(ds) == 2 * 6 * 3 - 1

@@ -82,9 +82,51 @@ def test_split_errors(tmp_path):
         select_split(frames, "training", SplitConfig(), lambda: positions)
     with pytest.raises(FileNotFoundError, match=r"split file not found"):
         select_split(frames, tmp_path / "none.txt", SplitConfig(), lambda: positions)
-    with pytest.raises(ValueError, match=r"block_size must be positive"):
+    with pytest.raises(ValueError, match=r"block_size must be a positive number of metres, got 0"):
         SplitConfig(block_size=0)
     with pytest.raises(ValueError, match=r"fractions must be three"):
         SplitConfig(fractions=(0.5, 0.5))
+    (tmp_path / "empty.txt").write_text("# nothing yet\n\n")
+    with pytest.raises(ValueError, match=r"split file .*empty\.txt lists no frame"):
+        select_split(frames, tmp_path / "empty.txt", SplitConfig(), lambda: positions)
     with pytest.raises(ValueError, match=r"held out as both val and test"):
         SplitConfig(val_missions=["urban_1"], test_missions=["003_urban_1"])
+
+
+@pytest.mark.parametrize(
+    ("fractions", "message"),
+    [
+        ((float("nan"), 0.5, 0.5), r"finite and non-negative, got \(nan, 0\.5, 0\.5\)"),
+        ((float("inf"), 0.0, 0.0), r"finite and non-negative"),
+        ((1.2, -0.1, -0.1), r"finite and non-negative"),
+        ((0.8, 0.1, 0.2), r"sum to 1\.1, not 1"),  # no silent rescaling to 73/9/18 %
+        ((7, 1.5, 1.5), r"sum to 10, not 1"),
+        (("0.7", 0.15, 0.15), r"three numbers"),
+        ((True, 0, 0), r"three numbers"),
+        (0.7, r"three numbers"),
+    ],
+)
+def test_bad_fractions(fractions, message):
+    with pytest.raises(ValueError, match=message):
+        SplitConfig(fractions=fractions)
+
+
+def test_good_fractions_and_block_size():
+    assert SplitConfig(fractions=[0.7, 0.2, 0.1]).fractions == (0.7, 0.2, 0.1)
+    assert SplitConfig(fractions=(1 / 3, 1 / 3, 1 / 3)).fractions[0] == 1 / 3
+    for bad in (float("nan"), float("inf"), -5.0, "150"):
+        with pytest.raises(ValueError, match=r"block_size must be a positive number"):
+            SplitConfig(block_size=bad)
+
+
+def test_a_single_mission_string_is_one_mission():
+    # Before: "urban_1" was iterated as the characters u, r, b, ... (unknown missions).
+    config = SplitConfig(test_missions="urban_1", val_missions="rural_1")
+    assert config.test_missions == ("urban_1",) and config.val_missions == ("rural_1",)
+    a, pa = grid_frames("urban_1", n=2)
+    b, pb = grid_frames("rural_1", n=2)
+    c, pc = grid_frames("highway_1", n=2)
+    splits = assign_blocks(a + b + c, np.vstack([pa, pb, pc]), config)
+    assert splits == ["test"] * len(a) + ["val"] * len(b) + ["train"] * len(c)
+    with pytest.raises(ValueError, match=r"unknown ClaraVid mission 'urbn_1'"):
+        SplitConfig(test_missions="urbn_1")

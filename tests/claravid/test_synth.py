@@ -22,7 +22,7 @@ from claravid.layout import (
     UNLABELED_ID,
     viewpoint_folder,
 )
-from claravid.synth import main, synthesize
+from claravid.synth import MARKER, main, synthesize
 
 TINY = (64, 48)
 INSTANCE_CLASSES = {c.id for c in CLASSES if c.has_instances}
@@ -50,7 +50,7 @@ def urban(tmp_path_factory) -> Path:
 
 def _frames(root: Path):
     """(mission folder, altitude, direction, stem) of every frame under ``root``."""
-    for mission in sorted(p.name for p in root.iterdir()):
+    for mission in sorted(p.name for p in root.iterdir() if p.is_dir()):
         for alt, d in itertools.product(ALTITUDES, DIRECTIONS):
             folder = root / mission / "extrinsics" / viewpoint_folder(alt, d)
             for f in sorted(folder.glob("*.json")):
@@ -77,10 +77,10 @@ def test_tree_layout_and_stems(tiny):
         if mod.folder
         for a, d in itertools.product(ALTITUDES, DIRECTIONS)
         for i in range(2)
-    }
+    } | {MARKER}
     found = {str(p.relative_to(tiny)) for p in tiny.rglob("*") if p.is_file()}
     assert found == expected
-    assert len(expected) == 2 * 6 * 6 * 2
+    assert len(expected) == 2 * 6 * 6 * 2 + 1
 
 
 def test_every_frame_is_consistent(tiny):
@@ -93,7 +93,9 @@ def test_every_frame_is_consistent(tiny):
     rays = np.stack([*np.meshgrid(np.arange(TINY[0]), np.arange(TINY[1])), np.ones(TINY[::-1])], -1)
     rays = rays @ np.linalg.inv(k).T
     instance_class: dict[tuple[str, int], int] = {}
-    for mission, alt, d, stem in _frames(tiny):
+    frames = list(_frames(tiny))
+    assert len(frames) == 2 * 6 * 2  # missions x viewpoints x frames: the loop below checks all
+    for mission, alt, d, stem in frames:
         f = _read(tiny, mission, alt, d, stem)
         instance, semantic = f["pan_seg"][..., 0], f["pan_seg"][..., 1]
         assert f["rgb"].shape == (TINY[1], TINY[0], 3)
@@ -154,7 +156,7 @@ def test_depth_grows_towards_the_top_of_oblique_images(urban):
 
 def test_flight_grid_spreads_positions(tmp_path):
     root = synthesize(
-        tmp_path, frames_per_viewpoint=16, size=(16, 12), missions=["rural_1"], altitudes=["high"]
+        tmp_path, frames_per_viewpoint=16, size=(16, 12), missions=["rural_1"], altitude=["high"]
     )
     for d, along in (("h", 0), ("v", 1)):
         folder = root / MISSIONS["rural_1"] / "extrinsics" / viewpoint_folder("high", d)
@@ -184,8 +186,8 @@ def test_same_seed_same_bytes_other_seed_other_scene(tmp_path, tiny):
         frames_per_viewpoint=2,
         size=TINY,
         missions=["rural_1"],
-        altitudes=["low"],
-        directions=["h"],
+        altitude=["low"],
+        direction=["h"],
     )
     rel = Path(MISSIONS["rural_1"], "panoptic_seg", "45deg_low_h", "000000.png")
     assert (tiny / rel).read_bytes() != (other / rel).read_bytes()
@@ -198,8 +200,8 @@ def test_a_subset_renders_the_same_frames(tmp_path, tiny):
         frames_per_viewpoint=2,
         size=TINY,
         missions=["008_urban_dense_1"],
-        altitudes=["mid"],
-        directions=["v"],
+        altitude=["mid"],
+        direction=["v"],
     )
     for p in part.rglob("*"):
         if p.is_file():
@@ -229,11 +231,11 @@ def test_aliases_and_folder_names_select_missions(tmp_path):
         tmp_path,
         frames_per_viewpoint=1,
         size=(16, 12),
-        altitudes=["low"],
-        directions=["h"],
+        altitude=["low"],
+        direction=["h"],
         missions=["urban_high", "003_urban_1"],
     )
-    assert sorted(p.name for p in root.iterdir()) == ["003_urban_1", "008_urban_dense_1"]
+    assert sorted(p.name for p in root.iterdir()) == [MARKER, "003_urban_1", "008_urban_dense_1"]
 
 
 def test_cli_end_to_end(tmp_path, capsys):
@@ -249,9 +251,9 @@ def test_cli_end_to_end(tmp_path, capsys):
             "32x24",
             "--missions",
             "nature_1",
-            "--altitudes",
+            "--altitude",
             "mid",
-            "--directions",
+            "--direction",
             "v",
             "--quiet",
         ]
@@ -260,7 +262,8 @@ def test_cli_end_to_end(tmp_path, capsys):
     assert capsys.readouterr().out.strip() == str(out)
     rgb = modalities.read_rgb(out / "007_nature_1" / "left_rgb" / "55deg_mid_v" / "000000.jpg")
     assert rgb.shape == (24, 32, 3)
-    assert len([p for p in out.rglob("*") if p.is_file()]) == 6
+    files = sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file())
+    assert len(files) == 7 and files[0] == Path(MARKER)  # 6 modalities + the marker
 
 
 @pytest.mark.parametrize(
@@ -271,10 +274,11 @@ def test_cli_end_to_end(tmp_path, capsys):
         ({"size": (64.0, 48)}, "width, height"),
         ({"frames_per_viewpoint": 0}, "frames_per_viewpoint must be a positive integer"),
         ({"missions": ["mars_1"]}, "unknown ClaraVid mission 'mars_1'"),
-        ({"missions": []}, "missions must be a non-empty list"),
-        ({"missions": "rural_1"}, "missions must be a non-empty list"),
-        ({"altitudes": ["sky"]}, "unknown altitudes 'sky'; valid altitudes: low, mid, high"),
-        ({"directions": ["d"]}, "unknown directions 'd'; valid directions: h, v"),
+        ({"missions": []}, "missions must name at least one"),
+        ({"altitude": ["sky"]}, "unknown altitude 'sky'; valid: low, mid, high"),
+        ({"altitude": []}, "altitude must name at least one of low, mid, high"),
+        ({"direction": "d"}, "unknown direction 'd'; valid: h, v"),
+        ({"seed": -1}, "seed must be a non-negative integer"),
     ],
 )
 def test_bad_arguments_raise(tmp_path, kwargs, match):
@@ -289,8 +293,9 @@ def test_bad_arguments_raise(tmp_path, kwargs, match):
         (["--size", "64"], "expected WIDTHxHEIGHT"),
         (["--size", "0x48"], "must be positive"),
         (["--frames-per-viewpoint", "0"], "expected a positive integer"),
-        (["--missions", "mars_1"], "unknown ClaraVid mission"),
-        (["--altitudes", "sky"], "invalid choice"),
+        (["--seed", "-1"], "expected an integer >= 0"),
+        (["--altitude", "sky"], "invalid choice"),
+        (["--altitudes", "low"], "unrecognized arguments"),  # the old plural flag is gone
     ],
 )
 def test_cli_rejects_bad_arguments(tmp_path, capsys, args, match):
@@ -300,3 +305,56 @@ def test_cli_rejects_bad_arguments(tmp_path, capsys, args, match):
     assert match in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
     assert UNLABELED_ID == 255
+
+
+def _one_error(capsys, match):
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith("claravid-synth: error:")]
+    assert len(lines) == 1 and match in lines[0], err
+    assert "Traceback" not in err
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    assert main([str(tmp_path / "x"), "--quiet", "--missions", "mars_1"]) == 2
+    _one_error(capsys, "unknown ClaraVid mission 'mars_1'")
+    (tmp_path / "afile").write_text("x")
+    assert main([str(tmp_path / "afile"), "--quiet"]) == 2
+    _one_error(capsys, "is a file; give a folder")
+    assert main([str(tmp_path / "afile" / "sub"), "--quiet"]) == 2
+    _one_error(capsys, "afile")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+def test_a_tree_it_did_not_write_is_refused(tmp_path, capsys):
+    """Pointed at a real ClaraVid root, the generator must not replace a single file."""
+    real = tmp_path / "claravid"
+    frame = real / "003_urban_1" / "left_rgb" / "45deg_low_h" / "000000.jpg"
+    frame.parent.mkdir(parents=True)
+    frame.write_bytes(b"a real frame")
+    args = ["--frames-per-viewpoint", "1", "--size", "16x12", "--missions", "urban_1", "--quiet"]
+    assert main([str(real), *args]) == 2
+    _one_error(capsys, "not written by claravid-synth (no .claravid-synth)")
+    with pytest.raises(FileExistsError, match="overwrite=True"):
+        synthesize(real, size=(16, 12), frames_per_viewpoint=1, missions="urban_1")
+    assert frame.read_bytes() == b"a real frame"
+    assert sorted(p.relative_to(real) for p in real.rglob("*") if p.is_file()) == [
+        frame.relative_to(real)
+    ]
+    # Explicitly asked: written, and from then on the tree is the generator's.
+    assert main([str(real), *args, "--overwrite"]) == 0
+    assert frame.read_bytes() != b"a real frame" and (real / MARKER).is_file()
+    capsys.readouterr()
+    # Its own output (also after an interrupted run: the marker comes first) is fine to redo.
+    assert main([str(real), *args]) == 0
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main([str(empty), *args]) == 0  # an empty folder holds nothing to lose
+
+
+def test_single_keys_select_like_the_datasets(tmp_path):
+    root = synthesize(
+        tmp_path, frames_per_viewpoint=1, size=(16, 12), missions="urban_1", altitude="low",
+        direction="v",
+    )  # fmt: skip
+    rgb = sorted(p.relative_to(root) for p in root.rglob("*.jpg"))
+    assert rgb == [Path("003_urban_1", "left_rgb", "45deg_low_v", "000000.jpg")]

@@ -1,3 +1,40 @@
-"""Evaluation tests run on the tiny generated ClaraVid tree of the data tests."""
+"""Evaluation tests run on the tiny generated ClaraVid tree of the data tests, with tiny models."""
 
-from tests.claravid.conftest import claravid_root  # noqa: F401
+import pytest
+import torch
+
+import models
+from tests.claravid.conftest import claravid_root, writable_root  # noqa: F401  (fixtures)
+
+TINY = {
+    "backbone_kwargs": {"embed_dim": 32, "depth": 4, "num_heads": 2},
+    "layers": [0, 1, 2, 3],
+    "features": 8,
+    "out_channels": [8, 8, 8, 8],
+}
+WINDOW = "42x56"  # the 48×64 fixture frames take 4 overlapping windows
+
+
+def tiny_model(num_classes: int = 8, seed: int = 0) -> models.Segmenter:
+    torch.manual_seed(seed)
+    return models.build_model("dinov2_vits14", num_classes, **TINY).eval()
+
+
+@pytest.fixture(scope="session")
+def model_files(claravid_root, tmp_path_factory):  # noqa: F811
+    """A training-style checkpoint (config names the data and the uavid palette), a plain one
+    (no config) and the dynamic-size ONNX export of the same model."""
+    folder = tmp_path_factory.mktemp("models")
+    model = tiny_model()
+    config = {
+        "data": {"root": str(claravid_root), "palette": "uavid", "split": {"seed": 0}},
+        "val": {"window": 28, "scale": 1.0, "batch_size": 8},
+        "other": [1, 2],
+    }
+    files = {
+        "checkpoint": models.save_checkpoint(model, folder / "best.pt", config=config, epoch=1),
+        "plain": models.save_checkpoint(model, folder / "plain.pt"),
+        "onnx": folder / "model.onnx",
+    }
+    models.export_onnx(model, files["onnx"], height=28, width=28, dynamic=True)
+    return files

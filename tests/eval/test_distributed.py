@@ -1,12 +1,12 @@
 """Sharding and ordered gathering across 2 real gloo processes."""
 
 import subprocess
-import sys
 import textwrap
 
 import pytest
 
 from eval.distributed import gather_in_order, shard_indices
+from tests.torchrun import torchrun
 
 SCRIPT = textwrap.dedent(
     """
@@ -35,8 +35,7 @@ def test_two_gloo_ranks_gather_everything_in_order(tmp_path):
     script = tmp_path / "probe.py"
     script.write_text(SCRIPT)
     run = subprocess.run(
-        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
-         str(script), str(tmp_path)],
+        [*torchrun(2), str(script), str(tmp_path)],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert run.returncode == 0, run.stderr[-3000:]

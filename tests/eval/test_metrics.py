@@ -57,3 +57,29 @@ def test_out_of_palette_ids_are_an_error():
         confusion_matrix(np.array([0]), np.array([7]), 3)
     with pytest.raises(ValueError, match="differ in shape"):
         confusion_matrix(np.zeros((2, 3)), np.zeros((3, 2)), 3)
+
+
+@pytest.mark.parametrize("num_classes", [3, 19, 200])
+def test_cpu_fast_path_counts_like_a_direct_count(num_classes):
+    # uint8 arrays take the OpenCV path, int64 tensors the bincount path: both must equal a
+    # count made with np.add.at, including junk predictions under ignored pixels.
+    rng = np.random.default_rng(num_classes)
+    truth = rng.integers(0, num_classes, (37, 53))
+    truth[rng.random(truth.shape) < 0.2] = 255
+    pred = rng.integers(0, num_classes, truth.shape)
+    pred[(truth == 255) & (rng.random(truth.shape) < 0.5)] = 250
+    expected = np.zeros((num_classes, num_classes), dtype=np.int64)
+    valid = truth != 255
+    np.add.at(expected, (truth[valid], pred[valid]), 1)
+    fast = confusion_matrix(pred.astype(np.uint8), truth.astype(np.uint8), num_classes)
+    slow = confusion_matrix(torch.from_numpy(pred), torch.from_numpy(truth), num_classes)
+    np.testing.assert_array_equal(fast.numpy(), expected)
+    np.testing.assert_array_equal(slow.numpy(), expected)
+
+
+def test_cpu_fast_path_reports_out_of_palette_ids():
+    truth = np.array([[0, 255, 1]], dtype=np.uint8)
+    with pytest.raises(ValueError, match=r"prediction holds ids \[4\]"):
+        confusion_matrix(np.array([[4, 9, 0]], dtype=np.uint8), truth, 3)
+    with pytest.raises(ValueError, match=r"ground truth holds ids \[3\]"):
+        confusion_matrix(np.zeros((1, 3), np.uint8), np.array([[3, 0, 0]], np.uint8), 3)

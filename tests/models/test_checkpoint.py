@@ -70,3 +70,38 @@ def test_foreign_and_newer_files(tmp_path):
         load_checkpoint(tmp_path / "junk.pt")
     with pytest.raises(FileNotFoundError, match=r"checkpoint .*missing.pt not found"):
         load_checkpoint(tmp_path / "missing.pt")
+
+
+def test_unreadable_checkpoints_name_the_file(tmp_path):
+    from tests.models.test_weights import _unreadable_files
+
+    files = _unreadable_files(tmp_path)
+    for path, match in files.items():
+        with pytest.raises(CheckpointError) as info:
+            load_checkpoint(path)
+        message = str(info.value)
+        assert str(path) in message and match in message, message
+        assert "weights_only" not in message and "likely succeed" not in message
+    with pytest.raises(CheckpointError, match="is a folder"):
+        load_checkpoint(tmp_path)
+
+
+def test_damaged_checkpoint_entries(tmp_path):
+    model = build_model("dinov2_vits14", 2, backbone_kwargs=TINY, **HEAD)
+    ckpt = torch.load(save_checkpoint(model, tmp_path / "m.pt"), weights_only=True)
+    damaged = {
+        "args_list": ({**ckpt, "model_args": [1]}, "'model_args' and 'model' must be dicts"),
+        "unknown_arg": (
+            {**ckpt, "model_args": {**ckpt["model_args"], "colour": 1}},
+            "model_args that build_model rejects",
+        ),
+        "shape": (
+            {**ckpt, "model": {**ckpt["model"], "head.head.2.bias": torch.zeros(7)}},
+            r"head.head.2.bias: file \(7,\) vs model \(2,\)",
+        ),
+        "not_tensors": ({**ckpt, "model": {"a": 1}}, "not tensors"),
+    }
+    for name, (payload, match) in damaged.items():
+        torch.save(payload, tmp_path / f"{name}.pt")
+        with pytest.raises(CheckpointError, match=match):
+            load_checkpoint(tmp_path / f"{name}.pt")

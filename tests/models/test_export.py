@@ -35,6 +35,11 @@ def test_fixed_size_export(tmp_path, capsys):
     np.testing.assert_allclose(runner(x), _torch_logits(model, x), atol=1e-4)
     with pytest.raises(ValueError, match=r"exported for 42x70 inputs, got 56x70.*--dynamic"):
         runner(np.zeros((1, 3, 56, 70), np.float32))
+    # The same input checks as the PyTorch model (one implementation, models/inputs.py).
+    with pytest.raises(TypeError, match=r"dtype uint8: convert to float and normalise"):
+        runner(np.zeros((1, 3, 42, 70), np.uint8))
+    with pytest.raises(ValueError, match=r"got shape \[3, 42, 70\]"):
+        runner(np.zeros((3, 42, 70), np.float32))
     with torch.no_grad():  # a changed model no longer matches the file
         model.head.head[-1].bias += 1.0
     with pytest.raises(ExportCheckError, match="differs from PyTorch by 1"):
@@ -52,7 +57,7 @@ def test_dynamic_export_other_sizes(tmp_path):
     for shape in [(1, 3, 56, 56), (4, 3, 84, 42), (1, 3, 14, 98)]:
         x = rng.standard_normal(shape).astype(np.float32)
         np.testing.assert_allclose(runner(x), _torch_logits(model, x), atol=1e-4)
-    with pytest.raises(ValueError, match="patch size 14: pad it to 56x70"):
+    with pytest.raises(ValueError, match="patch size 14: pad or resize it to 56x70"):
         runner(np.zeros((1, 3, 50, 60), np.float32))
 
 
@@ -75,3 +80,80 @@ def test_cli_errors(tmp_path, capsys):
     assert "pad or resize it to 42x630" in capsys.readouterr().err
     with pytest.raises(FileNotFoundError, match="claravid-export"):
         OnnxSegmenter(tmp_path / "x.onnx")
+
+
+def _one_error_line(capsys, match):
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith("claravid-export: error:")]
+    assert len(lines) == 1 and match in lines[0], err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (["--tolerance", "-1"], "expected a finite number > 0, got '-1'"),
+        (["--tolerance", "nan"], "expected a finite number > 0"),
+        (["--tolerance", "0"], "expected a finite number > 0"),
+        (["--height", "0"], "expected a positive integer, got '0'"),
+        (["--width", "-14"], "expected a positive integer"),
+    ],
+)
+def test_cli_rejects_nonsense_numbers(tmp_path, capsys, args, match):
+    with pytest.raises(SystemExit) as info:
+        main(["m.pt", "-o", str(tmp_path / "x.onnx"), *args])
+    assert info.value.code == 2
+    assert match in capsys.readouterr().err
+
+
+def test_python_api_rejects_nonsense_numbers(tmp_path):
+    model = _model("dinov2_vits14")
+    for kwargs, match in [
+        ({"tolerance": -1.0}, "tolerance must be a finite number > 0"),
+        ({"tolerance": float("inf")}, "tolerance must be a finite number > 0"),
+        ({"height": 0}, "height must be a positive multiple of the patch size 14, got 0"),
+        ({"width": 14.0}, "width must be a positive multiple"),
+        ({"height": 20}, "pad or resize it to 28x630"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            export_onnx(model, tmp_path / "x.onnx", **kwargs)
+    assert not any(tmp_path.iterdir())  # rejected before anything is written
+
+
+def test_cli_checks_paths_before_loading(tmp_path, capsys):
+    ckpt = save_checkpoint(_model("dinov2_vits14"), tmp_path / "m.pt")
+    (tmp_path / "afile").write_text("x")
+    cases = [
+        ([str(ckpt), "-o", str(tmp_path)], "is a folder"),
+        ([str(ckpt), "-o", str(tmp_path / "afile" / "m.onnx")], "afile is a file, not a folder"),
+        ([str(ckpt), "-o", str(tmp_path / "m.pt")], "must end in .onnx"),
+        ([str(tmp_path), "-o", str(tmp_path / "x.onnx")], "is a folder; give the file itself"),
+        ([str(tmp_path / "afile"), "-o", str(tmp_path / "x.onnx")], "not a PyTorch tensor file"),
+    ]
+    for argv, match in cases:
+        assert main(argv) == 2
+        _one_error_line(capsys, match)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "m.pt"]
+
+
+def test_failed_check_writes_nothing_and_keeps_the_old_file(tmp_path, capsys, monkeypatch):
+    import models.export as export
+
+    def fake_export(model, path, height, width, dynamic):
+        path.write_bytes(b"new onnx")
+
+    def failing_check(model, path, *args):
+        raise ExportCheckError(f"exported model {path} differs from PyTorch by 1")
+
+    monkeypatch.setattr(export, "_export", fake_export)
+    monkeypatch.setattr(export, "check_export", failing_check)
+    ckpt = save_checkpoint(_model("dinov2_vits14"), tmp_path / "m.pt")
+    out = tmp_path / "x.onnx"
+    out.write_bytes(b"old onnx")
+    assert main([str(ckpt), "-o", str(out), "--height", "28", "--width", "28"]) == 1
+    err = capsys.readouterr().err
+    assert f"exported model {out} differs" in err and "nothing was written" in err
+    assert out.read_bytes() == b"old onnx"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.pt", "x.onnx"]  # no temp left
+    assert main([str(ckpt), "-o", str(out), "--height", "28", "--width", "28", "--no-check"]) == 0
+    assert out.read_bytes() == b"new onnx"

@@ -1,5 +1,6 @@
 """The segmenter: frozen backbone, trainable DPT head, sizes, precision and compile."""
 
+import numpy as np
 import pytest
 import torch
 
@@ -126,3 +127,37 @@ def test_torch_compile_matches_eager():
     torch.testing.assert_close(out, model(x), atol=1e-4, rtol=1e-4)
     assert all(p.grad is None for p in model.backbone.parameters())
     assert model.head.layer_rn[0].weight.grad is not None
+
+
+@pytest.mark.parametrize(
+    ("make", "error", "match"),
+    [
+        (lambda: np.zeros((1, 3, 28, 28), np.float32), TypeError, r"got numpy.ndarray.*from_numpy"),
+        (lambda: [[0.0]], TypeError, r"expected a torch.Tensor of float images \[B,3,H,W\]"),
+        (lambda: torch.zeros(3, 28, 28), ValueError, r"got shape \[3, 28, 28\].*x\[None\]"),
+        (lambda: torch.zeros(1, 1, 3, 28, 28), ValueError, r"got shape \[1, 1, 3, 28, 28\]"),
+        (lambda: torch.zeros(1, 3, 28, 28, dtype=torch.uint8), TypeError, r"dtype torch.uint8"),
+        (lambda: torch.zeros(1, 28, 28, 3), ValueError, r"28 channels.*permute to \[B,3,H,W\]"),
+        (lambda: torch.zeros(1, 4, 28, 28), ValueError, r"got 4 channels"),
+        (lambda: torch.zeros(1, 1, 28, 28), ValueError, r"got 1 channels"),
+        (lambda: torch.zeros(1, 3, 30, 28), ValueError, r"pad or resize it to 42x28"),
+        (lambda: torch.zeros(1, 3, 0, 28), ValueError, r"0x28 is empty"),
+    ],
+)
+def test_wrong_input_says_what_is_expected(make, error, match):
+    model = _model().eval()
+    with pytest.raises(error, match=match) as info:
+        model(make())
+    assert "normalised" in str(info.value) or "patch size 14" in str(info.value)
+    with pytest.raises(error, match=match):  # the backbone alone checks the same way
+        model.backbone.get_intermediate_layers(make(), 1)
+
+
+def test_input_checks_are_skipped_while_tracing(monkeypatch):
+    model = _model().eval()
+    odd = torch.randn(1, 3, 40, 50)  # not a patch multiple: refused in eager mode
+    with pytest.raises(ValueError, match="patch size"):
+        model(odd)
+    monkeypatch.setattr(torch.jit, "is_tracing", lambda: True)
+    with torch.no_grad():  # while tracing the check would specialise shapes: it is skipped
+        assert model(odd).shape == (1, 5, 40, 50)

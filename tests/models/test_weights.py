@@ -97,9 +97,40 @@ def test_incomplete_hf_qkv(tmp_path):
 def test_missing_and_unreadable_files(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"nope.pth not found.*'official'"):
         build_backbone("dinov2_vits14", weights=tmp_path / "nope.pth", **TINY)
-    (tmp_path / "junk.pth").write_bytes(b"not a checkpoint")
-    with pytest.raises(WeightsError, match=r"cannot read .*junk.pth"):
-        build_backbone("dinov2_vits14", weights=tmp_path / "junk.pth", **TINY)
+    with pytest.raises(WeightsError, match=r"is a folder; give the file itself"):
+        build_backbone("dinov2_vits14", weights=tmp_path, **TINY)
+
+
+def _unreadable_files(folder):
+    """(file, what its message must say): every way a weights/checkpoint file can be unusable."""
+    torch.save({"w": torch.zeros(3)}, folder / "good.pt")
+    whole = (folder / "good.pt").read_bytes()
+    cases = {
+        "junk.pth": (b"not a checkpoint", "not a PyTorch tensor file"),
+        "empty.pth": (b"", "is empty"),
+        "truncated.pth": (whole[: len(whole) // 2], "truncated or corrupt"),
+        "garbage.safetensors": (b"\x10\x00\x00\x00\x00\x00\x00\x00{bad json", "safetensors"),
+        "pth_named.safetensors": (whole, "as safetensors"),
+    }
+    for name, (data, _) in cases.items():
+        (folder / name).write_bytes(data)
+    torch.save(torch.nn.Linear(2, 2), folder / "module.pth")  # pickled code, not tensors
+    cases["module.pth"] = (None, "pickled Python objects")
+    return {folder / name: match for name, (_, match) in cases.items()}
+
+
+def test_unreadable_weights_name_the_file_and_never_advise_unsafe_loading(tmp_path):
+    files = _unreadable_files(tmp_path)
+    assert len(files) == 6
+    for path, match in files.items():
+        with pytest.raises(WeightsError) as info:
+            build_backbone("dinov2_vits14", weights=path, **TINY)
+        message = str(info.value)
+        assert str(path) in message and match in message, message
+        assert "weights_only" not in message and "likely succeed" not in message
+    torch.save({"pos_embed": "text"}, tmp_path / "strings.pth")
+    with pytest.raises(WeightsError, match=r"not a state dict of tensors.*pos_embed"):
+        build_backbone("dinov2_vits14", weights=tmp_path / "strings.pth", **TINY)
 
 
 def test_official_urls():
@@ -134,3 +165,114 @@ def test_official_uses_the_hub_cache(monkeypatch):
     torch.save(state, target)
     model = build_backbone("dinov2_vits14", weights="official", **TINY)
     assert torch.equal(model.pos_embed, state["pos_embed"])
+
+
+def _hf_layer_keys(i: int, ffn: tuple[str, str]) -> list[str]:
+    """The parameters of layer ``i`` of transformers' ``Dinov2Model``, written out by hand."""
+    names = [
+        "norm1.weight",
+        "norm1.bias",
+        "attention.attention.query.weight",
+        "attention.attention.query.bias",
+        "attention.attention.key.weight",
+        "attention.attention.key.bias",
+        "attention.attention.value.weight",
+        "attention.attention.value.bias",
+        "attention.output.dense.weight",
+        "attention.output.dense.bias",
+        "layer_scale1.lambda1",
+        "norm2.weight",
+        "norm2.bias",
+        f"mlp.{ffn[0]}.weight",
+        f"mlp.{ffn[0]}.bias",
+        f"mlp.{ffn[1]}.weight",
+        f"mlp.{ffn[1]}.bias",
+        "layer_scale2.lambda1",
+    ]
+    return [f"encoder.layer.{i}.{n}" for n in names]
+
+
+# The real state-dict keys of Hugging Face ``Dinov2Model`` (transformers modeling_dinov2.py:
+# Dinov2Embeddings, Dinov2Layer with Dinov2Attention{attention, output.dense}, Dinov2LayerScale
+# .lambda1, Dinov2MLP fc1/fc2 or Dinov2SwiGLUFFN weights_in/weights_out, final layernorm) and of
+# ``Dinov2WithRegistersModel`` (adds embeddings.register_tokens). Not derived from our tables.
+HF_EMBEDDINGS = [
+    "embeddings.cls_token",
+    "embeddings.mask_token",
+    "embeddings.position_embeddings",
+    "embeddings.patch_embeddings.projection.weight",
+    "embeddings.patch_embeddings.projection.bias",
+]
+HF_FINAL = ["layernorm.weight", "layernorm.bias"]
+MLP, SWIGLU = ("fc1", "fc2"), ("weights_in", "weights_out")
+HF_KEYS = {
+    "dinov2_vits14": [*HF_EMBEDDINGS, *_hf_layer_keys(0, MLP), *_hf_layer_keys(1, MLP), *HF_FINAL],
+    "dinov2_vits14_reg": [
+        *HF_EMBEDDINGS,
+        "embeddings.register_tokens",
+        *_hf_layer_keys(0, MLP),
+        *_hf_layer_keys(1, MLP),
+        *HF_FINAL,
+    ],
+    "dinov2_vitg14": [
+        *HF_EMBEDDINGS,
+        *_hf_layer_keys(0, SWIGLU),
+        *_hf_layer_keys(1, SWIGLU),
+        *HF_FINAL,
+    ],
+}
+
+
+@pytest.mark.parametrize("name", sorted(HF_KEYS))
+def test_converter_writes_the_real_hugging_face_key_names(name):
+    state = _official_state(name)
+    hf = official_to_hf(state)
+    assert (
+        len(HF_KEYS[name]) == len(set(HF_KEYS[name])) == len(state) + 2 * 4
+    )  # per layer qkv.{weight,bias} -> q, k, v
+    assert sorted(hf) == sorted(HF_KEYS[name])
+    d = TINY["embed_dim"]
+    assert hf["encoder.layer.1.attention.output.dense.weight"].shape == (d, d)
+    assert torch.equal(
+        hf["encoder.layer.1.attention.output.dense.bias"], state["blocks.1.attn.proj.bias"]
+    )
+    assert torch.equal(hf["embeddings.position_embeddings"], state["pos_embed"])
+
+
+def test_file_with_the_real_hugging_face_names_loads(tmp_path):
+    """A state dict keyed by the hand-written names (not by our converter) loads exactly."""
+    d, hidden = TINY["embed_dim"], 4 * TINY["embed_dim"]
+    g = torch.Generator().manual_seed(0)
+    special = {
+        "embeddings.cls_token": (1, 1, d),
+        "embeddings.mask_token": (1, d),
+        "embeddings.position_embeddings": (1, 5, d),
+        "embeddings.patch_embeddings.projection.weight": (d, 3, 14, 14),
+    }
+
+    def shape(key):
+        if key in special:
+            return special[key]
+        if "mlp.fc1" in key:
+            return (hidden, d) if key.endswith("weight") else (hidden,)
+        if "mlp.fc2.weight" in key:
+            return (d, hidden)
+        if key.endswith("bias") or "norm" in key or key.endswith("lambda1"):
+            return (d,)
+        return (d, d)
+
+    hf = {key: torch.randn(shape(key), generator=g) for key in HF_KEYS["dinov2_vits14"]}
+    save_file(hf, str(tmp_path / "model.safetensors"))
+    model = build_backbone("dinov2_vits14", weights=tmp_path / "model.safetensors", **TINY)
+    own = model.state_dict()
+    for i in (0, 1):
+        layer = f"encoder.layer.{i}."
+        qkv = [hf[f"{layer}attention.attention.{n}.weight"] for n in ("query", "key", "value")]
+        assert torch.equal(own[f"blocks.{i}.attn.qkv.weight"], torch.cat(qkv))
+        assert torch.equal(
+            own[f"blocks.{i}.attn.proj.weight"], hf[f"{layer}attention.output.dense.weight"]
+        )
+        assert torch.equal(own[f"blocks.{i}.mlp.fc1.weight"], hf[f"{layer}mlp.fc1.weight"])
+        assert torch.equal(own[f"blocks.{i}.mlp.fc2.bias"], hf[f"{layer}mlp.fc2.bias"])
+        assert torch.equal(own[f"blocks.{i}.ls2.gamma"], hf[f"{layer}layer_scale2.lambda1"])
+    assert torch.equal(own["norm.bias"], hf["layernorm.bias"])

@@ -13,12 +13,12 @@ float rounding, which is what the second case checks (and that ``no_sync`` still
 
 import os
 import subprocess
-import sys
 
 import pytest
 import torch
 
 from models.checkpoint import read_checkpoint
+from tests.torchrun import torchrun
 from tests.train.conftest import tiny
 from train import load_config, train
 from train.logs import read_metrics
@@ -42,8 +42,7 @@ def test_two_gloo_ranks_match_one_process_with_the_same_global_batch(
 
     ddp = tmp_path / "ddp"
     run = subprocess.run(
-        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
-         "-m", "train", "--config", "demo",
+        [*torchrun(2), "-m", "train", "--config", "demo",
          *tiny(claravid_root, ddp, *EXTRA, batch, f"train.grad_accum={accum}")],
         capture_output=True, text=True, timeout=300,
         env={**os.environ, "OMP_NUM_THREADS": "1"},

@@ -12,11 +12,12 @@ import cv2
 import numpy as np
 import pytest
 
-from claravid.dsp import fit_profile, load_results, profile_images
+from claravid.dsp import load_results, profile_images
 from claravid.dsp.cache import cache_dir
 from claravid.dsp.cli import main
 
 from .reference import official_image_complexity, textured
+from .reference_profile import official_profile
 
 
 @pytest.fixture
@@ -68,14 +69,15 @@ def test_folder_with_recursive_pattern(collection, tmp_path, capsys):
         assert (row["height"], row["width"]) == (48, 64)
     assert [Path(e["image_path"]).name for e in data["errors"]] == ["000099.png"]
     assert "could not decode" in data["errors"][0]["error"]
-    expected = fit_profile([r["complexity"] for r in data["results"]]).to_dict()
-    assert data["profile"] == pytest.approx(expected)
+    expected = official_profile([r["complexity"] for r in data["results"]])
+    assert data["profile"] == pytest.approx(expected, rel=1e-12)
     assert plot.read_bytes()[:4] == b"\x89PNG"
     assert "000099.png" in capsys.readouterr().err
 
 
 def test_list_file_and_other_settings(collection, tmp_path, monkeypatch):
     images = sorted(collection.glob("left_rgb/*/*.jpg"))
+    assert len(images) == 3  # the loops below check something
     listing = tmp_path / "list.txt"
     listing.write_text("\n".join(os.path.relpath(p, tmp_path) for p in images) + "\n\n")
     monkeypatch.chdir(collection)  # relative paths resolve from the list file's folder
@@ -108,10 +110,10 @@ def test_official_json_is_profiled_without_recomputing(tmp_path):
     assert _run([str(src), "--output", str(out), "--plot", str(tmp_path / "p.png")]) == 0
     data = json.loads(out.read_text())
     assert data["num_images"] == 3 and data["errors"][0]["image_path"] == "/nowhere/2.jpg"
-    assert data["profile"] == pytest.approx(fit_profile([4.1, 3.9, 4.3]).to_dict())
+    assert data["profile"] == pytest.approx(official_profile([4.1, 3.9, 4.3]), rel=1e-12)
 
 
-def test_shards_merge_to_the_full_run(collection, tmp_path):
+def test_shards_merge_to_the_full_run(collection, tmp_path, capsys):
     pattern = ["--pattern", "**/*.*"]
     full = tmp_path / "full.json"
     assert _run([str(collection), *pattern, "--output", str(full), "--no-cache"]) == 0
@@ -130,8 +132,12 @@ def test_shards_merge_to_the_full_run(collection, tmp_path):
     a, b = json.loads(full.read_text()), json.loads(merged.read_text())
     assert a["results"] == b["results"] and a["profile"] == b["profile"]
     assert [e["image_path"] for e in a["errors"]] == [e["image_path"] for e in b["errors"]]
-    with pytest.warns(UserWarning, match=r"shards \[2\] are missing"):
-        assert main(["--merge", *parts[:2], "--output", str(tmp_path / "m2.json")]) == 0
+    capsys.readouterr()
+    assert main(["--merge", *parts[:2], "--output", str(tmp_path / "m2.json")]) == 0
+    err = capsys.readouterr().err
+    # The warning's message on one line, not the Python source line that raised it.
+    assert "claravid-dsp: warning: shards [2] are missing" in err
+    assert "warnings.warn" not in err and "UserWarning" not in err
 
 
 @pytest.mark.filterwarnings("ignore::claravid.dsp.profile.DegenerateProfileWarning")  # one image
@@ -254,10 +260,10 @@ def test_error_paths(collection, tmp_path, capsys):
     assert "not a complexity results file" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["--metric", "entropy", str(collection)])
-    with pytest.raises(SystemExit):
-        main([])
-    with pytest.raises(SystemExit):
-        main([str(collection), "--merge", "a.json"])
+    assert main([]) == 2
+    assert "give an INPUT" in capsys.readouterr().err
+    assert main([str(collection), "--merge", "a.json"]) == 2
+    assert "drop the INPUT argument" in capsys.readouterr().err
 
 
 def test_profile_images_reports_values_and_errors(collection):
@@ -265,4 +271,130 @@ def test_profile_images_reports_values_and_errors(collection):
     run = profile_images(paths, metric="pixent", cache=False)
     assert [Path(e.image_path).name for e in run.errors] == ["000099.png"]
     assert len(run.results) == 3 and not math.isnan(run.profile.mu)
-    assert run.profile == fit_profile(run.values)
+    assert run.profile.to_dict() == pytest.approx(official_profile(run.values), rel=1e-12)
+
+
+def _one_error(capsys, match: str) -> str:
+    """The run printed exactly one error line containing ``match``, and no traceback."""
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith("claravid-dsp: error:")]
+    assert len(lines) == 1 and match in lines[0], err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+FOREIGN_JSON = {
+    "list.json": ([1, 2, 3], "it holds a JSON list"),
+    "other_keys.json": ({"hello": 1}, "no 'results' list"),
+    "rows_are_strings.json": ({"results": ["a.jpg"]}, "results[0] is 'a.jpg'"),
+    "no_path.json": ({"results": [{"complexity": 4.0}]}, "results[0] is {'complexity': 4.0}"),
+    "text_value.json": (
+        {"results": [{"image_path": "a", "complexity": "4.1"}]},
+        "results[0].complexity is '4.1', not a number",
+    ),
+    "bool_value.json": (
+        {"results": [{"image_path": "a", "complexity": True}]},
+        "results[0].complexity is True",
+    ),
+    "text_size.json": (
+        {"results": [{"image_path": "a", "complexity": 4.0, "height": "48", "width": 64}]},
+        "height/width ('48', 64)",
+    ),
+    "metric_number.json": ({"metric": 3, "results": []}, "'metric' is 3"),
+    "blur_text.json": ({"use_blur": "no", "results": []}, "'use_blur' 'no' must be true/false"),
+    "errors_dict.json": ({"results": [], "errors": {"a": 1}}, "'errors' is {'a': 1}"),
+    "errors_rows.json": ({"results": [], "errors": [["a", "b"]]}, "errors[0] is ['a', 'b']"),
+    "shard_text.json": ({"results": [], "shard": "0/2"}, "'shard' is '0/2'"),
+    "shard_range.json": ({"results": [], "shard": {"index": 3, "count": 2}}, "0 <= k < n"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(FOREIGN_JSON))
+def test_foreign_json_is_one_line_exit_2_in_every_mode(tmp_path, capsys, name):
+    data, match = FOREIGN_JSON[name]
+    bad = tmp_path / name
+    bad.write_text(json.dumps(data))
+    good = tmp_path / "good.json"
+    good.write_text(
+        json.dumps(
+            {
+                "metric": "delent",
+                "results": [
+                    {"image_path": "x", "complexity": 1.0},
+                    {"image_path": "y", "complexity": 2.0},
+                ],
+            }
+        )
+    )
+    for argv in ([str(bad)], ["--merge", str(good), str(bad)], ["--compare", str(good), str(bad)]):
+        assert main(argv) == 2, argv
+        line = _one_error(capsys, match)
+        assert str(bad) in line and "not a complexity results file" in line
+
+
+def test_unreadable_json_inputs(tmp_path, capsys):
+    (tmp_path / "binary.json").write_bytes(b"\x89PNG\r\n\x1a\n\x00\xff")
+    (tmp_path / "folder.json").mkdir()
+    for argv, match in [
+        (["--merge", str(tmp_path / "binary.json")], "cannot read results JSON"),
+        (["--compare", str(tmp_path / "folder.json")], "is a folder, not a results JSON"),
+        (["--merge", str(tmp_path / "nope.json")], "results JSON"),
+    ]:
+        assert main(argv) == 2
+        _one_error(capsys, match)
+
+
+def test_foreign_inputs_and_arguments(collection, tmp_path, capsys):
+    image = sorted(collection.glob("**/*.jpg"))[0]
+    argvs = [
+        ([str(image)], "not a text file listing image paths"),
+        ([str(collection), "--pattern", "/abs/*.jpg"], "must be a non-empty glob relative"),
+        ([str(collection), "--pattern", ""], "must be a non-empty glob relative"),
+        ([str(collection), "--workers", "-2"], "--workers must be >= 0"),
+    ]
+    for argv, match in argvs:
+        assert main([*argv, "--quiet", "--output", str(tmp_path / "o.json")]) == 2
+        _one_error(capsys, match)
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_unusable_outputs_fail_before_the_computation(collection, tmp_path, capsys, monkeypatch):
+    import claravid.dsp.cli as cli
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("the computation must not start")
+
+    monkeypatch.setattr(cli, "profile_images", forbidden)
+    blocker = tmp_path / "afile"
+    blocker.write_text("mine")
+    photo = tmp_path / "photo.jpg"
+    photo.write_bytes(b"precious")
+    cases = [
+        (["--output", str(tmp_path)], "is a directory"),
+        (["--output", str(blocker / "r.json")], "is a file, not a folder"),
+        (["--plot", str(tmp_path)], "is a directory"),
+        (["--plot", str(blocker / "p.png")], "is a file, not a folder"),
+        (["--plot", str(tmp_path / "p.xyz")], "give a file name ending in one of"),
+        (["--output", str(photo)], "is not a complexity results file; choose another name"),
+    ]
+    if os.geteuid() != 0:  # root writes anywhere
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        cases.append((["--output", str(locked / "r.json")], "not writable"))
+    for extra, match in cases:
+        assert _run([str(collection), *extra]) == 2, extra
+        _one_error(capsys, match)
+    assert photo.read_bytes() == b"precious" and blocker.read_text() == "mine"
+    monkeypatch.undo()
+    # The default output name never replaces a file that is not ours either.
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "complexity_results.json").write_text("my notes")
+    assert _run([str(collection), "--pattern", "**/*.png"]) == 2
+    _one_error(capsys, "pass --overwrite")
+    assert _run([str(collection), "--pattern", "**/*.png", "--overwrite"]) == 0
+    assert json.loads((tmp_path / "complexity_results.json").read_text())["num_images"] == 3
+    # ... while a results file of ours is replaced without asking (re-running is normal).
+    assert _run([str(collection), "--pattern", "**/*.jpg"]) == 0
+    assert json.loads((tmp_path / "complexity_results.json").read_text())["num_images"] == 3
+    leftovers = [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
+    assert leftovers == []  # atomic writes leave no temp files

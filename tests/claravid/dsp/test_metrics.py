@@ -20,6 +20,7 @@ from claravid.dsp import (
     read_gray,
 )
 from claravid.dsp.metrics import BIN_LUT
+from claravid.errors import CorruptFileError
 
 from .reference import OFFICIAL, official_deldensity, official_image_complexity, textured
 
@@ -183,6 +184,9 @@ def test_unreadable_files_say_why(tmp_path):
     (tmp_path / "cut.jpg").write_bytes(ok.read_bytes()[:-200])
     with pytest.raises(ImageReadError, match="truncated JPEG"):
         image_complexity(tmp_path / "cut.jpg")
+    # One family of "unreadable file" errors: the data layer's CorruptFileError catches it.
+    with pytest.raises(CorruptFileError, match=r"cannot read .*junk\.jpg: OpenCV could not"):
+        image_complexity(tmp_path / "junk.jpg")
 
 
 def test_import_does_not_pull_torch():

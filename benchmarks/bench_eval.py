@@ -1,0 +1,186 @@
+"""Speed of claravid-eval's two paths against baselines measured in the same run.
+
+    PYTHONPATH=. python benchmarks/bench_eval.py [--frames 4] [--skip-model]
+
+On generated full-size 4032×3024 ClaraVid frames (uavid palette: panoptic PNG + dynamic mask):
+
+1. ``--predictions`` path: seconds per image of the whole per-image work (read the prediction
+   PNG and the labels, check, count the confusion, decode the greyscale RGB and compute its
+   delentropy, cold DSP cache) divided by the bare decode time of the same files (prediction
+   PNG, panoptic PNG, dynamic mask, greyscale RGB; cv2.imread only). Target <= 1.5x. Then the
+   same work with ``workers=2``: the speed-up over ``workers=0``.
+2. Model path: images/s of the whole evaluation (complexity computed while the model runs)
+   vs the same work done one after the other (evaluate_model, then compute_complexities), on
+   the demo-sized DINOv2-shaped model (224² windows at scale 0.25; CPU-friendly, it measures
+   the overlap, not the model).
+3. GPU (only with CUDA): windows/s of dinov2_vitl14 + DPT head at 630×630, bf16 autocast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
+
+import cv2
+import numpy as np
+import torch
+
+import models
+from claravid.dsp import compute_complexities
+from claravid.synth import synthesize
+from eval.data import open_data
+from eval.evaluate import evaluate_model
+from eval.run import collect
+from eval.windows import WindowConfig
+
+
+def _cold_cache(tmp: Path, name: str) -> None:
+    """Point the DSP cache at a fresh folder: every delentropy is computed, none looked up."""
+    os.environ["CLARAVID_CACHE"] = str(tmp / f"cache-{name}-{time.perf_counter_ns()}")
+
+
+def bare_decode(data, preds: Path) -> tuple[float, float]:
+    """(wall, CPU) seconds to decode every file the predictions path must read (cv2.imread)."""
+    start, cpu = time.perf_counter(), time.process_time()
+    for i in range(len(data)):
+        frame = data.raw.dataset.frames[i]
+        cv2.imread(str(preds / f"{data.keys[i]}.png"), cv2.IMREAD_UNCHANGED)
+        cv2.imread(str(frame.paths["pan_seg"]), cv2.IMREAD_COLOR)
+        cv2.imread(str(frame.paths["dynamic_mask"]), cv2.IMREAD_UNCHANGED)
+        cv2.imread(str(frame.paths["rgb"]), cv2.IMREAD_GRAYSCALE)
+    return time.perf_counter() - start, time.process_time() - cpu
+
+
+def predictions_path(data, preds: Path, tmp: Path, workers: int) -> tuple[float, float]:
+    """(wall, CPU) seconds of the whole --predictions evaluation (cold complexity cache)."""
+    _cold_cache(tmp, f"p{workers}")
+    start, cpu = time.perf_counter(), time.process_time()
+    collect(data, predictions=preds, workers=workers, hardest=0)
+    return time.perf_counter() - start, time.process_time() - cpu
+
+
+def best(fn, repeats: int) -> tuple[float, float]:
+    """The run of least wall time, as (wall, CPU)."""
+    return min((fn() for _ in range(repeats)), key=lambda t: t[0])
+
+
+def section_predictions(data, preds: Path, tmp: Path, repeats: int) -> None:
+    n = len(data)
+    bare_decode(data, preds)  # warm the page cache: both sides read from memory
+    base = best(lambda: bare_decode(data, preds), repeats)
+    ours = best(lambda: predictions_path(data, preds, tmp, 0), repeats)
+    two = best(lambda: predictions_path(data, preds, tmp, 2), repeats)
+    print(f"\n1. --predictions path, per image (4032×3024, cold DSP cache; {os.cpu_count()} cores,"
+          f" load average {os.getloadavg()[0]:.1f})")  # fmt: skip
+    print(f"   {'':<58}{'wall ms':>8}{'ratio':>7}{'CPU ms':>8}{'ratio':>7}")
+    for name, (wall, cpu) in (
+        ("bare decode: pred + panoptic + dynamic mask + grey RGB", base),
+        ("whole evaluation, workers=0 (target ratio <= 1.5)", ours),
+        ("whole evaluation, workers=2", two),
+    ):
+        print(f"   {name:<58}{1000 * wall / n:>8.1f}{wall / base[0]:>7.2f}"
+              f"{1000 * cpu / n:>8.1f}{cpu / base[1]:>7.2f}")  # fmt: skip
+    print(f"   workers=2 vs workers=0: wall speed-up {ours[0] / two[0]:.2f}x")
+
+
+def section_model(data, tmp: Path) -> None:
+    torch.manual_seed(0)
+    model = models.build_model(
+        "dinov2_vits14", data.palette.num_classes,
+        backbone_kwargs={"embed_dim": 96, "depth": 4, "num_heads": 3},
+        layers=[0, 1, 2, 3], features=32, out_channels=[32, 32, 64, 64],
+    ).eval()  # fmt: skip
+    source = _Source(model)
+    config = WindowConfig(size=(224, 224), scale=0.25, batch_size=8)
+    n = len(data)
+    evaluate_model(model, data.dataset, data.palette.num_classes, config, indices=[0])  # warm-up
+
+    _cold_cache(tmp, "seq")
+    start = time.perf_counter()
+    evaluate_model(model, data.dataset, data.palette.num_classes, config)
+    compute_complexities(data.paths, "delent")
+    sequential = time.perf_counter() - start
+
+    _cold_cache(tmp, "ours")
+    start = time.perf_counter()
+    collect(data, model=source, window=config, hardest=0)
+    ours = time.perf_counter() - start
+    print(f"\n2. model path ({n} images, demo-sized model, 224² windows at scale 0.25, CPU)")
+    print(f"   sequential (inference, then complexity): {n / sequential:6.3f} images/s")
+    print(f"   claravid-eval (complexity alongside):    {n / ours:6.3f} images/s"
+          f"   gain {sequential / ours:.2f}x")  # fmt: skip
+
+
+class _Source:
+    """The ``model`` part of eval.sources.ModelSource for an in-memory model."""
+
+    def __init__(self, model: torch.nn.Module) -> None:
+        self.model = model
+
+
+def section_gpu(batch: int) -> None:
+    print("\n3. GPU: dinov2_vitl14 + DPT head, 630×630 windows, bf16 autocast")
+    if not torch.cuda.is_available():
+        print("   skipped: no CUDA device")
+        return
+    model = models.build_model("dinov2_vitl14", 8).cuda().eval()
+    x = torch.randn(batch, 3, 630, 630, device="cuda")
+
+    def step() -> None:
+        with torch.inference_mode(), torch.autocast("cuda", dtype=torch.bfloat16):
+            model(x)
+
+    for _ in range(3):
+        step()
+    torch.cuda.synchronize()
+    reps = 10
+    start = time.perf_counter()
+    for _ in range(reps):
+        step()
+    torch.cuda.synchronize()
+    rate = reps * batch / (time.perf_counter() - start)
+    print(f"   {torch.cuda.get_device_name()}: batch {batch}: {rate:.1f} windows/s")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--frames", type=int, default=4, help="4032×3024 frames (4 viewpoints)")
+    parser.add_argument("--repeats", type=int, default=2, help="best of N for section 1")
+    parser.add_argument("--skip-model", action="store_true", help="skip section 2")
+    parser.add_argument("--gpu-batch", type=int, default=16, help="windows per batch (GPU)")
+    parser.add_argument("--gpu-only", action="store_true", help="only section 3")
+    args = parser.parse_args()
+    if args.gpu_only:
+        section_gpu(args.gpu_batch)
+        return
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        root = tmp / "claravid"
+        per_view = max(1, -(-args.frames // 4))
+        start = time.perf_counter()
+        synthesize(root, seed=0, frames_per_viewpoint=per_view, size=(4032, 3024),
+                   missions=["urban_1"], altitude=["low", "mid"])  # fmt: skip
+        data = open_data(root, split="all", palette="uavid")
+        print(f"generated {len(data)} frames of 4032×3024 in {time.perf_counter() - start:.1f} s")
+        # Predictions: the labels with every 7th row shifted by one class (a known, imperfect map).
+        preds = tmp / "preds"
+        rng = np.random.default_rng(0)
+        for i, key in enumerate(data.keys):
+            ids = data.read_mask(i).copy()
+            ids[ids == 255] = 0
+            ids[::7] = (ids[::7] + rng.integers(1, 8)) % 8
+            (preds / key).parent.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(preds / f"{key}.png"), ids)
+        section_predictions(data, preds, tmp, args.repeats)
+        if not args.skip_model:
+            section_model(data, tmp)
+    section_gpu(args.gpu_batch)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,33 @@
+"""The sample dict that every dataset hands out, and the type of the transforms over it.
+
+A sample is ``{"image": uint8 [3,H,W], "mask": int64 [H,W], "path": str, "key": str, ...}``
+(``mask`` absent for unlabelled images). A transform takes and returns the whole dict (see
+``claravid.transforms``); datasets cast ``mask`` to int64 after it, so transforms may hand
+back uint8 masks (albumentations warps those exactly).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import torch
+
+Sample = dict[str, Any]
+#: What every dataset's ``transforms`` argument takes: a sample dict in, a sample dict out.
+Transform = Callable[[Sample], Sample]
+
+
+def image_tensor(rgb: np.ndarray) -> torch.Tensor:
+    """An H×W×3 uint8 array as a [3,H,W] tensor view (transforms crop it without a copy)."""
+    return torch.from_numpy(rgb).permute(2, 0, 1)
+
+
+def finish_sample(sample: Sample, transforms: Transform | None) -> Sample:
+    """Apply the transforms, then make the mask (if any) int64."""
+    if transforms is not None:
+        sample = transforms(sample)
+    if "mask" in sample:
+        sample["mask"] = torch.as_tensor(sample["mask"]).long()
+    return sample

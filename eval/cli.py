@@ -1,0 +1,334 @@
+"""``claravid-eval``: mIoU per delentropy bin, correlations and a readable report, from any model.
+
+::
+
+    claravid-eval --checkpoint runs/exp/best.pt --split val --output runs/exp/report
+    claravid-eval --onnx model.onnx --data /data/claravid --palette uavid --output rep
+    claravid-eval --predictions preds/ --data /data/claravid --palette uavid --output rep
+    claravid-eval --merge part0/ part1/ --output all/            # job-array parts -> one report
+    claravid-eval --merge rep/ --edges 4,4.5,5,5.5 --output rep-fixed   # re-bin, no model
+    claravid-eval --compare a/report.json b/report.json --output cmp/
+    torchrun --nproc_per_node=8 -m eval --checkpoint best.pt --output rep   # many GPUs
+
+Exit 0 on success, 1 when some images were skipped (``--allow-missing``; listed), 2 for a
+user's mistake (one line; ``--debug`` shows the traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from claravid.cli import (
+    EXIT_PARTIAL,
+    UsageError,
+    add_debug_flag,
+    atomic_write_text,
+    check_output_dir,
+    run_cli,
+)
+from eval.bins import parse_edges
+from eval.complexity import parse_measures
+from eval.data import DATASETS, GROUP_BY
+
+PROG = "claravid-eval"
+PREDICTIONS_MARKER = "predictions.json"
+SOURCES = ("checkpoint", "onnx", "predictions", "merge", "compare")
+
+
+def _size(text: str) -> tuple[int, int]:
+    """``630`` or ``630x840`` (height x width)."""
+    parts = text.lower().split("x")
+    try:
+        values = [int(p) for p in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected N or HxW, got {text!r}") from None
+    if len(values) not in (1, 2) or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"expected N or HxW with positive sizes, got {text!r}")
+    return (values[0], values[-1])
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``claravid-eval`` arguments (also ``python -m eval``)."""
+    p = argparse.ArgumentParser(
+        prog=PROG,
+        description="Evaluate semantic segmentation per scene-complexity (delentropy) bin.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=__doc__.split("::", 1)[1].split("Exit 0")[0],
+    )
+    src = p.add_argument_group("what to evaluate (exactly one)")
+    src.add_argument("--checkpoint", type=Path, help="PyTorch checkpoint (models.save_checkpoint)")
+    src.add_argument("--onnx", type=Path, help="ONNX model (claravid-export), run by onnxruntime")
+    src.add_argument(
+        "--predictions", type=Path, metavar="DIR", help="saved label maps DIR/<key>.png"
+    )
+    src.add_argument(
+        "--merge", nargs="+", type=Path, metavar="REPORT", help="report folders to merge/re-bin"
+    )
+    src.add_argument(
+        "--compare", nargs="+", type=Path, metavar="REPORT", help="reports to show side by side"
+    )
+    data = p.add_argument_group("data")
+    data.add_argument("--data", type=Path, help="dataset root (default: the checkpoint's)")
+    data.add_argument("--dataset", choices=DATASETS, help="kind of data (default claravid)")
+    data.add_argument("--split", help="train, val, test or all (default val)")
+    data.add_argument("--palette", help="palette name or YAML (default: the checkpoint's)")
+    data.add_argument("--masks", type=Path, help="label folder mirroring --data (folder only)")
+    infer = p.add_argument_group("inference")
+    infer.add_argument("--window", type=_size, help="window N or HxW (default 630)")
+    infer.add_argument("--stride", type=_size, help="window step (default 2/3 of the window)")
+    infer.add_argument("--scale", type=float, help="resize images first (default 1; paper 0.5)")
+    infer.add_argument("--batch-size", type=int, help="windows per forward pass (default 4)")
+    infer.add_argument("--device", help="cpu or cuda (default: cuda when available)")
+    infer.add_argument("--no-amp", action="store_true", help="no autocast on CUDA")
+    rep = p.add_argument_group("report")
+    rep.add_argument("--output", "-o", type=Path, help="report folder")
+    rep.add_argument("--bins", type=int, help="quantile bins of delentropy (default 3)")
+    rep.add_argument("--edges", help="fixed delentropy edges e1,e2,... instead of --bins")
+    rep.add_argument("--group-by", choices=GROUP_BY, help="rows per mission or viewpoint")
+    rep.add_argument("--measures", default="delent", help="delent,glcment,pixent")
+    rep.add_argument("--hardest", type=int, default=4, help="overlays of the K hardest images")
+    rep.add_argument("--save-predictions", type=Path, metavar="DIR", help="write label maps")
+    rep.add_argument("--allow-missing", action="store_true", help="skip images w/o prediction")
+    rep.add_argument("--workers", type=int, default=0, help="processes (complexity, decoding)")
+    rep.add_argument("--overwrite", action="store_true", help="replace a foreign output folder")
+    rep.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_debug_flag(p)
+    return p
+
+
+def _check_args(args: argparse.Namespace) -> str:
+    given = [name for name in SOURCES if getattr(args, name) is not None]
+    if len(given) != 1:
+        which = " and ".join(f"--{g}" for g in given) if given else "none"
+        raise UsageError(
+            f"give exactly one of --checkpoint, --onnx, --predictions, --merge, --compare "
+            f"(got {which})"
+        )
+    if args.bins is not None and args.edges is not None:
+        raise UsageError("give --bins or --edges, not both")
+    if args.bins is not None and args.bins < 1:
+        raise UsageError(f"--bins must be at least 1, got {args.bins}")
+    if args.edges is not None:
+        args.edges = parse_edges(args.edges)
+    if args.workers < 0 or args.hardest < 0 or (args.batch_size or 1) < 1:
+        raise UsageError("--workers and --hardest must be >= 0 and --batch-size >= 1")
+    args.measures = parse_measures(args.measures)
+    source = given[0]
+    if source != "compare" and args.output is None:
+        raise UsageError("--output is required: the folder the report is written to")
+    return source
+
+
+def _print_done(out: Path, report: dict[str, Any]) -> None:
+    from eval.markdown import bin_table
+
+    print(bin_table(report))
+    print(f"\nreport: {out / 'report.md'} ({out / 'report.json'}, plots and confusions beside)")
+
+
+def _run_compare(args: argparse.Namespace) -> int:
+    from eval.compare import compare_reports
+
+    if args.output is not None:
+        check_output_dir(args.output, marker="compare.md", overwrite=args.overwrite)
+    text, warnings = compare_reports(args.compare, args.output)
+    import warnings as py_warnings
+
+    for message in warnings:
+        py_warnings.warn(message, UserWarning, stacklevel=1)
+    print(text)
+    if args.output is not None:
+        print(f"comparison: {args.output / 'compare.md'} and {args.output / 'compare.png'}")
+    return 0
+
+
+def _run_merge(args: argparse.Namespace) -> int:
+    from eval.report import build_report, load_result, merge_results
+    from eval.run import write_outputs
+
+    check_output_dir(args.output, marker="report.json", overwrite=args.overwrite)
+    result = merge_results([load_result(p) for p in args.merge], [str(p) for p in args.merge])
+    _check_bins(args, len(result.paths))
+    report = build_report(result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by)
+    write_outputs(args.output, report, result)
+    _print_done(args.output, report)
+    return 0
+
+
+def _check_bins(args: argparse.Namespace, n: int) -> None:
+    if args.edges is None and (args.bins or 3) > n:
+        raise UsageError(f"{args.bins or 3} bins for {n} images: use --bins {n} or fewer")
+
+
+def _first(*values: Any) -> Any:
+    """The first value that is not None (the command line, then the checkpoint, then ours)."""
+    return next(v for v in values if v is not None)
+
+
+def _resolve_data(args: argparse.Namespace, defaults: dict[str, Any]) -> dict[str, Any]:
+    """Command line first, then what the checkpoint recorded, then the defaults."""
+    root = args.data or defaults.get("data")
+    if root is None:
+        hint = "" if args.checkpoint is None else " (the checkpoint does not record its data)"
+        raise UsageError(f"--data is required: the dataset root to evaluate on{hint}")
+    dataset = args.dataset or defaults.get("dataset") or "claravid"
+    if dataset not in DATASETS:
+        dataset = "claravid"
+    selection = {}
+    if dataset == "claravid" and defaults.get("dataset", "claravid") == "claravid":
+        # ClaraVid as in training: the same selection and split settings, so --split val is
+        # exactly the frames training held out.
+        selection = {k: defaults[k] for k in ("missions", "altitude", "direction",
+                                              "split_config") if k in defaults}  # fmt: skip
+    return {
+        "root": Path(root),
+        "dataset": dataset,
+        "split": args.split or defaults.get("split") or "val",
+        "palette": args.palette or defaults.get("palette"),
+        "masks": args.masks,
+        "selection": selection,
+    }
+
+
+def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
+    import torch
+
+    from eval import distributed
+    from eval.data import open_data
+    from eval.report import build_report
+    from eval.run import collect, hardest_items, write_outputs
+    from eval.sources import load_source
+    from eval.windows import WindowConfig
+
+    info = distributed.init_distributed(args.device)
+    main_rank = info.is_main
+    check_output_dir(args.output, marker="report.json", overwrite=args.overwrite)
+    if args.save_predictions is not None:
+        if source_kind == "predictions":
+            raise UsageError("--save-predictions needs a model (--checkpoint or --onnx)")
+        check_output_dir(
+            args.save_predictions,
+            marker=PREDICTIONS_MARKER,
+            overwrite=args.overwrite,
+            what="--save-predictions",
+        )
+    # Every rank has checked the untouched folders; only now may any rank write to them.
+    distributed.barrier()
+    model = None
+    if source_kind in ("checkpoint", "onnx"):
+        threads = torch.get_num_threads() if info.device.type == "cpu" else None
+        model = load_source(args.checkpoint, args.onnx, device=info.device, threads=threads)
+    spec = _resolve_data(args, model.defaults if model else {})
+    data = open_data(
+        spec["root"],
+        dataset=spec["dataset"],
+        split=spec["split"],
+        palette=spec["palette"],
+        masks=spec["masks"],
+        selection=spec["selection"],
+    )
+    num_classes = data.palette.num_classes
+    if model is not None and model.num_classes not in (None, num_classes):
+        raise UsageError(
+            f"the model predicts {model.num_classes} classes but palette {data.palette.name} has "
+            f"{num_classes}; pass the palette it was trained with (--palette)"
+        )
+    if args.group_by is not None:
+        data.groups(args.group_by)  # fails now, not after the inference
+    _check_bins(args, len(data))
+    window = None
+    source: dict[str, Any] = {"kind": source_kind}
+    if model is not None:
+        fixed = getattr(model.model, "input_size", None)
+        given = model.defaults
+        size = args.window or fixed or given.get("window") or (630, 630)
+        if fixed is not None and tuple(size) != tuple(fixed):
+            raise UsageError(
+                f"the ONNX model takes {fixed[0]}x{fixed[1]} inputs only: use --window "
+                f"{fixed[0]}x{fixed[1]} or re-export with --dynamic"
+            )
+        window = WindowConfig(
+            size=size,
+            stride=args.stride or (given.get("stride") if args.window is None else None),
+            scale=_first(args.scale, given.get("scale"), 1.0),
+            batch_size=_first(args.batch_size, given.get("batch_size"), 4),
+            amp=not args.no_amp,
+        )
+        if model.patch_size:
+            window.check_patch(model.patch_size)
+        source["path"] = str(model.path)
+        source["window"] = {
+            "size": list(window.size),
+            "stride": list(window.stride),
+            "scale": window.scale,
+        }
+    else:
+        source["predictions"] = str(args.predictions)
+    source.update(data.describe)
+    source["measures"] = list(args.measures)
+
+    collected = collect(
+        data,
+        model=model,
+        predictions=args.predictions,
+        window=window,
+        measures=args.measures,
+        workers=args.workers,
+        device=info.device,
+        save_predictions=args.save_predictions,
+        allow_missing=args.allow_missing,
+        hardest=args.hardest,
+        progress=main_rank and not args.no_progress,
+        source=source,
+    )
+    if not main_rank:
+        distributed.barrier()  # rank 0 writes the report meanwhile
+        return 0
+    try:
+        result = collected.result
+        _check_bins(args, len(result.paths))
+        report = build_report(result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by)
+        dirs = [d for d in (args.predictions, args.save_predictions) if d is not None]
+        items = hardest_items(result, data, args.hardest, collected.hardest, dirs)
+        write_outputs(args.output, report, result, items, data.palette.colors)
+        if args.save_predictions is not None:
+            marker = {"format": "claravid-predictions", "palette": data.palette.name,
+                      "classes": list(data.palette.names), "source": source}  # fmt: skip
+            atomic_write_text(
+                args.save_predictions / PREDICTIONS_MARKER, json.dumps(marker, indent=2)
+            )
+            print(f"predictions: {args.save_predictions}")
+        _print_done(args.output, report)
+    finally:
+        distributed.barrier()  # the other ranks wait for the report, even when it failed
+    if collected.skipped:
+        shown = ", ".join(collected.skipped[:5])
+        print(
+            f"{PROG}: {len(collected.skipped)} image(s) skipped (no prediction): {shown}",
+            file=sys.stderr,
+        )
+        return EXIT_PARTIAL
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    """Dispatch on the source: evaluate, merge/re-bin, or compare."""
+    source = _check_args(args)
+    if source == "compare":
+        return _run_compare(args)
+    if source == "merge":
+        return _run_merge(args)
+    return _run_evaluation(args, source)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``claravid-eval``."""
+    return run_cli(PROG, run, build_parser(), argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,220 @@
+"""The images an evaluation covers: one view over ClaraVid, UAVid and plain folders.
+
+An evaluation needs, per dataset index, more than a sample: the RGB file (for delentropy), the
+name its prediction is saved under (``key``: ``<mission folder>/<viewpoint>/<stem>`` for
+ClaraVid, the image's path relative to the data root without extension otherwise), the labels
+alone (the ``--predictions`` path never decodes the image) and, for ClaraVid, the mission and
+viewpoint to group by. :class:`EvalData` gathers these behind one interface.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from claravid import targets
+from claravid.masks import read_mask as read_label_mask
+from claravid.palettes import Palette, load_palette
+from claravid.segmentation import ClaraVidSegmentation
+from claravid.transforms import eval_transforms
+
+DATASETS = ("claravid", "uavid", "folder")
+GROUP_BY = ("mission", "viewpoint")
+
+
+class KeyedDataset(Dataset):
+    """A dataset whose samples carry ``key`` (the prediction file name) and ``index``."""
+
+    def __init__(self, dataset: Dataset, keys: list[str]) -> None:
+        self.dataset = dataset
+        self.keys = keys
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        sample = self.dataset[index]
+        sample["key"] = self.keys[index]
+        sample["index"] = index
+        return sample
+
+
+@dataclass
+class EvalData:
+    """The evaluated images and how to read each one.
+
+    Attributes:
+        name: ``claravid``, ``uavid`` or ``folder``.
+        palette: the label palette (train ids, names, colours).
+        dataset: samples with normalised images (``eval_transforms``), ``key`` and ``index``.
+        raw: the same samples without transforms (uint8 image), for overlays.
+        paths: the RGB file of each index.
+        keys: the prediction name of each index.
+        attributes: per-index ``mission`` / ``viewpoint`` (ClaraVid only).
+        describe: root, split and dataset kind, for the report's ``source``.
+    """
+
+    name: str
+    palette: Palette
+    dataset: Dataset
+    raw: Dataset
+    paths: list[str]
+    keys: list[str]
+    read_mask_fn: Callable[[int], Any]
+    attributes: dict[str, list[str]] = field(default_factory=dict)
+    describe: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def read_mask(self, index: int) -> np.ndarray:
+        """The labels of image ``index`` as uint8 train ids (255 ignore), image not decoded."""
+        mask = self.read_mask_fn(index)
+        if isinstance(mask, torch.Tensor):
+            mask = mask.numpy()
+        mask = np.asarray(mask)
+        return mask if mask.dtype == np.uint8 else mask.astype(np.uint8)
+
+    def groups(self, by: str) -> dict[str, list[int]]:
+        """Indices per mission or viewpoint, in first-seen order (ClaraVid only)."""
+        if by not in self.attributes:
+            raise ValueError(
+                f"--group-by {by} needs ClaraVid data (missions and viewpoints); "
+                f"the {self.name} dataset has none"
+            )
+        out: dict[str, list[int]] = {}
+        for index, value in enumerate(self.attributes[by]):
+            out.setdefault(value, []).append(index)
+        return out
+
+
+def _relative_key(path: Path, root: Path) -> str:
+    try:
+        rel = path.resolve().relative_to(root.resolve())
+    except ValueError:
+        rel = Path(path.name)
+    return rel.with_suffix("").as_posix()
+
+
+@dataclass
+class _Opened:
+    raw: Any
+    transformed: Dataset
+    paths: list[str]
+    keys: list[str]
+    read_mask: Callable[[int], Any]
+    attributes: dict[str, list[str]] = field(default_factory=dict)
+
+
+def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -> _Opened:
+    def make(transforms: Any) -> ClaraVidSegmentation:
+        return ClaraVidSegmentation(
+            root, split=split, palette=pal, transforms=transforms, **selection
+        )
+
+    raw = make(None)
+    attributes = {
+        "mission": [f.mission for f in raw.frames],
+        "viewpoint": [f.viewpoint for f in raw.frames],
+    }
+    return _Opened(
+        raw,
+        make(eval_transforms()),
+        [str(f.paths["rgb"]) for f in raw.frames],
+        [f.key for f in raw.frames],
+        raw.read_mask,
+        attributes,
+    )
+
+
+def _uavid(root: Path, split: str, pal: Palette) -> _Opened:
+    def make(transforms: Any) -> targets.UAVidSegmentation:
+        return targets.UAVidSegmentation(root, split=split, palette=pal, transforms=transforms)
+
+    raw = make(None)
+    if not raw.has_labels:
+        raise ValueError(f"UAVid {split} has no labels to evaluate against; use val or train")
+    return _Opened(
+        raw,
+        make(eval_transforms()),
+        [str(p) for p in raw.images],
+        [_relative_key(p, root) for p in raw.images],  # as the samples' "key"
+        lambda i: read_label_mask(raw.label_path(raw.images[i]), pal),
+    )
+
+
+def _folder(root: Path, masks: Path | None, palette: Any, pal: Palette) -> _Opened:
+    if masks is None:
+        raise ValueError("--dataset folder needs --masks: the folder of label images")
+    if palette is None:
+        raise ValueError("--dataset folder needs --palette: the palette its masks are written in")
+
+    def make(transforms: Any) -> targets.FolderSegmentation:
+        return targets.FolderSegmentation(root, masks, palette=pal, transforms=transforms)
+
+    raw = make(None)
+    return _Opened(
+        raw,
+        make(eval_transforms()),
+        [str(p) for p in raw.images],
+        list(raw.keys),
+        lambda i: read_label_mask(raw.masks[i], pal),
+    )
+
+
+def open_data(
+    root: str | Path,
+    *,
+    dataset: str = "claravid",
+    split: str = "val",
+    palette: str | Path | None = None,
+    masks: str | Path | None = None,
+    selection: dict[str, Any] | None = None,
+) -> EvalData:
+    """Open the images to evaluate.
+
+    Args:
+        root: the ClaraVid root, the folder holding ``uavid_*``, or a folder of images.
+        dataset: ``claravid``, ``uavid`` or ``folder``.
+        split: ``train``/``val``/``test``/``all`` or a split file (ClaraVid; UAVid has
+            train/val/test); ignored for folders.
+        palette: palette name or YAML (default ``claravid`` for ClaraVid, ``uavid`` for UAVid;
+            required for folders).
+        masks: the folder of label images mirroring ``root`` (``folder`` only).
+        selection: ClaraVid ``missions``, ``altitude``, ``direction`` and ``split_config``
+            (e.g. what a training checkpoint used).
+
+    Raises:
+        ValueError: an unknown dataset kind, or a combination that cannot work.
+    """
+    if dataset not in DATASETS:
+        raise ValueError(f"unknown --dataset {dataset!r}; use one of {', '.join(DATASETS)}")
+    root = Path(root).absolute()  # report paths must not depend on the working directory
+    pal = load_palette(palette or ("claravid" if dataset == "claravid" else "uavid"))
+    describe: dict[str, Any] = {"dataset": dataset, "data": str(root), "split": str(split)}
+    if dataset == "claravid":
+        opened = _claravid(root, split, pal, selection or {})
+    elif dataset == "uavid":
+        opened = _uavid(root, split, pal)
+    else:
+        opened = _folder(root, None if masks is None else Path(masks).absolute(), palette, pal)
+        describe.update(split=None, masks=str(Path(masks).absolute()))
+    if not opened.paths:
+        raise ValueError(f"no images to evaluate in {root} (split {split})")
+    return EvalData(
+        name=dataset,
+        palette=pal,
+        dataset=KeyedDataset(opened.transformed, opened.keys),
+        raw=KeyedDataset(opened.raw, opened.keys),
+        paths=opened.paths,
+        keys=opened.keys,
+        read_mask_fn=opened.read_mask,
+        attributes=opened.attributes,
+        describe=describe,
+    )

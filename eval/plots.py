@@ -1,0 +1,151 @@
+"""The report's pictures (matplotlib, no display needed), each written atomically.
+
+- ``miou_per_bin.png``: mIoU per complexity bin, bars labelled with their delentropy ranges;
+- ``miou_vs_delent.png``: per-image mIoU against delentropy, with a least-squares line;
+- ``class_iou_per_bin.png``: per-class IoU per bin as a heat map (blank: class absent);
+- ``hardest.png``: the k images of lowest mIoU, image | ground truth | prediction;
+- ``compare.png`` (``--compare``): the mIoU per bin of several reports side by side.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from claravid.cli import atomic_save
+
+PLOTS = {
+    "bins": "miou_per_bin.png",
+    "scatter": "miou_vs_delent.png",
+    "heatmap": "class_iou_per_bin.png",
+    "hardest": "hardest.png",
+}
+
+
+def _save(fig: Figure, path: str | Path, dpi: int = 100) -> Path:
+    return atomic_save(path, lambda tmp: fig.savefig(tmp, dpi=dpi))
+
+
+def _fmt(value: float | None, digits: int = 2) -> str:
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+def bin_label(row: dict[str, Any]) -> str:
+    """``low\\n[3.10, 4.20]\\nn=12``: a bin's name, delentropy range and size."""
+    return f"{row['name']}\n[{_fmt(row.get('lo'))}, {_fmt(row.get('hi'))}]\nn={row['num_images']}"
+
+
+def plot_bins(report: dict[str, Any], path: str | Path) -> Path:
+    """Bars of mIoU per bin, with the overall mIoU as a dashed line."""
+    rows = report["bins"]
+    fig = Figure(figsize=(max(5, 1.6 * len(rows) + 2), 4), layout="constrained")
+    ax = fig.subplots()
+    values = [np.nan if r["miou"] is None else r["miou"] for r in rows]
+    bars = ax.bar(range(len(rows)), values, color="tab:blue")
+    ax.bar_label(bars, labels=[_fmt(r["miou"], 3) for r in rows], padding=2)
+    ax.set_xticks(range(len(rows)), [bin_label(r) for r in rows])
+    overall = report["overall"]["miou"]
+    if overall is not None:
+        ax.axhline(overall, color="k", ls="--", lw=1, label=f"overall {overall:.3f}")
+        ax.legend(loc="upper right")
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("mIoU")
+    ax.set_xlabel("delentropy bin")
+    ax.set_title("mIoU per complexity bin")
+    return _save(fig, path)
+
+
+def plot_scatter(report: dict[str, Any], path: str | Path, measure: str = "delent") -> Path:
+    """Per-image mIoU against ``measure``, the fitted line, and Pearson/Spearman in the title."""
+    x = np.array([np.nan if r.get(measure) is None else r[measure] for r in report["images"]])
+    y = np.array([np.nan if r["miou"] is None else r["miou"] for r in report["images"]])
+    keep = np.isfinite(x) & np.isfinite(y)
+    fig = Figure(figsize=(6, 4.5), layout="constrained")
+    ax = fig.subplots()
+    ax.scatter(x[keep], y[keep], s=14, alpha=0.7)
+    if keep.sum() >= 2 and np.ptp(x[keep]) > 0:
+        slope, intercept = np.polyfit(x[keep], y[keep], 1)
+        xs = np.linspace(x[keep].min(), x[keep].max(), 50)
+        ax.plot(xs, slope * xs + intercept, color="tab:red", label=f"fit: {slope:+.3f} per bit")
+        ax.legend(loc="best")
+    corr = report["correlation"].get(measure, {})
+    ax.set_title(
+        f"per-image mIoU vs {measure}: Pearson {_fmt(corr.get('pearson'))}, "
+        f"Spearman {_fmt(corr.get('spearman'))}, n={corr.get('n', int(keep.sum()))}"
+    )
+    ax.set_xlabel(f"{measure} (bits)")
+    ax.set_ylabel("mIoU")
+    ax.set_ylim(-0.02, 1.02)
+    return _save(fig, path)
+
+
+def plot_heatmap(report: dict[str, Any], path: str | Path) -> Path:
+    """Per-class IoU (rows) per bin (columns); absent classes blank."""
+    rows, classes = report["bins"], report["classes"]
+    grid = np.array(
+        [[np.nan if r["per_class_iou"][c] is None else r["per_class_iou"][c] for r in rows]
+         for c in classes]
+    )  # fmt: skip
+    fig = Figure(
+        figsize=(2 + 1.3 * max(1, len(rows)), 1 + 0.35 * len(classes)), layout="constrained"
+    )
+    ax = fig.subplots()
+    image = ax.imshow(np.ma.masked_invalid(grid), vmin=0, vmax=1, cmap="viridis", aspect="auto")
+    for (i, j), value in np.ndenumerate(grid):
+        if np.isfinite(value):
+            ax.text(j, i, f"{value:.2f}", ha="center", va="center", fontsize=8,
+                    color="white" if value < 0.5 else "black")  # fmt: skip
+    ax.set_xticks(
+        range(len(rows)), [f"{r['name']}\n[{_fmt(r.get('lo'))}, {_fmt(r.get('hi'))}]" for r in rows]
+    )
+    ax.set_yticks(range(len(classes)), classes)
+    fig.colorbar(image, ax=ax, label="IoU")
+    ax.set_title("IoU per class and complexity bin")
+    return _save(fig, path)
+
+
+def plot_hardest(items: Sequence[dict[str, Any]], colors: np.ndarray, path: str | Path) -> Path:
+    """One row per image: the RGB, its ground truth and the prediction, in palette colours.
+
+    Args:
+        items: ``{"image": uint8 H×W×3, "mask": uint8 H×W, "prediction": uint8 H×W,
+            "title": str}``, hardest first.
+        colors: the palette's K×3 colours (ignored pixels are drawn black).
+    """
+    table = np.zeros((256, 3), dtype=np.uint8)
+    table[: len(colors)] = colors
+    fig = Figure(figsize=(12, 3.2 * len(items)), layout="constrained")
+    axes = fig.subplots(len(items), 3, squeeze=False)
+    for row, item in zip(axes, items, strict=True):
+        panels = (item["image"], table[item["mask"]], table[item["prediction"]])
+        for ax, panel, name in zip(
+            row, panels, ("image", "ground truth", "prediction"), strict=True
+        ):
+            ax.imshow(panel, interpolation="nearest")
+            ax.set_axis_off()
+            ax.set_title(name if name != "image" else item["title"], fontsize=9)
+    return _save(fig, path, dpi=80)
+
+
+def plot_compare(reports: Sequence[dict[str, Any]], names: Sequence[str], path: str | Path) -> Path:
+    """Grouped bars: the mIoU of each bin (rows matched by position) for each report."""
+    n_bins = max(len(r["bins"]) for r in reports)
+    width = 0.8 / len(reports)
+    fig = Figure(figsize=(max(6, 1.8 * n_bins + 2), 4.5), layout="constrained")
+    ax = fig.subplots()
+    for k, (report, name) in enumerate(zip(reports, names, strict=True)):
+        values = [np.nan if r["miou"] is None else r["miou"] for r in report["bins"]]
+        xs = np.arange(len(values)) + (k - (len(reports) - 1) / 2) * width
+        bars = ax.bar(xs, values, width, label=name)
+        ax.bar_label(bars, labels=[_fmt(r["miou"]) for r in report["bins"]], fontsize=8)
+    first = max(reports, key=lambda r: len(r["bins"]))
+    ax.set_xticks(range(n_bins), [bin_label(r) for r in first["bins"]])
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("mIoU")
+    ax.set_title("mIoU per complexity bin")
+    ax.legend()
+    return _save(fig, path)

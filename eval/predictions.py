@@ -1,0 +1,157 @@
+"""Label maps on disk: the ``--predictions`` / ``--save-predictions`` format, and scoring them.
+
+Format: one single-channel 8-bit PNG of palette train ids per image, at ``DIR/<key>.png``;
+for ClaraVid the key is ``<mission folder>/<altitude>_<direction>/<stem>``, for UAVid and
+folders the image's path relative to the data root without its extension. Any model can be
+evaluated this way: write its label maps in this layout.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from claravid.cli import UsageError
+from eval.data import EvalData
+from eval.metrics import confusion_matrix
+
+SHOW_MISSING = 5
+
+
+class PredictionError(ValueError):
+    """A prediction file is unusable; the message names it and says what is expected."""
+
+
+def prediction_file(directory: str | Path, key: str) -> Path:
+    """Where the prediction of the image named ``key`` lives."""
+    return Path(directory) / f"{key}.png"
+
+
+def write_prediction(directory: str | Path, key: str, ids: np.ndarray) -> Path:
+    """Write train ids (uint8 H×W) as ``DIR/<key>.png``, atomically (temp file + rename)."""
+    path = prediction_file(directory, key)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ids = np.asarray(ids)
+    if ids.ndim != 2 or ids.dtype != np.uint8:
+        raise ValueError(f"a prediction is uint8 [H,W], got {ids.dtype} {ids.shape}")
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
+    # Level 1: label maps compress well anyway, and it keeps saving off the critical path.
+    if not cv2.imwrite(str(tmp), ids, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
+        raise OSError(f"cannot write {path}")
+    os.replace(tmp, path)
+    return path
+
+
+def read_prediction(path: str | Path, shape: tuple[int, int], num_classes: int) -> np.ndarray:
+    """Read and check one prediction: uint8 [H,W] of ids in ``[0, num_classes)``.
+
+    Raises:
+        PredictionError: unreadable, not single-channel 8-bit, of the wrong size, or holding
+            ids outside the palette; the message names the file.
+    """
+    path = Path(path)
+    ids = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if ids is None:
+        raise PredictionError(f"cannot read the prediction {path}: not a readable PNG")
+    if ids.ndim != 2:
+        raise PredictionError(
+            f"prediction {path} has {ids.shape[2]} channels; expected a single-channel PNG of "
+            "train ids (not a colour overlay)"
+        )
+    if ids.dtype != np.uint8:
+        raise PredictionError(
+            f"prediction {path} holds {ids.dtype} pixels; expected 8-bit train ids (uint8)"
+        )
+    if ids.shape != tuple(shape):
+        raise PredictionError(
+            f"prediction {path} is {ids.shape[1]}×{ids.shape[0]} but its image is "
+            f"{shape[1]}×{shape[0]}; predictions must be at the labels' native resolution"
+        )
+    top = int(ids.max()) if ids.size else 0
+    if top >= num_classes:
+        bad = np.unique(ids[ids >= num_classes])[:8].tolist()
+        raise PredictionError(
+            f"prediction {path} holds ids {bad} outside the palette's {num_classes} classes "
+            f"(0..{num_classes - 1})"
+        )
+    return ids
+
+
+def find_missing(directory: str | Path, keys: Sequence[str], indices: Iterable[int]) -> list[int]:
+    """The indices whose prediction file does not exist."""
+    return [i for i in indices if not prediction_file(directory, keys[i]).is_file()]
+
+
+def missing_message(directory: str | Path, keys: Sequence[str], missing: Sequence[int]) -> str:
+    """``N prediction(s) missing in DIR, e.g. a.png, b.png``: what the error and warning say."""
+    shown = ", ".join(str(prediction_file(directory, keys[i])) for i in missing[:SHOW_MISSING])
+    more = ", …" if len(missing) > SHOW_MISSING else ""
+    return f"{len(missing)} prediction(s) missing in {directory}: {shown}{more}"
+
+
+def check_missing(
+    directory: str | Path, data: EvalData, allow_missing: bool
+) -> tuple[list[int], list[int]]:
+    """Split the data's indices into (present, missing) predictions.
+
+    Raises:
+        UsageError: predictions are missing and ``allow_missing`` is off, or all are missing.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise UsageError(f"--predictions {directory} is not a folder")
+    missing = find_missing(directory, data.keys, range(len(data)))
+    present = sorted(set(range(len(data))) - set(missing))
+    if missing and (not allow_missing or not present):
+        hint = "" if not present else "; pass --allow-missing to evaluate the others"
+        layout = prediction_file(directory, data.keys[missing[0]])
+        raise UsageError(
+            f"{missing_message(directory, data.keys, missing)}{hint} (expected {layout})"
+        )
+    return present, missing
+
+
+def _score_one(data: EvalData, directory: Path, index: int) -> np.ndarray:
+    mask = data.read_mask(index)
+    ids = read_prediction(
+        prediction_file(directory, data.keys[index]), mask.shape, data.palette.num_classes
+    )
+    return confusion_matrix(ids, mask, data.palette.num_classes).numpy()
+
+
+def score_predictions(
+    data: EvalData,
+    directory: str | Path,
+    indices: Sequence[int],
+    *,
+    threads: int = 1,
+    progress: bool = False,
+) -> list[np.ndarray]:
+    """Per-image confusions (int64 [K,K]) of saved predictions against the labels.
+
+    Only the labels and the prediction PNGs are decoded. Decoding and counting release the GIL,
+    so ``threads`` > 1 reads several images at once.
+    """
+    from tqdm.auto import tqdm
+
+    directory = Path(directory)
+    bar = tqdm(total=len(indices), desc="evaluate", unit="img", disable=not progress)
+    out: list[np.ndarray] = []
+    try:
+        if threads <= 1:
+            for index in indices:
+                out.append(_score_one(data, directory, index))
+                bar.update(1)
+        else:
+            with ThreadPoolExecutor(threads) as pool:
+                for conf in pool.map(lambda i: _score_one(data, directory, i), indices):
+                    out.append(conf)
+                    bar.update(1)
+    finally:
+        bar.close()
+    return out

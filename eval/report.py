@@ -1,0 +1,231 @@
+"""Per-image results -> the report folder, and back (merge and re-bin without a model).
+
+A report folder holds:
+
+- ``report.json``: ``overall``, ``bins``, ``groups``, ``images``, ``correlation``, ``classes``,
+  ``palette``, ``ignore_index``, ``convention``, ``source`` (how the numbers were made: model
+  or predictions, data, windows, binning, skipped images);
+- ``confusions.npz`` (compressed): per-image confusions with their paths, keys, complexity
+  values and missions/viewpoints: everything needed to re-bin or merge;
+- ``report.md`` and the plots (:mod:`eval.plots`).
+
+:class:`EvalResult` is the per-image table; :func:`build_report` turns it into the JSON.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from claravid.cli import UsageError, atomic_save, atomic_write_text
+from eval.stratify import stratify
+
+REPORT = "report.json"
+CONFUSIONS = "confusions.npz"
+KEYS = (
+    "overall",
+    "bins",
+    "groups",
+    "images",
+    "correlation",
+    "classes",
+    "palette",
+    "ignore_index",
+    "convention",
+    "source",
+)
+
+
+@dataclass
+class EvalResult:
+    """One row per image: the input of every report.
+
+    Attributes:
+        paths: the RGB file of each image.
+        keys: the prediction name of each image.
+        confusions: int64 [N,K,K].
+        complexity: measure -> float64 [N].
+        attributes: ``mission`` / ``viewpoint`` -> one string per image (ClaraVid).
+        classes: the K class names.
+        palette: the palette's name.
+        source: where the numbers came from (written to the report as is).
+    """
+
+    paths: list[str]
+    keys: list[str]
+    confusions: np.ndarray
+    complexity: dict[str, np.ndarray]
+    attributes: dict[str, list[str]]
+    classes: list[str]
+    palette: str
+    source: dict[str, Any] = field(default_factory=dict)
+
+    def groups(self, by: str | None) -> dict[str, list[int]] | None:
+        """Image indices per mission or viewpoint (None: no grouping)."""
+        if by is None:
+            return None
+        if by not in self.attributes or not any(self.attributes[by]):
+            raise UsageError(f"--group-by {by} needs ClaraVid data; these images have no {by}")
+        out: dict[str, list[int]] = {}
+        for index, value in enumerate(self.attributes[by]):
+            out.setdefault(value, []).append(index)
+        return dict(sorted(out.items()))
+
+
+def build_report(
+    result: EvalResult,
+    *,
+    bins: int = 3,
+    edges: Sequence[float] | None = None,
+    group_by: str | None = None,
+) -> dict[str, Any]:
+    """The report's JSON (keys in :data:`KEYS` order); the binning goes under ``source``."""
+    numbers = stratify(
+        result.paths,
+        result.confusions,
+        result.classes,
+        result.complexity,
+        bins=bins,
+        edges=edges,
+        groups=result.groups(group_by),
+    )
+    source = dict(result.source)
+    source["binning"] = {**numbers.pop("binning", {}), "group_by": group_by}
+    numbers["palette"] = result.palette
+    numbers["source"] = source
+    return {key: numbers[key] for key in KEYS}
+
+
+def save_confusions(path: str | Path, result: EvalResult) -> Path:
+    """Write the per-image table as a compressed npz (no pickles), atomically."""
+    arrays: dict[str, np.ndarray] = {
+        "paths": np.asarray(result.paths, dtype=str),
+        "keys": np.asarray(result.keys, dtype=str),
+        "confusions": np.asarray(result.confusions, dtype=np.int64),
+        "classes": np.asarray(result.classes, dtype=str),
+        "palette": np.asarray(result.palette, dtype=str),
+    }
+    for measure, values in result.complexity.items():
+        arrays[f"complexity_{measure}"] = np.asarray(values, dtype=np.float64)
+    for name, values in result.attributes.items():
+        arrays[f"attribute_{name}"] = np.asarray(values, dtype=str)
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **arrays)
+
+    return atomic_save(path, write)
+
+
+def load_result(path: str | Path) -> EvalResult:
+    """Read a report folder (or its ``report.json``) back into an :class:`EvalResult`.
+
+    Raises:
+        UsageError: not a report folder of this tool, or its files do not agree.
+    """
+    path = Path(path)
+    folder = path.parent if path.name == REPORT or path.suffix == ".json" else path
+    report_file, npz_file = folder / REPORT, folder / CONFUSIONS
+    if not report_file.is_file() or not npz_file.is_file():
+        raise UsageError(
+            f"{path} is not a claravid-eval report folder (needs {REPORT} and {CONFUSIONS})"
+        )
+    report = read_report(report_file)
+    try:
+        with np.load(npz_file, allow_pickle=False) as npz:
+            data = {k: npz[k] for k in npz.files}
+        confusions = data["confusions"].astype(np.int64)
+        classes = [str(c) for c in data["classes"]]
+        result = EvalResult(
+            paths=[str(p) for p in data["paths"]],
+            keys=[str(k) for k in data["keys"]],
+            confusions=confusions,
+            complexity={
+                k.removeprefix("complexity_"): v.astype(np.float64)
+                for k, v in data.items()
+                if k.startswith("complexity_")
+            },
+            attributes={
+                k.removeprefix("attribute_"): [str(s) for s in v]
+                for k, v in data.items()
+                if k.startswith("attribute_")
+            },
+            classes=classes,
+            palette=str(data["palette"]),
+            source={k: v for k, v in report["source"].items() if k != "binning"},
+        )
+    except (KeyError, ValueError, OSError) as exc:
+        raise UsageError(f"{npz_file} is damaged or not written by claravid-eval ({exc})") from None
+    n, k = len(result.paths), len(classes)
+    if confusions.shape != (n, k, k) or classes != list(report["classes"]):
+        raise UsageError(f"{npz_file} does not match {report_file} (classes or image count)")
+    return result
+
+
+def read_report(path: str | Path) -> dict[str, Any]:
+    """Read a ``report.json`` of this tool.
+
+    Raises:
+        UsageError: unreadable, not JSON, or JSON of another tool (one line for the user).
+    """
+    path = Path(path)
+    try:
+        report = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UsageError(f"cannot read {path} as a claravid-eval report ({exc})") from None
+    if not isinstance(report, dict) or not set(KEYS) <= set(report):
+        raise UsageError(
+            f"{path} is not a claravid-eval report.json (expected the keys {', '.join(KEYS)})"
+        )
+    return report
+
+
+def merge_results(results: Sequence[EvalResult], names: Sequence[str]) -> EvalResult:
+    """Join the per-image tables of several runs (job-array parts, or one run to re-bin).
+
+    Raises:
+        UsageError: classes or palettes differ, or an image appears in two runs.
+    """
+    first = results[0]
+    seen: dict[str, str] = {}
+    for result, name in zip(results, names, strict=True):
+        if result.classes != first.classes or result.palette != first.palette:
+            raise UsageError(
+                f"cannot merge {name} (palette {result.palette}, {len(result.classes)} classes) "
+                f"with {names[0]} (palette {first.palette}, {len(first.classes)} classes)"
+            )
+        for path in result.paths:
+            if path in seen:
+                raise UsageError(f"{path} is in both {seen[path]} and {name}: merge disjoint runs")
+            seen[path] = name
+    measures = [m for m in first.complexity if all(m in r.complexity for r in results)]
+    attributes = [a for a in first.attributes if all(a in r.attributes for r in results)]
+    order = np.argsort(np.asarray([p for r in results for p in r.paths], dtype=str), kind="stable")
+
+    def cat(parts: list[Any]) -> list[Any]:
+        flat = [x for part in parts for x in part]
+        return [flat[i] for i in order]
+
+    sources = [r.source for r in results]
+    source = dict(sources[0]) if len(results) == 1 else {"kind": "merge", "parts": sources}
+    source["merged_from"] = [str(n) for n in names]
+    return EvalResult(
+        paths=cat([r.paths for r in results]),
+        keys=cat([r.keys for r in results]),
+        confusions=np.concatenate([r.confusions for r in results])[order],
+        complexity={m: np.concatenate([r.complexity[m] for r in results])[order] for m in measures},
+        attributes={a: cat([r.attributes[a] for r in results]) for a in attributes},
+        classes=first.classes,
+        palette=first.palette,
+        source=source,
+    )
+
+
+def write_json(path: str | Path, report: dict[str, Any]) -> Path:
+    """``report.json``, strict JSON (NaN already written as null), atomically."""
+    return atomic_write_text(path, json.dumps(report, indent=2, allow_nan=False) + "\n")

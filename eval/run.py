@@ -1,0 +1,288 @@
+"""One evaluation, end to end: images -> per-image confusions and complexity -> report folder.
+
+:func:`collect` produces the per-image table (:class:`eval.report.EvalResult`) from a model or
+from saved label maps, on one process or sharded over ``torchrun`` ranks (each rank evaluates
+every ``world_size``-th image and measures its complexity meanwhile; rank 0 gathers
+everything in dataset order, so the table is the same as one process's). :func:`write_outputs`
+writes the report folder. The command line (:mod:`eval.cli`) is a thin layer over both.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from claravid.cli import USER_ERRORS, UsageError, atomic_write_text
+from eval import distributed
+from eval.complexity import ComplexityJob
+from eval.data import EvalData
+from eval.evaluate import ImageScore, evaluate_model
+from eval.markdown import report_markdown
+from eval.metrics import mean_iou
+from eval.plots import PLOTS, plot_bins, plot_hardest, plot_heatmap, plot_scatter
+from eval.predictions import check_missing, prediction_file, read_prediction, score_predictions
+from eval.predictions import write_prediction as save_label_map
+from eval.report import CONFUSIONS, REPORT, EvalResult, save_confusions, write_json
+from eval.sources import ModelSource
+from eval.windows import WindowConfig
+
+THUMB = 512  # longest side of a hardest-image panel
+
+
+def _thumb(array: np.ndarray, nearest: bool) -> np.ndarray:
+    h, w = array.shape[:2]
+    f = THUMB / max(h, w)
+    if f >= 1:
+        return np.ascontiguousarray(array)
+    size = (max(1, round(w * f)), max(1, round(h * f)))
+    return cv2.resize(array, size, interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
+
+
+@dataclass
+class Hardest:
+    """The k images of lowest mIoU seen so far, with a small copy of their prediction."""
+
+    k: int
+    heap: list[tuple[float, int, np.ndarray]] = field(default_factory=list)
+
+    def offer(self, index: int, miou: float, prediction: torch.Tensor) -> None:
+        """Keep this image if it is among the k hardest so far (ties: the lower index)."""
+        if self.k <= 0 or not np.isfinite(miou):
+            return
+        # A min-heap on (-mIoU, -index): its root is the easiest kept image, evicted first.
+        rank = (-miou, -index)
+        if len(self.heap) < self.k or rank > self.heap[0][:2]:
+            item = (-miou, -index, _thumb(prediction.to("cpu", torch.uint8).numpy(), True))
+            if len(self.heap) < self.k:
+                heapq.heappush(self.heap, item)
+            else:
+                heapq.heapreplace(self.heap, item)
+
+
+@dataclass
+class Collected:
+    """What :func:`collect` returns: the table, the skipped images, kept hardest predictions."""
+
+    result: EvalResult
+    skipped: list[str]
+    hardest: dict[int, np.ndarray]
+
+
+def _from_worker(exc: Exception) -> Exception:
+    """A DataLoader worker's data error (an unreadable image) as the one-line error it was.
+
+    The DataLoader re-raises it with the worker's traceback in the message (or, when the
+    exception cannot be rebuilt from one string, as a RuntimeError); its last line is
+    ``module.ErrorType: message``.
+    """
+    text = str(exc)
+    if "DataLoader worker" not in text.split("\n", 1)[0]:
+        return exc
+    last = text.rstrip().splitlines()[-1]
+    name, _, message = last.partition(": ")
+    if name.rsplit(".", 1)[-1].endswith(("Error", "Exception")) and message:
+        return ValueError(message)
+    return exc
+
+
+def _raise_any(error: BaseException | None) -> None:
+    """Raise on every rank when any rank failed (the others would wait forever otherwise)."""
+    me = distributed.current().rank
+    summary = None if error is None else (isinstance(error, USER_ERRORS), str(error))
+    failures = distributed.gather_in_order([summary], [me])
+    if error is not None:
+        raise error
+    for failure in failures:
+        if failure is not None:
+            user, message = failure
+            raise (UsageError if user else RuntimeError)(f"another rank failed: {message}")
+
+
+def collect(
+    data: EvalData,
+    *,
+    model: ModelSource | None = None,
+    predictions: str | Path | None = None,
+    window: WindowConfig | None = None,
+    measures: Sequence[str] = ("delent",),
+    workers: int = 0,
+    device: torch.device | str = "cpu",
+    save_predictions: str | Path | None = None,
+    allow_missing: bool = False,
+    hardest: int = 4,
+    progress: bool = False,
+    source: dict[str, Any] | None = None,
+) -> Collected:
+    """Per-image confusions and complexities of ``data`` from a model or saved predictions.
+
+    Under ``torchrun`` (an initialised process group) each rank takes its shard; every rank
+    returns the full, gathered table.
+
+    Args:
+        data: the images (:func:`eval.data.open_data`).
+        model: a loaded model (exclusive with ``predictions``).
+        predictions: the folder of saved label maps.
+        window: sliding windows (model only).
+        measures: complexity measures, ``delent`` first.
+        workers: processes for complexity and for decoding images (0: threads only).
+        device: where the model runs.
+        save_predictions: also write the model's label maps here.
+        allow_missing: skip images without a prediction instead of failing.
+        hardest: how many of the hardest images' predictions to keep for overlays.
+        progress: show a progress bar.
+        source: the report's ``source`` entries.
+    """
+    if (model is None) == (predictions is None):
+        raise ValueError("give exactly one of a model and a predictions folder")
+    k = data.palette.num_classes
+    skipped: list[int] = []
+    present = list(range(len(data)))
+    if predictions is not None:
+        present, skipped = check_missing(predictions, data, allow_missing)
+    mine = [present[i] for i in distributed.shard_indices(len(present))]
+    keeper = Hardest(hardest if model is not None and save_predictions is None else 0)
+    error: BaseException | None = None
+    confusions: list[np.ndarray] = []
+    values: dict[str, list[float]] = {}
+    try:
+        # Complexity starts first and runs while the model (or the PNG reader) works: in
+        # worker processes beside a model (a long run), in threads beside the PNG reader.
+        job = ComplexityJob(
+            [data.paths[i] for i in mine],
+            measures,
+            workers=workers if model is not None else 0,
+            threads=max(1, workers),
+        )
+        if model is not None:
+
+            def on_score(sample: dict[str, Any], pred: torch.Tensor, score: ImageScore) -> None:
+                if save_predictions is not None:
+                    save_label_map(save_predictions, score.key, pred.to("cpu", torch.uint8).numpy())
+                keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
+
+            scores = evaluate_model(
+                model.model,
+                data.dataset,
+                k,
+                window,
+                device=device,
+                indices=mine,
+                num_workers=workers,
+                progress=progress,
+                on_score=on_score,
+            )
+            confusions = [s.confusion for s in scores]
+        else:
+            threads = max(1, workers)
+            confusions = score_predictions(
+                data, predictions, mine, threads=threads, progress=progress
+            )
+        values = job.result()
+    except Exception as exc:
+        error = _from_worker(exc)
+    _raise_any(error)
+
+    rows = [(confusions[j], {m: values[m][j] for m in values}) for j in range(len(mine))]
+    rows = distributed.gather_in_order(rows, mine)
+    kept = distributed.gather_in_order([keeper.heap], [distributed.current().rank])
+    order = sorted(present)
+    # Entries are (-mIoU, -index, prediction): the hardest are the largest.
+    entries = [e for part in kept for e in part]
+    heap = heapq.nlargest(max(0, hardest), entries, key=lambda e: e[:2])
+    result = EvalResult(
+        paths=[data.paths[i] for i in order],
+        keys=[data.keys[i] for i in order],
+        confusions=np.stack([r[0] for r in rows]).astype(np.int64),
+        complexity={m: np.asarray([r[1][m] for r in rows], dtype=np.float64) for m in measures},
+        attributes={a: [v[i] for i in order] for a, v in data.attributes.items()},
+        classes=list(data.palette.names),
+        palette=data.palette.name,
+        source={**(source or {}), "skipped": [data.paths[i] for i in skipped]},
+    )
+    # Table rows are positions in `present`; hardest predictions are keyed by those too.
+    position = {index: pos for pos, index in enumerate(order)}
+    return Collected(
+        result, [data.paths[i] for i in skipped], {position[-i]: p for _, i, p in heap}
+    )
+
+
+def hardest_items(
+    result: EvalResult,
+    data: EvalData | None,
+    k: int,
+    kept: dict[int, np.ndarray],
+    prediction_dirs: Sequence[str | Path],
+) -> list[dict[str, Any]]:
+    """Image, ground truth and prediction of the k lowest-mIoU images, as small arrays.
+
+    A prediction comes from ``kept`` (the model's run) or from a folder of saved label maps;
+    images without one are left out.
+    """
+    if data is None or k <= 0:
+        return []
+    mious = np.array([mean_iou(c) for c in result.confusions])
+    order = [i for i in np.argsort(np.where(np.isnan(mious), np.inf, mious), kind="stable")
+             if np.isfinite(mious[i])][:k]  # fmt: skip
+    index_of = {key: i for i, key in enumerate(data.keys)}
+    items = []
+    for pos in order:
+        key = result.keys[pos]
+        pred = kept.get(int(pos))
+        sample = data.raw[index_of[key]]
+        mask = np.asarray(sample["mask"], dtype=np.uint8)
+        if pred is None:
+            for folder in prediction_dirs:
+                file = prediction_file(folder, key)
+                if file.is_file():
+                    pred = _thumb(read_prediction(file, mask.shape, len(result.classes)), True)
+                    break
+        if pred is None:
+            continue
+        image = sample["image"].permute(1, 2, 0).numpy()
+        items.append({
+            "image": _thumb(image, nearest=False),
+            "mask": _thumb(mask, nearest=True),
+            "prediction": pred,
+            "title": f"{key}  mIoU {mious[pos]:.3f}  delent "
+            f"{result.complexity.get('delent', [np.nan] * len(mious))[pos]:.2f}",
+        })  # fmt: skip
+    return items
+
+
+def write_outputs(
+    out: str | Path,
+    report: dict[str, Any],
+    result: EvalResult,
+    hardest: Sequence[dict[str, Any]] = (),
+    colors: np.ndarray | None = None,
+) -> dict[str, Path]:
+    """Write the report folder: ``report.json``, ``confusions.npz``, plots, ``report.md``.
+
+    ``report.json`` is written last: it marks the folder as this tool's, complete.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = {"confusions": save_confusions(out / CONFUSIONS, result)}
+    plots: dict[str, str] = {}
+    if report["bins"]:
+        written["bins"] = plot_bins(report, out / PLOTS["bins"])
+        written["heatmap"] = plot_heatmap(report, out / PLOTS["heatmap"])
+    if "delent" in report["correlation"]:
+        written["scatter"] = plot_scatter(report, out / PLOTS["scatter"])
+    if hardest and colors is not None:
+        written["hardest"] = plot_hardest(hardest, colors, out / PLOTS["hardest"])
+    for name in ("bins", "scatter", "heatmap", "hardest"):
+        if name in written:
+            plots[name] = PLOTS[name]
+        else:  # a plot of an earlier report in this folder would no longer match it
+            (out / PLOTS[name]).unlink(missing_ok=True)
+    written["markdown"] = atomic_write_text(out / "report.md", report_markdown(report, plots))
+    written["report"] = write_json(out / REPORT, report)
+    return written

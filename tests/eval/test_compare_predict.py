@@ -1,0 +1,110 @@
+"""``claravid-eval --compare`` and ``claravid-predict``."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from claravid import modalities
+from claravid.transforms import eval_transforms
+from eval.cli import main
+from eval.predict import main as predict_main
+from eval.windows import WindowConfig, predict_labels
+from tests.eval.conftest import tiny_model
+
+
+def _report(folder, palette, bins):
+    """A minimal report folder written by hand: what --compare reads."""
+    folder.mkdir(parents=True)
+    rows = [{"name": n, "lo": lo, "hi": hi, "num_images": 2, "miou": m, "pixel_acc": m,
+             "per_class_iou": {}} for n, lo, hi, m in bins]  # fmt: skip
+    edges = [bins[0][1]] + [b[2] for b in bins]
+    report = {
+        "overall": {"num_images": 2 * len(bins), "miou": 0.5, "pixel_acc": 0.6,
+                    "per_class_iou": {}},
+        "bins": rows, "groups": [], "images": [], "correlation": {}, "classes": ["a", "b"],
+        "palette": palette, "ignore_index": 255, "convention": "...",
+        "source": {"kind": "predictions", "binning": {"method": "fixed", "edges": edges}},
+    }  # fmt: skip
+    (folder / "report.json").write_text(json.dumps(report))
+    return folder / "report.json"
+
+
+def test_compare_side_by_side_with_gap(tmp_path, capsys):
+    a = _report(tmp_path / "synthetic", "uavid", [("[4, 5)", 4, 5, 0.6), ("[5, 6]", 5, 6, 0.4)])
+    b = _report(tmp_path / "real", "uavid", [("[4, 5)", 4, 5, 0.7), ("[5, 6]", 5, 6, 0.65)])
+    out = tmp_path / "cmp"
+    assert main(["--compare", str(a), str(b), "--output", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "warning" not in captured.err
+    table = captured.out
+    assert "synthetic mIoU" in table and "real mIoU" in table
+    # gap real − synthetic in mIoU points: 10.0 in the low bin, 25.0 in the high bin
+    assert "| [4, 5) | 10.0 |" in table and "| [5, 6] | 25.0 |" in table
+    assert (out / "compare.png").stat().st_size > 5000
+    assert (out / "compare.md").read_text().startswith("# Comparison")
+
+
+def test_compare_warns_when_edges_or_palettes_differ(tmp_path, capsys):
+    a = _report(tmp_path / "a", "uavid", [("[4, 5)", 4, 5, 0.6), ("[5, 6]", 5, 6, 0.4)])
+    b = _report(tmp_path / "b", "claravid", [("[4, 4.5)", 4, 4.5, 0.7), ("[4.5, 6]", 4.5, 6, 0.6)])
+    assert main(["--compare", str(a), str(b)]) == 0
+    err = capsys.readouterr().err
+    assert "claravid-eval: warning: palettes differ" in err
+    assert "claravid-eval: warning: bin edges differ" in err
+
+
+def test_compare_refuses_foreign_json_in_one_line(tmp_path, capsys):
+    a = _report(tmp_path / "a", "uavid", [("[4, 5)", 4, 5, 0.6)])
+    foreign = tmp_path / "other.json"
+    foreign.write_text(json.dumps({"metric": "delent", "results": []}))
+    assert main(["--compare", str(a), str(foreign)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "other.json is not a claravid-eval report.json" in err[0]
+    broken = tmp_path / "broken.json"
+    broken.write_text("{not json")
+    assert main(["--compare", str(a), str(broken)]) == 2
+    assert "cannot read" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_predict_writes_label_maps_and_overlays(claravid_root, tmp_path, capsys):
+    import models
+
+    model = tiny_model(seed=3)
+    ckpt = models.save_checkpoint(model, tmp_path / "m.pt")  # plain: no config, 8 classes
+    flight = sorted((claravid_root / "003_urban_1" / "left_rgb" / "45deg_low_h").glob("*.jpg"))
+    out = tmp_path / "pred"
+    argv = ["--checkpoint", str(ckpt), str(flight[0].parent), "--output", str(out),
+            "--window", "42", "--palette", "uavid"]  # fmt: skip
+    assert predict_main(argv) == 0
+    assert "3 label maps" in capsys.readouterr().out
+    for path in flight:
+        ids = cv2.imread(str(out / f"{path.stem}.png"), cv2.IMREAD_UNCHANGED)
+        image = eval_transforms()({"image": modalities.read_rgb(path).transpose(2, 0, 1)})
+        expected = predict_labels(model, image["image"], WindowConfig(size=(42, 42))).numpy()
+        assert ids.dtype == np.uint8 and ids.shape == (48, 64)
+        np.testing.assert_array_equal(ids, expected)
+        blend = cv2.imread(str(out / "overlays" / f"{path.stem}.jpg"))
+        assert blend.shape == (48, 64, 3)
+    # Listed files; two model sources; a foreign output folder.
+    one = tmp_path / "one"
+    argv = ["--checkpoint", str(ckpt), str(flight[1]), "--output", str(one), "--window", "42"]
+    assert predict_main([*argv, "--no-overlays"]) == 0
+    assert {p.name for p in one.iterdir()} == {"000001.png", "predictions.json"}
+    assert predict_main(["--checkpoint", str(ckpt), "--onnx", "m.onnx", str(flight[0]),
+                         "--output", str(tmp_path / "x")]) == 2  # fmt: skip
+    assert "exactly one of --checkpoint and --onnx" in capsys.readouterr().err
+    (tmp_path / "theirs").mkdir()
+    (tmp_path / "theirs" / "a.txt").write_text("x")
+    assert predict_main(["--checkpoint", str(ckpt), str(flight[0]), "--output",
+                         str(tmp_path / "theirs")]) == 2  # fmt: skip
+
+
+def test_predict_refuses_a_missing_image(tmp_path, capsys):
+    ckpt = tmp_path / "none.pt"
+    code = predict_main(["--checkpoint", str(ckpt), str(tmp_path / "nope.jpg"), "--output",
+                         str(tmp_path / "o")])  # fmt: skip
+    assert code == 2
+    assert "nope.jpg is not an image file" in capsys.readouterr().err
