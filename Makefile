@@ -18,6 +18,7 @@ $(STAMP): pyproject.toml constraints.txt claravid/dsp/_deldensity.c
 
 demo: $(STAMP)
 	$(BIN)/claravid-demo runs/demo
+	$(BIN)/claravid-train --config demo --resume
 	$(BIN)/claravid-eval --checkpoint runs/demo/train/best.pt --data runs/demo/data --split val --output runs/demo/report
 
 test: $(STAMP)

@@ -30,6 +30,10 @@ synthesize(Path(sys.argv[2]) / "data", seed=0, frames_per_viewpoint=1, size=(84,
            missions=["urban_1"], progress=False)
 sample = ClaraVidSegmentation(Path(sys.argv[2]) / "data", split="all", palette="uavid")[0]
 assert tuple(sample["mask"].shape) == (70, 84), sample["mask"].shape
+from train.config import load_config
+cfg = load_config("demo", ["train.steps=3"])  # a named experiment config, from the wheel
+assert cfg.model.freeze_backbone is False and cfg.train.steps == 3, cfg
+assert load_config("claravid_dpt_vitl14").model.backbone == "dinov2_vitl14"
 print("OK", ",".join(names), ",".join(shipped_names()))
 """
 
@@ -54,6 +58,7 @@ def test_wheel_installed_outside_checkout_loads_palettes_and_a_sample(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     assert "claravid/configs/palettes/uavid.yaml" in names
     assert "claravid/configs/augment.yaml" in names
+    assert "claravid/configs/demo.yaml" in names
 
     target = tmp_path / "site"
     install = subprocess.run(

@@ -1,0 +1,63 @@
+"""Training tests: the tiny generated ClaraVid tree, a tiny UAVid tree, tiny models."""
+
+import numpy as np
+import pytest
+import torch
+
+from claravid import modalities
+from claravid.palettes import load_palette
+from tests.claravid.conftest import claravid_root  # noqa: F401
+
+# A tiny random-init backbone (of the config's architecture) and head, 28² crops, the fixture's
+# 7 test frames as val set (its 150 m val blocks are empty), CPU, no workers, no progress bar.
+TINY = [
+    "model.weights=null",
+    "model.backbone_kwargs.embed_dim=32",
+    "model.backbone_kwargs.depth=4",
+    "model.backbone_kwargs.num_heads=2",
+    "model.layers=[0,1,2,3]",
+    "model.features=8",
+    "model.out_channels=[8,8,8,8]",
+    "data.augment.crop_height=28",
+    "data.augment.crop_width=28",
+    "data.num_workers=0",
+    "data.val_split=test",
+    "train.batch_size=4",
+    "train.warmup_steps=0",
+    "train.device=cpu",
+    "val.window=28",
+    "val.scale=1.0",
+    "val.batch_size=8",
+    "log.progress=false",
+]
+
+
+def tiny(root, out, *extra):
+    """Overrides for a tiny run on ``root`` writing to ``out``."""
+    return [*TINY, f"data.root={root}", f"out_dir={out}", *extra]
+
+
+@pytest.fixture(scope="session")
+def uavid_root(tmp_path_factory):
+    """uavid_{train,val}/seq1 with 3 frames of 64×48 each, colour labels in blocks."""
+    root = tmp_path_factory.mktemp("uavid")
+    colors = load_palette("uavid").colors
+    rng = np.random.default_rng(0)
+    for split in ("train", "val"):
+        for frame in range(3):
+            ids = np.repeat(np.repeat(rng.integers(0, 8, (6, 8)), 8, 0), 8, 1)
+            image = (colors[ids] * 0.8 + rng.integers(0, 50, (48, 64, 3))).astype(np.uint8)
+            base = root / f"uavid_{split}" / "seq1"
+            modalities._write_image(base / "Images" / f"{frame:06d}.png", image)
+            modalities.write_seg_color(base / "Labels" / f"{frame:06d}.png", colors[ids])
+    return root
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    """One intra-op thread: these models are so small that a second thread only adds overhead
+    (3× slower on a busy 2-core machine)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

@@ -1,0 +1,209 @@
+"""The loop on the tiny fixture: the loss goes down, outputs, faults, every shipped config."""
+
+import json
+import os
+
+import pytest
+import torch
+
+import models
+from claravid.palettes import load_palette
+from claravid.resources import shipped_names
+from models.checkpoint import read_checkpoint
+from tests.train.conftest import tiny
+from train import TrainingDiverged, load_config, train
+from train.checkpoint import save_training_checkpoint
+from train.cli import main
+
+
+def rows(out):
+    return [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+
+
+@pytest.mark.slow
+def test_loss_decreases_and_run_folder_is_complete(claravid_root, tmp_path):
+    out = tmp_path / "run"
+    extra = ["train.steps=40", "train.lr=3e-3", "train.log_every=1", "val.every=20"]
+    cfg = load_config("demo", tiny(claravid_root, out, *extra, "model.freeze_backbone=true"))
+    result = train(cfg)
+    losses = [r["loss"] for r in rows(out) if "loss" in r]
+    assert len(losses) == 40
+    assert sum(losses[-5:]) / 5 < 0.8 * sum(losses[:5]) / 5, losses
+    vals = [r for r in rows(out) if "miou" in r]
+    assert [r["step"] for r in vals] == [20, 40]
+    assert set(vals[0]["miou_bins"]) == {"low", "medium", "high"}
+    assert list(vals[0]["per_class_iou"]) == list(load_palette("uavid").names)
+    assert result.best_miou == max(r["miou"] for r in vals)
+    for name in ("config.yaml", "metrics.jsonl", "curves.png", "last.pt", "best.pt"):
+        assert (out / name).is_file(), name
+    last = read_checkpoint(out / "last.pt")  # weights_only
+    assert last["step"] == 40 and last["config"]["train"]["steps"] == 40
+    assert last["sampler"] == {"step": 40, "frames_seen": 160}
+    assert {"optimizer", "scheduler", "scaler", "rng", "model_args"} <= set(last)
+    best = read_checkpoint(out / "best.pt")
+    assert best["step"] == result.best_step and best["best_miou"] == result.best_miou
+    # The model rebuilds from the file alone (frozen backbone: head weights changed only).
+    model = models.load_checkpoint(out / "last.pt")
+    assert model.num_classes == 8
+
+
+def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(claravid_root, tmp_path, capsys):
+    out = tmp_path / "run"
+    args = tiny(claravid_root, out, "train.steps=6", "train.lr=1e30", "train.grad_clip=0",
+                "train.checkpoint_every=1", "val.every=0")  # fmt: skip
+    assert main(["--config", "demo", *args]) == 1
+    err = capsys.readouterr().err
+    assert "stopped:" in err and ("nan" in err or "inf" in err) and "last.pt" in err
+    assert "Traceback" not in err
+    ckpt = read_checkpoint(out / "last.pt")
+    assert 1 <= ckpt["step"] < 6
+    state = models.load_checkpoint(out / "last.pt").state_dict()
+    assert all(torch.isfinite(v).all() for v in state.values() if v.is_floating_point())
+
+
+def test_injected_inf_stops_before_the_step(claravid_root, tmp_path, monkeypatch):
+    import train.loop as loop
+
+    real = loop.F.cross_entropy
+    calls = []
+
+    def poisoned(*args, **kwargs):
+        calls.append(1)
+        loss = real(*args, **kwargs)
+        return loss * float("inf") if len(calls) == 3 else loss
+
+    monkeypatch.setattr(loop.F, "cross_entropy", poisoned)
+    out = tmp_path / "run"
+    cfg = load_config("demo", tiny(claravid_root, out, "train.steps=5", "train.checkpoint_every=2",
+                                   "val.every=0"))  # fmt: skip
+    with pytest.raises(TrainingDiverged, match="at step 3"):
+        train(cfg)
+    assert read_checkpoint(out / "last.pt")["step"] == 2
+
+
+def test_user_mistakes_are_one_line_exit_2(claravid_root, tmp_path, capsys):
+    cases = {
+        "data.root": tiny(tmp_path / "nowhere", tmp_path / "a"),
+        # Both missions held out: the train split is empty.
+        "holds no frame": tiny(
+            claravid_root,
+            tmp_path / "b",
+            "data.split.val_missions=[rural_1]",
+            "data.split.test_missions=[urban_1]",
+        ),
+        "did you mean train.steps": tiny(claravid_root, tmp_path / "c", "train.step=3"),
+        "multiple of": tiny(
+            claravid_root, tmp_path / "d", "train.batch_size=3", "data.crops_per_frame=2"
+        ),
+    }
+    for message, args in cases.items():
+        assert main(["--config", "demo", *args]) == 2, message
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err
+        assert len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.slow
+def test_out_dir_rules_and_resume_messages(claravid_root, tmp_path, capsys):
+    out = tmp_path / "run"
+    args = ["--config", "demo", *tiny(claravid_root, out, "train.steps=2", "val.every=0")]
+    assert main([*args, "--resume"]) == 0
+    text = capsys.readouterr().out
+    assert "no " in text and "starting a new run" in text
+    assert f"claravid-eval --checkpoint {out / 'best.pt'}" in text
+    assert f"claravid-export {out / 'best.pt'} --output {out / 'best.onnx'}" in text
+    assert main([*args, "--resume"]) == 0
+    assert "already finished" in capsys.readouterr().out
+    assert main(args) == 2  # same config, no --resume
+    assert "pass --resume" in capsys.readouterr().err
+    assert main([*args, "train.lr=0.5"]) == 2  # another config
+    assert "another config (differs in train.lr)" in capsys.readouterr().err
+    assert main([*args, "train.lr=0.5", "--resume"]) == 2
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    assert main(["--config", "demo", *tiny(claravid_root, foreign)]) == 2
+    assert "not written by this tool" in capsys.readouterr().err
+
+
+def test_tensorboard_missing_is_a_clear_error(claravid_root, tmp_path, capsys):
+    try:
+        import tensorboard  # noqa: F401
+
+        pytest.skip("tensorboard is installed")
+    except ImportError:
+        pass
+    args = tiny(claravid_root, tmp_path / "r", "train.steps=1", "log.tensorboard=true")
+    assert main(["--config", "demo", *args]) == 2
+    assert "pip install 'claravid-toolkit[tensorboard]'" in capsys.readouterr().err
+
+
+def test_atomic_checkpoint_write_survives_a_crash_mid_write(claravid_root, tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    train(load_config("demo", tiny(claravid_root, out, "train.steps=2", "val.every=0")))
+    before = (out / "last.pt").read_bytes()
+    ckpt = read_checkpoint(out / "last.pt")
+    model = models.load_checkpoint(out / "last.pt")
+    opt = torch.optim.AdamW(model.head.parameters())
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: 1.0)
+
+    def crash(obj, f, *args, **kwargs):  # the disk fills up half-way through the file
+        f.write(b"half a checkpoint")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(torch, "save", crash)
+    with pytest.raises(OSError, match="disk full"):
+        save_training_checkpoint(
+            out / "last.pt", model, step=3, config=ckpt["config"], optimizer=opt,
+            scheduler=sched, scaler=torch.amp.GradScaler("cpu", enabled=False),
+            frames_per_step=4, best_miou=None, best_step=None, metrics=None,
+            backbone_trained=False,
+        )  # fmt: skip
+    assert (out / "last.pt").read_bytes() == before  # the old file, whole
+    assert sorted(os.listdir(out)) == sorted(  # and no temp file left behind
+        ["config.yaml", "metrics.jsonl", "curves.png", "last.pt", "best.pt"]
+    )
+
+
+SHIPPED = [n for n in shipped_names() if n != "augment"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", SHIPPED)
+def test_every_shipped_config_trains_two_steps(name, claravid_root, uavid_root, tmp_path):
+    cfg = load_config(name)
+    extra = []
+    if cfg.data.dataset == "uavid":
+        extra += [f"data.root={uavid_root}", "data.val_split=val"]
+    if cfg.data.val_dataset == "uavid":
+        extra += [f"data.val_root={uavid_root}", "data.val_split=val"]
+    args = tiny(claravid_root, tmp_path / "run", "train.steps=2", "train.batch_size=2",
+                "val.every=0", "data.num_workers=0", *extra)  # fmt: skip
+    cfg = load_config(name, args)
+    result = train(cfg)
+    assert result.step == 2 and result.best_miou is not None
+    assert read_checkpoint(tmp_path / "run" / "last.pt")["config"]["model"]["backbone"] == (
+        load_config(name).model.backbone
+    )
+
+
+@pytest.mark.slow
+def test_loader_workers_draw_the_same_batches(claravid_root, tmp_path):
+    """Crops are seeded by position, not by worker: 2 workers train the very same weights."""
+    states = []
+    for workers in (0, 2):
+        out = tmp_path / f"w{workers}"
+        extra = ["train.steps=3", "val.every=0", f"data.num_workers={workers}"]
+        train(load_config("demo", tiny(claravid_root, out, *extra)))
+        states.append(read_checkpoint(out / "last.pt")["model"])
+    for key, value in states[0].items():
+        assert torch.equal(value, states[1][key]), key
+
+
+def test_complexity_balanced_sampler_trains(claravid_root, tmp_path):
+    out = tmp_path / "run"
+    extra = ["train.steps=2", "val.every=0", "data.sampler=complexity_balanced"]
+    assert train(load_config("demo", tiny(claravid_root, out, *extra))).step == 2
+    bad = tiny(claravid_root, tmp_path / "b", *extra, "data.sampler_bins=1000")
+    with pytest.raises(ValueError, match="more than the 29 training frames"):
+        train(load_config("demo", bad))

@@ -1,0 +1,84 @@
+"""Resume after ``kill -9`` ends bit for bit where the uninterrupted run ends (CPU, fixed seed)."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import torch
+
+from models.checkpoint import read_checkpoint
+from tests.train.conftest import tiny
+from train import load_config, train
+from train.logs import read_metrics
+
+STEPS = 40
+EXTRA = (f"train.steps={STEPS}", "train.checkpoint_every=3", "val.every=10", "train.log_every=1",
+         "train.warmup_steps=5")  # fmt: skip
+
+
+def command(root, out, *flags):
+    return [sys.executable, "-m", "train", "--config", "demo", *tiny(root, out, *EXTRA), *flags]
+
+
+def env():
+    # One thread, as the in-process reference run (the conftest fixture): same kernels, same bits.
+    return {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
+
+
+def checkpoint_step(path):
+    try:
+        return read_checkpoint(path)["step"]
+    except Exception:  # not written yet
+        return -1
+
+
+def assert_same_state(a, b):
+    assert a["step"] == b["step"]
+    assert a["model"].keys() == b["model"].keys()
+    for key in a["model"]:
+        assert torch.equal(a["model"][key], b["model"][key]), key
+    for pid, state in a["optimizer"]["state"].items():
+        for name, value in state.items():
+            assert torch.equal(value, b["optimizer"]["state"][pid][name]), (pid, name)
+    assert a["scheduler"] == b["scheduler"]
+    assert torch.equal(a["rng"]["torch"], b["rng"]["torch"])
+    assert a["sampler"] == b["sampler"]
+    assert (a["best_miou"], a["best_step"]) == (b["best_miou"], b["best_step"])
+
+
+def training_rows(out):
+    return [
+        {k: v for k, v in r.items() if k != "images_per_s"}
+        for r in read_metrics(out / "metrics.jsonl")
+    ]
+
+
+@pytest.mark.slow
+def test_resume_after_sigkill_is_bit_for_bit(claravid_root, tmp_path):
+    reference = tmp_path / "reference"
+    train(load_config("demo", tiny(claravid_root, reference, *EXTRA)))
+
+    out = tmp_path / "killed"
+    proc = subprocess.Popen(command(claravid_root, out), env=env(), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE)  # fmt: skip
+    deadline = time.monotonic() + 120
+    while checkpoint_step(out / "last.pt") < 12 and proc.poll() is None:
+        assert time.monotonic() < deadline, "the run made no progress"
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    assert proc.wait() == -signal.SIGKILL, proc.stderr.read().decode()[-2000:]
+    killed_at = checkpoint_step(out / "last.pt")
+    assert 12 <= killed_at < STEPS
+
+    run = subprocess.run(command(claravid_root, out, "--resume"), env=env(),
+                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert f"resuming {out / 'last.pt'} at step {killed_at}/{STEPS}" in run.stdout
+
+    assert_same_state(read_checkpoint(out / "last.pt"), read_checkpoint(reference / "last.pt"))
+    assert_same_state(read_checkpoint(out / "best.pt"), read_checkpoint(reference / "best.pt"))
+    # metrics.jsonl reads as one run: no row twice, same losses and validation scores.
+    assert training_rows(out) == training_rows(reference)

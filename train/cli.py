@@ -1,0 +1,85 @@
+"""``claravid-train --config CONFIG [key=value ...] [--resume]`` (also ``python -m train``).
+
+CONFIG is a YAML file or the name of a shipped config (``demo``, ``claravid_dpt_vitl14``, ...).
+Multi-GPU: ``torchrun --nproc_per_node=N -m train --config ...``. The last lines say where the
+results are and how to evaluate and export them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from claravid.cli import add_debug_flag, run_cli
+from claravid.resources import shipped_names
+
+PROG = "claravid-train"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    configs = ", ".join(n for n in shipped_names() if n != "augment")
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Train a DPT segmentation head on a frozen DINOv2 backbone from a YAML config.",
+        epilog="Examples: claravid-train --config demo --resume; claravid-train --config "
+        "claravid_dpt_vitl14 data.root=/data/claravid out_dir=runs/vitl14 train.steps=20000",
+    )
+    parser.add_argument("--config", required=True, help=f"YAML path or shipped name ({configs})")
+    parser.add_argument("overrides", nargs="*", metavar="key=value", help="dotted overrides")
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue out_dir/last.pt (a fresh start when there is none)",
+    )
+    add_debug_flag(parser)
+    return parser
+
+
+def _run(args: argparse.Namespace) -> int:
+    from train.config import load_config  # heavy imports after argparse: --help stays fast
+    from train.loop import TrainingDiverged, train
+
+    cfg = load_config(args.config, args.overrides)
+    try:
+        result = train(cfg, resume=args.resume)
+    except TrainingDiverged as exc:
+        print(f"{PROG}: stopped: {exc}", file=sys.stderr)
+        return 1
+    if not _is_main():
+        return 0
+    out = result.out_dir
+    if result.best_miou is not None:
+        bins = result.last_val.get("miou_bins") or {}
+        per_bin = ", ".join(
+            f"{k} {v:.3f}" if v is not None else f"{k} n/a" for k, v in bins.items()
+        )
+        print(
+            f"best val mIoU {result.best_miou:.3f} at step {result.best_step}; last validation "
+            f"(step {result.last_val.get('step')}): mIoU {_num(result.last_val.get('miou'))}"
+            + (f", per delentropy bin: {per_bin}" if per_bin else "")
+        )
+    print(f"results in {out}: config.yaml, metrics.jsonl, curves.png, last.pt, best.pt")
+    best = out / "best.pt" if (out / "best.pt").is_file() else out / "last.pt"
+    # claravid-eval reads the validation data, palette, split and windows from the checkpoint.
+    print(f"evaluate: claravid-eval --checkpoint {best} --output {out / 'report'}")
+    print(f"export:   claravid-export {best} --output {best.with_suffix('.onnx')}")
+    return 0
+
+
+def _num(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3f}"
+
+
+def _is_main() -> bool:
+    import torch.distributed as dist
+
+    return not (dist.is_available() and dist.is_initialized()) or dist.get_rank() == 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``claravid-train``."""
+    return run_cli(PROG, _run, build_parser(), argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

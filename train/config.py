@@ -1,0 +1,342 @@
+"""The training config: typed defaults, one YAML file, dotted ``key=value`` overrides.
+
+Merged by OmegaConf structured configs (as DINOv2 does), so there is no hand-written merging::
+
+    cfg = load_config("demo", ["train.steps=200", "data.num_workers=0"])
+    cfg.train.lr  # typed: 0.0002
+
+``CONFIG`` is a YAML path or the name of a config shipped with the package (``configs/`` in the
+checkout, ``claravid.configs`` in a wheel). An unknown key is an error that names the closest
+valid keys; a value of the wrong type or out of range is an error naming the key.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omegaconf import MISSING, DictConfig, OmegaConf
+from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
+
+from claravid.resources import shipped_file, shipped_names
+from claravid.transforms import AugmentConfig
+
+CLASS_WEIGHTS = ("none", "inverse", "median_frequency", "log_inverse")
+SCHEDULES = ("poly", "cosine")
+DATASETS = ("claravid", "uavid")
+SAMPLERS = ("uniform", "complexity_balanced")
+
+
+class ConfigError(ValueError):
+    """A config file, key or value the user has to fix (the message says how)."""
+
+
+@dataclass
+class SplitSettings:
+    """How ClaraVid frames are assigned to train/val/test (``claravid.splits.SplitConfig``)."""
+
+    block_size: float = 150.0  # metres: whole squares of camera positions go to one split
+    fractions: list[float] = field(default_factory=lambda: [0.7, 0.15, 0.15])
+    seed: int = 0
+    val_missions: list[str] = field(default_factory=list)  # held out whole as val
+    test_missions: list[str] = field(default_factory=list)  # held out whole as test
+
+
+@dataclass
+class DataConfig:
+    root: str = MISSING  # the training dataset's root (ClaraVid: the mission folders)
+    dataset: str = "claravid"  # training set: claravid | uavid
+    palette: str = "claravid"  # palette name or YAML path (uavid: the 8 UAVid classes)
+    missions: list[str] | None = None  # ClaraVid mission keys; null: all present
+    altitude: list[str] | None = None  # low | mid | high; null: all
+    direction: list[str] | None = None  # h | v; null: all
+    split: SplitSettings = field(default_factory=SplitSettings)
+    train_split: str = "train"
+    val_split: str = "val"
+    val_dataset: str = "claravid"  # claravid | uavid (synthetic-to-real validation)
+    val_root: str | None = None  # null: data.root
+    val_limit: int | None = None  # validate on the first N images only (null: all)
+    label_cache: bool = True  # decoded labels kept as small PNGs under $CLARAVID_CACHE
+    num_workers: int = 4  # DataLoader processes per rank (0: in the training process)
+    crops_per_frame: int = 1  # k random crops from each decoded frame (1: the paper)
+    class_weights: str = "none"  # none | inverse | median_frequency | log_inverse
+    sampler: str = "uniform"  # uniform | complexity_balanced (equal draws per delentropy bin)
+    sampler_bins: int = 3  # delentropy quantile bins of complexity_balanced
+    augment: AugmentConfig = field(default_factory=AugmentConfig)
+
+
+@dataclass
+class ModelConfig:
+    backbone: str = "dinov2_vitl14"
+    weights: str | None = "official"  # a .pth/.safetensors path, "official", or null (random)
+    layers: list[int] | None = None  # null: the DPT defaults of the backbone size
+    features: int | None = None
+    out_channels: list[int] | None = None
+    use_cls: bool = False
+    backbone_kwargs: dict[str, Any] = field(default_factory=dict)  # tiny test backbones
+    freeze_backbone: bool = True  # the paper's protocol; false trains the backbone too
+
+
+@dataclass
+class TrainConfig:
+    steps: int | None = None  # null: clamp(steps_per_frame × frames, min_steps, max_steps)
+    steps_per_frame: float = 10.0  # k of the rule above
+    min_steps: int = 5000
+    max_steps: int = 30000
+    batch_size: int = 8  # images (crops) per optimiser step, over all ranks and accumulation
+    grad_accum: int = 1  # micro-batches per optimiser step on each rank
+    lr: float = 2e-4  # AdamW on the head (DINOv2/Depth-Anything DPT heads use 1e-4 to 5e-4)
+    backbone_lr: float = 2e-4  # used only when model.freeze_backbone is false
+    weight_decay: float = 0.01
+    betas: list[float] = field(default_factory=lambda: [0.9, 0.999])
+    warmup_steps: int = 500  # linear warmup from 0, then the decay schedule
+    schedule: str = "poly"  # poly | cosine
+    poly_power: float = 0.9
+    min_lr_ratio: float = 0.0  # the decay ends at lr × min_lr_ratio
+    grad_clip: float = 1.0  # max global gradient norm (0: off)
+    amp: bool = True  # bf16 where the GPU supports it, else fp16 + GradScaler; fp32 on CPU
+    compile: bool = False  # torch.compile the trained module
+    device: str | None = None  # null: cuda when available, else cpu
+    threads: int | None = None  # intra-op CPU threads of each process (null: PyTorch's default)
+    log_every: int = 10  # steps between metrics.jsonl rows
+    checkpoint_every: int = 500  # steps between last.pt writes (and at the end)
+
+
+@dataclass
+class ValConfig:
+    every: int = 1000  # steps between validations (and at the end); 0: at the end only
+    window: int = 630  # sliding window size (multiple of the patch size)
+    stride: int | None = None  # null: two thirds of the window
+    scale: float = 0.5  # resize before windowing (the paper reports at half resolution)
+    batch_size: int = 4  # windows per forward pass
+    bins: int = 3  # delentropy quantile bins of the val images (miou_bins)
+
+
+@dataclass
+class LogConfig:
+    tensorboard: bool = (
+        False  # event files in out_dir/tb (pip install 'claravid-toolkit[tensorboard]')
+    )
+    progress: bool = True  # progress bar on rank 0
+
+
+@dataclass
+class Config:
+    """Everything a run needs; ``out_dir`` holds its results."""
+
+    out_dir: str = MISSING
+    seed: int = 0
+    data: DataConfig = field(default_factory=DataConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    val: ValConfig = field(default_factory=ValConfig)
+    log: LogConfig = field(default_factory=LogConfig)
+
+
+def valid_keys(node: Any = None, prefix: str = "") -> list[str]:
+    """Every dotted key of the schema (free-form dicts such as ``backbone_kwargs`` as one key)."""
+    node = OmegaConf.structured(Config) if node is None else node
+    keys = []
+    for key in node:
+        full = f"{prefix}{key}"
+        child = node._get_node(key)
+        if isinstance(child, DictConfig) and OmegaConf.get_type(child) not in (dict, None):
+            keys.extend(valid_keys(child, f"{full}."))
+        else:
+            keys.append(full)
+    return keys
+
+
+def _unknown_key(full_key: str) -> ConfigError:
+    close = difflib.get_close_matches(full_key, valid_keys(), n=3, cutoff=0.6)
+    leaf = full_key.rsplit(".", 1)[-1]
+    close += [k for k in valid_keys() if k.rsplit(".", 1)[-1] == leaf and k not in close]
+    hint = f"; did you mean {' or '.join(close[:3])}?" if close else ""
+    return ConfigError(f"unknown config key {full_key!r}{hint}")
+
+
+def find_config(name: str | Path) -> tuple[Path | None, str]:
+    """(path, text) of a config file path or a shipped config name."""
+    path = Path(name)
+    if path.suffix in (".yaml", ".yml") or path.is_file():
+        if not path.is_file():
+            raise ConfigError(f"config file {path} not found")
+        return path, path.read_text(encoding="utf-8")
+    entry = shipped_file(str(name))
+    if entry is None:
+        raise ConfigError(
+            f"no config file {name} and no shipped config named {name!r}; "
+            f"shipped: {', '.join(n for n in shipped_names() if n != 'augment')}"
+        )
+    return None, entry.read_text(encoding="utf-8")
+
+
+def _merge(base: DictConfig, other: Any, source: str) -> DictConfig:
+    try:
+        return OmegaConf.merge(base, other)
+    except ConfigKeyError as exc:
+        raise _unknown_key(str(exc.full_key)) from None
+    except OmegaConfBaseException as exc:
+        key = getattr(exc, "full_key", None)
+        msg = str(exc).splitlines()[0]
+        raise ConfigError(f"bad value for {key} ({source}): {msg}") from None
+
+
+def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:
+    """Defaults, then the YAML file (path or shipped name), then ``key=value`` overrides.
+
+    Raises:
+        ConfigError: unknown key, bad value, missing required key, unreadable file.
+    """
+    cfg = OmegaConf.structured(Config)
+    path, text = find_config(name)
+    try:
+        loaded = OmegaConf.create(text)
+    except Exception as exc:  # a YAML syntax error: name the file
+        raise ConfigError(f"cannot parse config {path or name}: {exc}") from None
+    cfg = _merge(cfg, loaded, f"config {path or name}")
+    bad = [o for o in overrides if "=" not in o or o.startswith("=")]
+    if bad:
+        raise ConfigError(f"override {bad[0]!r} is not key=value (e.g. train.steps=100)")
+    cfg = _merge(cfg, OmegaConf.from_dotlist(list(overrides)), "command line")
+    check_config(cfg)
+    return cfg
+
+
+def _require(ok: bool, key: str, value: Any, rule: str) -> None:
+    if not ok:
+        raise ConfigError(f"bad value for {key}: {value!r} ({rule})")
+
+
+def check_config(cfg: DictConfig) -> None:
+    """Values the types alone do not rule out: choices, ranges, required keys."""
+    for key in ("out_dir", "data.root"):
+        _require(
+            not OmegaConf.is_missing(cfg, key),
+            key,
+            "???",
+            "required: set it in the file or as key=value",
+        )
+    d, t, v, m = cfg.data, cfg.train, cfg.val, cfg.model
+    _require(d.dataset in DATASETS, "data.dataset", d.dataset, f"one of {', '.join(DATASETS)}")
+    _require(
+        d.val_dataset in DATASETS,
+        "data.val_dataset",
+        d.val_dataset,
+        f"one of {', '.join(DATASETS)}",
+    )
+    _require(
+        d.class_weights in CLASS_WEIGHTS,
+        "data.class_weights",
+        d.class_weights,
+        f"one of {', '.join(CLASS_WEIGHTS)}",
+    )
+    _require(d.sampler in SAMPLERS, "data.sampler", d.sampler, f"one of {', '.join(SAMPLERS)}")
+    _require(d.sampler_bins >= 1, "data.sampler_bins", d.sampler_bins, ">= 1")
+    _require(d.num_workers >= 0, "data.num_workers", d.num_workers, ">= 0")
+    _require(d.crops_per_frame >= 1, "data.crops_per_frame", d.crops_per_frame, ">= 1")
+    _require(d.val_limit is None or d.val_limit >= 1, "data.val_limit", d.val_limit, ">= 1 or null")
+    _require(
+        t.schedule in SCHEDULES, "train.schedule", t.schedule, f"one of {', '.join(SCHEDULES)}"
+    )
+    _require(t.steps is None or t.steps >= 1, "train.steps", t.steps, ">= 1 or null")
+    _require(
+        1 <= t.min_steps <= t.max_steps,
+        "train.min_steps",
+        t.min_steps,
+        "1 <= min_steps <= max_steps",
+    )
+    _require(t.steps_per_frame > 0, "train.steps_per_frame", t.steps_per_frame, "> 0")
+    _require(t.batch_size >= 1, "train.batch_size", t.batch_size, ">= 1")
+    _require(t.grad_accum >= 1, "train.grad_accum", t.grad_accum, ">= 1")
+    for key in ("lr", "backbone_lr"):
+        value = t[key]
+        _require(math.isfinite(value) and value > 0, f"train.{key}", value, "a positive number")
+    _require(t.weight_decay >= 0, "train.weight_decay", t.weight_decay, ">= 0")
+    _require(
+        len(t.betas) == 2 and all(0 <= b < 1 for b in t.betas),
+        "train.betas",
+        list(t.betas),
+        "two numbers in [0, 1)",
+    )
+    _require(t.warmup_steps >= 0, "train.warmup_steps", t.warmup_steps, ">= 0")
+    _require(0 <= t.min_lr_ratio <= 1, "train.min_lr_ratio", t.min_lr_ratio, "in [0, 1]")
+    _require(t.grad_clip >= 0, "train.grad_clip", t.grad_clip, ">= 0 (0: off)")
+    _require(t.threads is None or t.threads >= 1, "train.threads", t.threads, ">= 1 or null")
+    _require(t.log_every >= 1, "train.log_every", t.log_every, ">= 1")
+    _require(t.checkpoint_every >= 1, "train.checkpoint_every", t.checkpoint_every, ">= 1")
+    _require(
+        t.device is None or t.device.split(":")[0] in ("cpu", "cuda"),
+        "train.device",
+        t.device,
+        "cpu, cuda, cuda:N or null",
+    )
+    _require(v.every >= 0, "val.every", v.every, ">= 0 (0: at the end only)")
+    _require(v.window >= 1, "val.window", v.window, ">= 1")
+    _require(v.bins >= 1, "val.bins", v.bins, ">= 1")
+    _require(math.isfinite(v.scale) and 0 < v.scale <= 8, "val.scale", v.scale, "in (0, 8]")
+    _require(
+        m.layers is None or len(m.layers) == 4, "model.layers", m.layers, "4 block indices or null"
+    )
+    a = d.augment
+    _require(
+        a.crop_height >= 1 and a.crop_width >= 1, "data.augment.crop_height", a.crop_height, ">= 1"
+    )
+
+
+def derive_steps(cfg: DictConfig, num_frames: int) -> int:
+    """``train.steps``, or clamp(steps_per_frame × frames, min_steps, max_steps) when null."""
+    t = cfg.train
+    if t.steps is not None:
+        return int(t.steps)
+    return int(min(max(round(t.steps_per_frame * num_frames), t.min_steps), t.max_steps))
+
+
+def to_yaml(cfg: DictConfig) -> str:
+    """The resolved config as YAML (what ``out_dir/config.yaml`` holds)."""
+    return OmegaConf.to_yaml(cfg)
+
+
+def to_plain(cfg: DictConfig) -> dict[str, Any]:
+    """Plain dict/list/str/number container (storable in a ``weights_only`` checkpoint)."""
+    return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+
+
+def from_plain(data: dict[str, Any]) -> DictConfig:
+    """A config back from `to_plain` (a checkpoint's), checked against the schema."""
+    return _merge(OmegaConf.structured(Config), data, "checkpoint")
+
+
+#: Keys a resumed run may change: where things are and how they are shown, not what is learnt.
+RESUMABLE_CHANGES = (
+    "data.root",
+    "data.val_root",
+    "data.num_workers",
+    "log.",
+    "train.device",
+    "train.threads",
+)
+
+
+def changed_keys(old: DictConfig, new: DictConfig) -> list[str]:
+    """Dotted keys whose values differ between two configs (ignoring `RESUMABLE_CHANGES`)."""
+    flat_old, flat_new = _flatten(to_plain(old)), _flatten(to_plain(new))
+    keys = sorted(set(flat_old) | set(flat_new))
+    return [
+        k
+        for k in keys
+        if flat_old.get(k) != flat_new.get(k)
+        and not any(k == p or (p.endswith(".") and k.startswith(p)) for p in RESUMABLE_CHANGES)
+    ]
+
+
+def _flatten(data: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(data, dict):
+        out: dict[str, Any] = {}
+        for k, v in data.items():
+            out.update(_flatten(v, f"{prefix}{k}."))
+        return out
+    return {prefix[:-1]: list(data) if isinstance(data, tuple) else data}

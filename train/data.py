@@ -1,0 +1,234 @@
+"""Training data: the datasets a config names, k augmented crops per frame, the loader, class
+weights. Which frame comes when is `train.sampler`'s business.
+"""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+from torch.utils.data import DataLoader, Dataset
+
+from claravid.segmentation import ClaraVidSegmentation
+from claravid.targets import UAVidSegmentation
+from claravid.transforms import AugmentConfig, eval_transforms, train_transforms
+from train.sampler import StepSampler
+
+
+class EmptySplitError(ValueError):
+    """A dataset split with no frame in it."""
+
+
+def _augment(cfg: DictConfig) -> AugmentConfig:
+    return AugmentConfig(**OmegaConf.to_container(cfg.data.augment))  # type: ignore[arg-type]
+
+
+def _uavid(root: str | Path, split: str, palette: str, transforms: Any) -> UAVidSegmentation:
+    kwargs: dict[str, Any] = {"root": root, "split": split, "transforms": transforms}
+    # Older UAVidSegmentation versions read the uavid palette only and take no palette argument.
+    if "palette" in inspect.signature(UAVidSegmentation).parameters:
+        kwargs["palette"] = palette
+    elif palette != "uavid":
+        raise ValueError(f"UAVid labels are UAVid classes: set data.palette=uavid, not {palette}")
+    return UAVidSegmentation(**kwargs)
+
+
+def _claravid(cfg: DictConfig, root: str | Path, split: str, transforms: Any) -> Dataset:
+    d = cfg.data
+    return ClaraVidSegmentation(
+        root,
+        split=split,
+        missions=list(d.missions) if d.missions is not None else None,
+        altitude=list(d.altitude) if d.altitude is not None else None,
+        direction=list(d.direction) if d.direction is not None else None,
+        palette=d.palette,
+        transforms=transforms,
+        split_config={
+            "block_size": d.split.block_size,
+            "fractions": tuple(d.split.fractions),
+            "seed": d.split.seed,
+            "val_missions": tuple(d.split.val_missions),
+            "test_missions": tuple(d.split.test_missions),
+        },
+        label_cache=d.label_cache,
+    )
+
+
+def _check_root(root: str | None, key: str) -> Path:
+    if root is None or not Path(root).is_dir():
+        raise FileNotFoundError(
+            f"{key}={root} is not a folder: point {key} at the dataset root "
+            f"(e.g. {key}=/data/claravid; `make demo` generates one at runs/demo/data)"
+        )
+    return Path(root)
+
+
+def build_train_dataset(cfg: DictConfig) -> Dataset:
+    """The training split, without transforms (`CropDataset` augments it).
+
+    Raises:
+        FileNotFoundError: ``data.root`` missing.
+        EmptySplitError: the split selects no frame.
+    """
+    root = _check_root(cfg.data.root, "data.root")
+    if cfg.data.dataset == "uavid":
+        ds = _uavid(root, cfg.data.train_split, cfg.data.palette, None)
+    else:
+        ds = _claravid(cfg, root, cfg.data.train_split, None)
+    if len(ds) == 0:
+        raise EmptySplitError(
+            f"the {cfg.data.train_split!r} split of {root} holds no frame with this selection "
+            "(data.missions/altitude/direction/split); widen the selection or change data.split"
+        )
+    return ds
+
+
+def build_val_dataset(cfg: DictConfig) -> Dataset:
+    """The validation split with evaluation transforms (normalisation only)."""
+    key = "data.val_root" if cfg.data.val_root is not None else "data.root"
+    root = _check_root(cfg.data.val_root or cfg.data.root, key)
+    transforms = eval_transforms(_augment(cfg))
+    if cfg.data.val_dataset == "uavid":
+        ds = _uavid(root, cfg.data.val_split, cfg.data.palette, transforms)
+    else:
+        ds = _claravid(cfg, root, cfg.data.val_split, transforms)
+    if len(ds) == 0:
+        raise EmptySplitError(
+            f"the {cfg.data.val_split!r} split of {root} holds no frame with this selection; "
+            "widen the selection or change data.split (validation needs images)"
+        )
+    return ds
+
+
+def image_paths(dataset: Dataset) -> list[str]:
+    """Each sample's RGB file, without decoding anything (for complexity)."""
+    if isinstance(dataset, ClaraVidSegmentation):
+        return [str(f.paths["rgb"]) for f in dataset.frames]
+    return [str(p) for p in dataset.images]  # type: ignore[attr-defined]
+
+
+class CropDataset(Dataset):
+    """k augmented crops of one decoded frame per item, each crop from its own seed.
+
+    Decoding a full frame costs far more than cropping and augmenting it (a 4032×3024 JPEG is
+    ~95 ms, a 630² crop's augmentations a few ms), so k > 1 multiplies images per decode.
+
+    Args:
+        base: a dataset of uint8 samples (no transforms).
+        augment: the augmentation config (crop size, probabilities ...).
+        crops_per_frame: k.
+    """
+
+    def __init__(self, base: Dataset, augment: AugmentConfig, crops_per_frame: int = 1) -> None:
+        self.base = base
+        self.transform = train_transforms(augment)
+        self.k = crops_per_frame
+
+    def __len__(self) -> int:
+        return len(self.base)  # type: ignore[arg-type]
+
+    def __getitem__(self, item: tuple[int, int]) -> dict[str, torch.Tensor]:
+        index, seed = item
+        sample = self.base[index]
+        images, masks = [], []
+        for j in range(self.k):
+            # Seeding the pipeline per crop makes the crop a function of (position, j) alone.
+            self.transform.pipeline.set_random_seed((seed + j) % 2**32)
+            out = self.transform({"image": sample["image"], "mask": sample["mask"]})
+            images.append(out["image"])
+            masks.append(out["mask"].long())
+        return {"image": torch.stack(images), "mask": torch.stack(masks)}
+
+
+def collate_crops(items: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
+    """Concatenate the k crops of each frame into one batch [B·k, ...]."""
+    return {key: torch.cat([it[key] for it in items]) for key in ("image", "mask")}
+
+
+def check_batch(cfg: DictConfig, world_size: int) -> int:
+    """Frames per optimiser step; raises unless the batch splits into ranks × micro-batches × k."""
+    t, k = cfg.train, cfg.data.crops_per_frame
+    per_step = world_size * t.grad_accum * k
+    if t.batch_size % per_step:
+        raise ValueError(
+            f"train.batch_size={t.batch_size} must be a multiple of ranks ({world_size}) × "
+            f"train.grad_accum ({t.grad_accum}) × data.crops_per_frame ({k}) = {per_step}"
+        )
+    return t.batch_size // k
+
+
+def build_train_loader(
+    dataset: Dataset,
+    cfg: DictConfig,
+    *,
+    rank: int = 0,
+    world_size: int = 1,
+    start_step: int = 0,
+    pin_memory: bool = False,
+    groups: list[list[int]] | None = None,
+) -> DataLoader:
+    """An endless loader of micro-batches for this rank, starting at ``start_step``.
+
+    ``groups``: frame indices per delentropy bin for ``data.sampler: complexity_balanced``.
+    """
+    t, k = cfg.train, cfg.data.crops_per_frame
+    frames_per_step = check_batch(cfg, world_size)
+    sampler = StepSampler(
+        len(dataset), frames_per_step, cfg.seed, rank, world_size, t.grad_accum, start_step, groups
+    )
+    workers = cfg.data.num_workers
+    return DataLoader(
+        CropDataset(dataset, _augment(cfg), k),
+        batch_size=sampler.micro,
+        sampler=sampler,
+        num_workers=workers,
+        collate_fn=collate_crops,
+        pin_memory=pin_memory,
+        # No cv2.setNumThreads(1) in the workers: in a child forked after the parent used
+        # OpenCV's thread pool (delentropy of the val set) it deadlocks.
+        persistent_workers=workers > 0,
+        prefetch_factor=4 if workers > 0 else None,
+    )
+
+
+def class_frequencies(dataset: Dataset, num_classes: int) -> np.ndarray:
+    """Pixels per class of the training split (ClaraVid's are cached; others counted here)."""
+    if isinstance(dataset, ClaraVidSegmentation):
+        return dataset.class_frequencies(progress=False)
+    counts = np.zeros(num_classes, dtype=np.int64)
+    for i in range(len(dataset)):  # type: ignore[arg-type]
+        mask = dataset[i]["mask"].numpy().ravel()
+        counts += np.bincount(mask[mask < num_classes], minlength=num_classes)
+    return counts
+
+
+def class_weights(counts: np.ndarray, method: str) -> torch.Tensor | None:
+    """Loss weights per class from pixel counts; classes absent from training get 0.
+
+    - ``none``: no weighting (None).
+    - ``inverse``: 1/frequency, scaled to mean 1 over present classes.
+    - ``median_frequency``: median(frequency)/frequency (Eigen & Fergus; SegNet).
+    - ``log_inverse``: 1/ln(1.02 + frequency) (ENet), in [1, ~50].
+    """
+    if method == "none":
+        return None
+    counts = np.asarray(counts, dtype=np.float64)
+    present = counts > 0
+    if not present.any():
+        raise ValueError("the training split has no labelled pixel: cannot weight classes")
+    freq = counts / counts.sum()
+    w = np.zeros_like(freq)
+    if method == "inverse":
+        w[present] = 1.0 / freq[present]
+        w[present] /= w[present].mean()
+    elif method == "median_frequency":
+        w[present] = np.median(freq[present]) / freq[present]
+    elif method == "log_inverse":
+        w[present] = 1.0 / np.log(1.02 + freq[present])
+    else:
+        raise ValueError(f"unknown class weighting {method!r}")
+    return torch.tensor(w, dtype=torch.float32)

@@ -1,0 +1,328 @@
+"""The training loop: config → data and model → steps → checkpoints, validation, logs.
+
+::
+
+    claravid-train --config demo                                  # one process
+    torchrun --nproc_per_node=8 -m train --config claravid_dpt_vitl14 data.root=/data/claravid
+
+One optimiser step takes ``train.batch_size`` crops over all ranks and ``train.grad_accum``
+micro-batches; its loss is the mean of the micro-batches' losses (each the pixel mean of
+weighted cross-entropy over non-ignored pixels), so W ranks × A micro-batches compute the same
+gradient as one process with W·A micro-batches. AMP: bf16 where the GPU supports it, else fp16
+with a GradScaler; fp32 on CPU. A NaN/inf loss stops the run before the step is applied.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import random
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.distributed as dist
+import torch.nn.functional as F
+from omegaconf import DictConfig
+from torch import nn
+from tqdm.auto import tqdm
+
+import models
+from claravid.palettes import load_palette
+from eval import WindowConfig
+from eval.distributed import DistInfo, barrier, init_distributed
+from train import config as C
+from train.checkpoint import (
+    load_training_checkpoint,
+    restore_model,
+    save_training_checkpoint,
+    set_rng_state,
+)
+from train.data import (
+    build_train_dataset,
+    build_train_loader,
+    build_val_dataset,
+    check_batch,
+    class_frequencies,
+    class_weights,
+    image_paths,
+)
+from train.logs import RunLog, plot_curves, read_metrics
+from train.optim import build_optimizer, build_scheduler, clip_gradients
+from train.outdir import prepare_out_dir
+from train.sampler import complexity_groups
+from train.validate import Validator
+
+IGNORE_INDEX = 255
+
+
+class TrainingDiverged(RuntimeError):
+    """The loss became NaN or infinite; the last good checkpoint is kept."""
+
+
+@dataclass
+class RunResult:
+    """Where a run ended: its folder, step, best validation score and last validation row."""
+
+    out_dir: Path
+    step: int
+    total_steps: int
+    best_miou: float | None = None
+    best_step: int | None = None
+    last_val: dict[str, Any] = field(default_factory=dict)
+    already_finished: bool = False
+
+
+class EndToEnd(nn.Module):
+    """The segmenter with gradients through its backbone (``model.freeze_backbone: false``).
+
+    ``Segmenter.forward`` runs the backbone under ``no_grad`` (the paper's frozen protocol);
+    this module repeats its three lines with gradients, so models/ keeps one behaviour.
+    """
+
+    def __init__(self, model: models.Segmenter) -> None:
+        super().__init__()
+        self.model = model.requires_grad_(True)
+        # DINOv2's mask token serves masked pre-training only: no gradient ever reaches it
+        # (and DDP refuses parameters that never get one).
+        model.backbone.mask_token.requires_grad_(False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        m = self.model
+        feats = m.backbone.get_intermediate_layers(x, m.layers, return_class_token=True)
+        h, w = x.shape[-2:]
+        return m.head(feats, h // m.patch_size, w // m.patch_size, (h, w))
+
+
+def _autocast(device: torch.device, enabled: bool) -> tuple[Any, bool]:
+    """(a factory of autocast contexts, whether fp16 needs a GradScaler) for this device."""
+    if not enabled or device.type != "cuda":
+        return contextlib.nullcontext, False
+    bf16 = torch.cuda.is_bf16_supported()
+    dtype = torch.bfloat16 if bf16 else torch.float16
+    return (lambda: torch.autocast("cuda", dtype=dtype)), not bf16
+
+
+def _seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)  # noqa: NPY002  (the legacy global RNG, for libraries that use it)
+    torch.manual_seed(seed)
+
+
+def _global_mean(value: torch.Tensor, info: DistInfo) -> float:
+    """The mean of a scalar over ranks (every rank gets it, so all stop together on NaN)."""
+    if info.world_size > 1:
+        value = value.detach().clone()
+        dist.all_reduce(value)
+        value /= info.world_size
+    return float(value)
+
+
+def _finite_parameters(model: nn.Module) -> bool:
+    return all(bool(torch.isfinite(p).all()) for p in model.parameters() if p.requires_grad)
+
+
+def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
+    """Run (or resume) the training a resolved config describes; rank 0 writes ``out_dir``.
+
+    Args:
+        cfg: from `train.config.load_config`.
+        resume: continue from ``out_dir/last.pt`` (a fresh start when there is none).
+        say: where rank 0's messages go.
+
+    Raises:
+        TrainingDiverged: a NaN/inf loss (``last.pt`` holds the last good state).
+        ValueError, FileNotFoundError: a user's mistake (config, data, out_dir).
+    """
+    info = init_distributed(cfg.train.device)
+    main = info.is_main
+    say = say if main else (lambda *a, **k: None)
+    device = info.device
+    torch.backends.cudnn.benchmark = device.type == "cuda"
+    if cfg.train.threads:
+        torch.set_num_threads(cfg.train.threads)
+    _seed_everything(cfg.seed)
+
+    frames_per_step = check_batch(cfg, info.world_size)
+    train_set = build_train_dataset(cfg)
+    cfg.train.steps = C.derive_steps(cfg, len(train_set))  # resolved: stored in config.yaml
+    total = int(cfg.train.steps)
+    out = Path(cfg.out_dir)
+    # Rank 0 checks and claims out_dir; the others then read the same checkpoint (if any).
+    ckpt = prepare_out_dir(out, cfg, resume, say=say) if main else None
+    barrier()
+    if not main and resume and (out / "last.pt").is_file():
+        ckpt = load_training_checkpoint(out / "last.pt")
+    start = int(ckpt["step"]) if ckpt else 0
+    if start >= total:
+        say(f"{out}: this run is already finished (step {start}/{total}); nothing to do")
+        return RunResult(out, start, total, ckpt.get("best_miou"), ckpt.get("best_step"),
+                         ckpt.get("metrics") or {}, already_finished=True)  # fmt: skip
+    val_set = build_val_dataset(cfg)
+    palette = load_palette(cfg.data.palette)
+    classes = list(palette.names)
+
+    m = cfg.model
+    model = models.build_model(
+        m.backbone,
+        num_classes=palette.num_classes,
+        weights=m.weights,
+        layers=list(m.layers) if m.layers is not None else None,
+        features=m.features,
+        out_channels=list(m.out_channels) if m.out_channels is not None else None,
+        use_cls=m.use_cls,
+        backbone_kwargs=dict(m.backbone_kwargs),
+    )
+    trained: nn.Module = model if m.freeze_backbone else EndToEnd(model)
+    model.to(device)
+    optimizer = build_optimizer(model, cfg)
+    scheduler = build_scheduler(optimizer, cfg, total)
+    autocast, fp16 = _autocast(device, cfg.train.amp)
+    scaler = torch.amp.GradScaler(device.type, enabled=fp16)
+
+    # Class frequencies are cached on disk: rank 0 counts, the others then read the cache.
+    if main:
+        counts = class_frequencies(train_set, palette.num_classes)
+    barrier()
+    if not main:
+        counts = class_frequencies(train_set, palette.num_classes)
+    weights = class_weights(counts, cfg.data.class_weights)
+    weights = weights.to(device) if weights is not None else None
+
+    best_miou, best_step, last_val = None, None, {}
+    if ckpt:
+        restore_model(model, ckpt)
+        optimizer.load_state_dict(ckpt["optimizer"])
+        scheduler.load_state_dict(ckpt["scheduler"])
+        if ckpt.get("scaler"):
+            scaler.load_state_dict(ckpt["scaler"])
+        best_miou, best_step = ckpt.get("best_miou"), ckpt.get("best_step")
+        last_val = ckpt.get("metrics") or {}
+        say(f"resuming {out / 'last.pt'} at step {start}/{total}")
+
+    module: nn.Module = trained
+    ddp = None
+    if info.world_size > 1:
+        ids = [device.index] if device.type == "cuda" else None
+        module = ddp = nn.parallel.DistributedDataParallel(trained, device_ids=ids)
+    if cfg.train.compile:
+        module = torch.compile(module)
+    module.train()
+
+    v = cfg.val
+    window = WindowConfig(v.window, v.stride, v.scale, v.batch_size, cfg.train.amp)
+    validator = Validator(val_set, classes, window, v.bins, cfg.data.val_limit, device)
+    groups = None
+    if cfg.data.sampler == "complexity_balanced":
+        groups = complexity_groups(image_paths(train_set), cfg.data.sampler_bins)
+    loader = build_train_loader(
+        train_set, cfg, rank=info.rank, world_size=info.world_size, start_step=start,
+        pin_memory=device.type == "cuda", groups=groups,
+    )  # fmt: skip
+    log = RunLog(out, start, cfg.log.tensorboard) if main else None
+    plain_cfg = C.to_plain(cfg)
+
+    def checkpoint(path: Path, step: int) -> None:
+        save_training_checkpoint(
+            path, model, step=step, config=plain_cfg, optimizer=optimizer, scheduler=scheduler,
+            scaler=scaler, frames_per_step=frames_per_step, best_miou=best_miou,
+            best_step=best_step, metrics=last_val, backbone_trained=not m.freeze_backbone,
+        )  # fmt: skip
+
+    accum = cfg.train.grad_accum
+    batches = iter(loader)  # draws the loader's base seed from the torch RNG: restore after it
+    if ckpt:
+        set_rng_state(ckpt["rng"])
+    bar = tqdm(total=total, initial=start, unit="step", disable=not (main and cfg.log.progress),
+               dynamic_ncols=True)  # fmt: skip
+    tick, images = time.perf_counter(), 0
+    try:
+        for step in range(start, total):
+            lr = scheduler.get_last_lr()[-1]
+            optimizer.zero_grad(set_to_none=True)
+            losses = []
+            for micro in range(accum):
+                batch = next(batches)
+                x = batch["image"].to(device, non_blocking=True)
+                y = batch["mask"].to(device, non_blocking=True)
+                # Gradients are all-reduced once per step, on the last micro-batch.
+                last = micro == accum - 1
+                with contextlib.nullcontext() if ddp is None or last else ddp.no_sync():
+                    with autocast():
+                        logits = module(x)
+                    loss = F.cross_entropy(
+                        logits.float(), y, weight=weights, ignore_index=IGNORE_INDEX
+                    )
+                    scaler.scale(loss / accum).backward()
+                losses.append(loss.detach())
+                images += x.shape[0]
+            loss_value = _global_mean(torch.stack(losses).mean(), info)
+            if not math.isfinite(loss_value):
+                raise TrainingDiverged(
+                    f"the loss became {loss_value} at step {step + 1} (lr {lr:.3g}); that step "
+                    f"is not applied. {_last_good(out)} Lower train.lr, keep "
+                    "train.grad_clip on, or check the data, then start a new out_dir or --resume."
+                )
+            scaler.unscale_(optimizer)
+            grad_norm = clip_gradients(model, cfg.train.grad_clip)
+            scaler.step(optimizer)
+            scaler.update()
+            scheduler.step()
+            done = step + 1
+
+            if main and (done % cfg.train.log_every == 0 or done == total):
+                now = time.perf_counter()
+                rate = images * info.world_size / max(now - tick, 1e-9)
+                tick, images = now, 0
+                log.write({"step": done, "loss": loss_value, "lr": lr, "images_per_s": rate,  # type: ignore[union-attr]
+                           "grad_norm": grad_norm})  # fmt: skip
+                bar.set_postfix(loss=f"{loss_value:.4f}", lr=f"{lr:.2e}", img_s=f"{rate:.1f}")
+            bar.update(1)
+
+            validate = done == total or (v.every > 0 and done % v.every == 0)
+            save = done % cfg.train.checkpoint_every == 0 or done == total
+            # A finite loss can still leave inf weights (a huge lr): never validate or save them.
+            if (validate or save) and not _finite_parameters(model):
+                raise TrainingDiverged(
+                    f"the weights hold NaN/inf after step {done} (lr {lr:.3g}). "
+                    f"{_last_good(out)} Lower train.lr."
+                )
+            if validate:
+                began = time.perf_counter()
+                last_val = {"step": done, **validator(model)}
+                tick += time.perf_counter() - began  # images/s counts training time only
+                if main:
+                    log.write(last_val)  # type: ignore[union-attr]
+                    bins = " ".join(f"{k} {_fmt(x)}" for k, x in last_val["miou_bins"].items())
+                    bar.write(f"step {done}: val mIoU {_fmt(last_val['miou'])} (per bin: {bins})")
+                miou = last_val["miou"]
+                if miou is not None and (best_miou is None or miou > best_miou):
+                    best_miou, best_step = miou, done
+                    if main:
+                        checkpoint(out / "best.pt", done)
+            if save:
+                if main:
+                    checkpoint(out / "last.pt", done)
+                barrier()
+    finally:
+        bar.close()
+        if log is not None:
+            log.close()
+            rows = read_metrics(log.path)
+            if rows:
+                plot_curves(rows, out / "curves.png")
+    return RunResult(out, total, total, best_miou, best_step, last_val)
+
+
+def _fmt(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3f}"
+
+
+def _last_good(out: Path) -> str:
+    last = out / "last.pt"
+    if last.is_file():
+        return f"The last good checkpoint is {last}."
+    return "No checkpoint was written yet."

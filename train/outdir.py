@@ -1,0 +1,71 @@
+"""The run folder: what may be written where, and what ``--resume`` continues.
+
+``out_dir/config.yaml`` (the resolved config) marks a folder as a training run. Without
+``--resume`` a folder holding a run is refused (so a finished run is never overwritten); with
+``--resume`` the run continues from ``last.pt`` if its config matches, or starts fresh when
+there is no ``last.pt`` yet (``make demo`` can always be re-run).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from claravid.cli import UsageError, atomic_write_text, check_output_dir
+from train import config as C
+from train.checkpoint import load_training_checkpoint
+
+MARKER = "config.yaml"
+
+
+def prepare_out_dir(
+    out: Path,
+    cfg: DictConfig,
+    resume: bool,
+    *,
+    say: Callable[[str], Any] = print,
+) -> dict[str, Any] | None:
+    """Check ``out`` for this run, write ``config.yaml``; the checkpoint to resume, or None.
+
+    Raises:
+        UsageError: a foreign folder, a run of another config, a run without ``--resume``.
+    """
+    check_output_dir(out, marker=MARKER, what="out_dir")
+    last = out / "last.pt"
+    saved = out / MARKER
+    ckpt = None
+    if resume and last.is_file():
+        ckpt = load_training_checkpoint(last)
+        differ = C.changed_keys(C.from_plain(ckpt["config"]), cfg)
+        if differ:
+            raise UsageError(
+                f"out_dir {out} holds a run of another config (differs in "
+                f"{', '.join(differ[:6])}); resume it with its own settings, or choose a new "
+                "out_dir=..."
+            )
+    elif resume:
+        say(f"no {last} to resume: starting a new run in {out}")
+    elif saved.is_file():
+        previous = _load(saved)
+        differ = C.changed_keys(previous, cfg) if previous is not None else ["an unreadable file"]
+        what = (
+            "this config" if not differ else f"another config (differs in {', '.join(differ[:6])})"
+        )
+        raise UsageError(
+            f"out_dir {out} already holds a run of {what}; pass --resume to continue it, "
+            "or choose a new out_dir=... (or delete the folder)"
+        )
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(saved, C.to_yaml(cfg))
+    return ckpt
+
+
+def _load(path: Path) -> DictConfig | None:
+    """A run's saved config, or None when it no longer parses (an older schema)."""
+    try:
+        return C.from_plain(OmegaConf.to_container(OmegaConf.load(path)))  # type: ignore[arg-type]
+    except Exception:
+        return None
