@@ -4,7 +4,6 @@ weights. Which frame comes when is `train.sampler`'s business.
 
 from __future__ import annotations
 
-import inspect
 from pathlib import Path
 from typing import Any
 
@@ -28,13 +27,7 @@ def _augment(cfg: DictConfig) -> AugmentConfig:
 
 
 def _uavid(root: str | Path, split: str, palette: str, transforms: Any) -> UAVidSegmentation:
-    kwargs: dict[str, Any] = {"root": root, "split": split, "transforms": transforms}
-    # Older UAVidSegmentation versions read the uavid palette only and take no palette argument.
-    if "palette" in inspect.signature(UAVidSegmentation).parameters:
-        kwargs["palette"] = palette
-    elif palette != "uavid":
-        raise ValueError(f"UAVid labels are UAVid classes: set data.palette=uavid, not {palette}")
-    return UAVidSegmentation(**kwargs)
+    return UAVidSegmentation(root, split=split, palette=palette, transforms=transforms)
 
 
 def _claravid(cfg: DictConfig, root: str | Path, split: str, transforms: Any) -> Dataset:
