@@ -1,12 +1,18 @@
-"""Shared test set-up: no display, no network, no user caches."""
+"""Shared test set-up: no display, no network, no user caches; the tiny generated ClaraVid tree."""
 
 import os
+import shutil
 
 import matplotlib
 import pytest
 
+from claravid.synth import synthesize
+
 os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
 matplotlib.use("agg")
+
+#: The missions of the tiny tree.
+MISSIONS = ["rural_1", "urban_1"]
 
 
 @pytest.fixture(autouse=True)
@@ -16,3 +22,17 @@ def _isolated_caches(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("TORCH_HOME", str(cache / "torch"))
     monkeypatch.setenv("CLARAVID_CACHE", str(cache / "claravid"))
     monkeypatch.setenv("XDG_CACHE_HOME", str(cache / "xdg"))
+
+
+@pytest.fixture(scope="session")
+def claravid_root(tmp_path_factory):
+    """Read-only tiny dataset: 2 missions × 6 viewpoints × 3 frames of 64×48, made once."""
+    root = tmp_path_factory.mktemp("claravid") / "root"
+    synthesize(root, seed=1, frames_per_viewpoint=3, size=(64, 48), missions=MISSIONS)
+    return root
+
+
+@pytest.fixture
+def writable_root(claravid_root, tmp_path):
+    """A private copy of the tiny dataset, for tests that damage files."""
+    return shutil.copytree(claravid_root, tmp_path / "root")

@@ -4,7 +4,6 @@ import pytest
 import torch
 
 import models
-from tests.claravid.conftest import claravid_root, writable_root  # noqa: F401  (fixtures)
 
 TINY = {
     "backbone_kwargs": {"embed_dim": 32, "depth": 4, "num_heads": 2},
@@ -21,7 +20,7 @@ def tiny_model(num_classes: int = 8, seed: int = 0) -> models.Segmenter:
 
 
 @pytest.fixture(scope="session")
-def model_files(claravid_root, tmp_path_factory):  # noqa: F811
+def model_files(claravid_root, tmp_path_factory):
     """A training-style checkpoint (config names the data and the uavid palette), a plain one
     (no config) and the dynamic-size ONNX export of the same model."""
     folder = tmp_path_factory.mktemp("models")

@@ -6,7 +6,6 @@ import torch
 
 from claravid import modalities
 from claravid.palettes import load_palette
-from tests.claravid.conftest import claravid_root  # noqa: F401
 
 # A tiny random-init backbone (of the config's architecture) and head, 28² crops, the fixture's
 # 7 test frames as val set (its 150 m val blocks are empty), CPU, no workers, no progress bar.
