@@ -50,6 +50,11 @@ class Validator:
             self.indices = sorted({int(i) for i in np.linspace(0, n - 1, limit).round()})
         else:
             self.indices = list(range(n))
+        if len(self.indices) < bins:  # fail before training, not at the first validation
+            raise ValueError(
+                f"the val set has {len(self.indices)} image(s), fewer than val.bins={bins} "
+                "delentropy bins: lower val.bins or validate on more images"
+            )
         self.paths = [image_paths(dataset)[i] for i in self.indices]
         # An unreadable image has no complexity (NaN); its evaluation will name the file.
         self.delent = sharded_delentropy(self.paths)

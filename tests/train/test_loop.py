@@ -95,6 +95,8 @@ def test_user_mistakes_are_one_line_exit_2(claravid_root, tmp_path, capsys):
         "multiple of": tiny(
             claravid_root, tmp_path / "d", "train.batch_size=3", "data.crops_per_frame=2"
         ),
+        # Checked before the first step, not at the first validation.
+        "fewer than val.bins=50": tiny(claravid_root, tmp_path / "e", "val.bins=50"),
     }
     for message, args in cases.items():
         assert main(["--config", "demo", *args]) == 2, message
