@@ -114,9 +114,10 @@ def plot_hardest(items: Sequence[dict[str, Any]], colors: np.ndarray, path: str 
     Args:
         items: ``{"image": uint8 H×W×3, "mask": uint8 H×W, "prediction": uint8 H×W,
             "title": str}``, hardest first.
-        colors: the palette's K×3 colours (ignored pixels are drawn black).
+        colors: the palette's K×3 colours; ignored pixels are drawn white (black is a class
+            colour in several palettes, e.g. UAVid's Clutter).
     """
-    table = np.zeros((256, 3), dtype=np.uint8)
+    table = np.full((256, 3), 255, dtype=np.uint8)
     table[: len(colors)] = colors
     fig = Figure(figsize=(12, 3.2 * len(items)), layout="constrained")
     axes = fig.subplots(len(items), 3, squeeze=False)

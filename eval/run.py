@@ -250,7 +250,7 @@ def hardest_items(
             "image": _thumb(image, nearest=False),
             "mask": _thumb(mask, nearest=True),
             "prediction": pred,
-            "title": f"{key}  mIoU {mious[pos]:.3f}  delent "
+            "title": f"{key}\nmIoU {mious[pos]:.3f}  delent "
             f"{result.complexity.get('delent', [np.nan] * len(mious))[pos]:.2f}",
         })  # fmt: skip
     return items
