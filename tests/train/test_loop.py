@@ -2,6 +2,7 @@
 
 import json
 import os
+import sys
 
 import pytest
 import torch
@@ -128,16 +129,31 @@ def test_out_dir_rules_and_resume_messages(claravid_root, tmp_path, capsys):
     assert "not written by this tool" in capsys.readouterr().err
 
 
-def test_tensorboard_missing_is_a_clear_error(claravid_root, tmp_path, capsys):
-    try:
-        import tensorboard  # noqa: F401
-
-        pytest.skip("tensorboard is installed")
-    except ImportError:
-        pass
+def test_tensorboard_missing_is_a_clear_error(claravid_root, tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "torch.utils.tensorboard", None)  # as if not installed
     args = tiny(claravid_root, tmp_path / "r", "train.steps=1", "log.tensorboard=true")
     assert main(["--config", "demo", *args]) == 2
     assert "pip install 'claravid-toolkit[tensorboard]'" in capsys.readouterr().err
+
+
+def test_tensorboard_event_files_hold_the_logged_scalars(claravid_root, tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    out = tmp_path / "tb_run"
+    args = tiny(claravid_root, out, "train.steps=2", "train.log_every=1", "val.every=2",
+                "log.tensorboard=true")  # fmt: skip
+    assert main(["--config", "demo", *args]) == 0
+    logged = rows(out)
+    events = EventAccumulator(str(out / "tb")).Reload()
+    tags = set(events.Tags()["scalars"])
+    assert {"loss", "lr", "miou", "miou_bins/low", "miou_bins/high"} <= tags
+    losses = {e.step: e.value for e in events.Scalars("loss")}
+    expected = {r["step"]: r["loss"] for r in logged if "loss" in r}
+    assert set(losses) == set(expected) == {1, 2}
+    for step, value in expected.items():
+        assert losses[step] == pytest.approx(value, rel=1e-6)  # float32 in the event file
+    (miou,) = events.Scalars("miou")
+    assert miou.step == 2 and miou.value == pytest.approx(logged[-1]["miou"], rel=1e-6)
 
 
 def test_atomic_checkpoint_write_survives_a_crash_mid_write(claravid_root, tmp_path, monkeypatch):
