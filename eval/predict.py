@@ -115,6 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", help="cpu or cuda (default: cuda when available)")
     p.add_argument("--workers", type=int, default=0, help="image decoding processes")
     p.add_argument("--no-overlays", action="store_true", help="label maps only")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--overwrite", action="store_true", help="replace a foreign output folder")
     add_debug_flag(p)
     return p
@@ -144,7 +145,8 @@ def run(args: argparse.Namespace) -> int:
     loader = DataLoader(
         ImageList(paths, keys, eval_transforms()), batch_size=None, num_workers=args.workers
     )
-    for sample in tqdm(loader, total=len(paths), desc="predict", unit="img"):
+    bar = tqdm(loader, total=len(paths), desc="predict", unit="img", disable=args.no_progress)
+    for sample in bar:
         ids = predict_labels(source.model, sample["image"].to(device), config)
         ids = ids.to("cpu", torch.uint8).numpy()
         write_prediction(out, sample["key"], ids)
