@@ -27,7 +27,7 @@ from tqdm.auto import tqdm
 
 from claravid import modalities
 from claravid.cli import UsageError, add_debug_flag, atomic_write_text, check_output_dir, run_cli
-from claravid.palettes import load_palette
+from claravid.palettes import Palette, load_palette
 from claravid.transforms import eval_transforms
 from eval.predictions import write_prediction
 from eval.windows import WindowConfig, predict_labels
@@ -85,12 +85,22 @@ def overlay(image: np.ndarray, ids: np.ndarray, colors: np.ndarray) -> np.ndarra
     return cv2.addWeighted(image, 1 - ALPHA, table[ids], ALPHA, 0)
 
 
-def _palette_for(args: argparse.Namespace, defaults: dict[str, Any], num_classes: int | None):
+def _palette_for(
+    args: argparse.Namespace, defaults: dict[str, Any], num_classes: int | None
+) -> Palette | None:
+    """The palette from ``--palette`` or the checkpoint's config; None when neither says.
+
+    Never guessed from the class count: several palettes share one (UAVid has 8 classes, a
+    custom reduction may too), and a guess would colour the overlays with the wrong classes.
+    """
     name = args.palette or defaults.get("palette")
     if name is None:
-        name = {19: "claravid", 8: "uavid"}.get(num_classes or 0)
-    if name is None:
-        raise UsageError(f"the model predicts {num_classes} classes: pass its --palette")
+        if not args.no_overlays:
+            raise UsageError(
+                "the model does not record its palette (an ONNX file or a plain checkpoint): "
+                "pass --palette for the overlays, or --no-overlays for label maps only"
+            )
+        return None
     palette = load_palette(name)
     if num_classes is not None and palette.num_classes != num_classes:
         raise UsageError(
@@ -152,14 +162,14 @@ def run(args: argparse.Namespace) -> int:
         write_prediction(out, sample["key"], ids)
         if not args.no_overlays:
             rgb = modalities.read_rgb(sample["path"])
-            blend = cv2.cvtColor(overlay(rgb, ids, palette.colors), cv2.COLOR_RGB2BGR)
+            blend = cv2.cvtColor(overlay(rgb, ids, palette.colors), cv2.COLOR_RGB2BGR)  # type: ignore[union-attr]
             target = out / "overlays" / f"{sample['key']}.jpg"
             target.parent.mkdir(parents=True, exist_ok=True)
             tmp = target.with_name(f".{target.stem}.{os.getpid()}.tmp.jpg")
             cv2.imwrite(str(tmp), blend, [cv2.IMWRITE_JPEG_QUALITY, 90])
             os.replace(tmp, target)
-    marker = {"format": "claravid-predictions", "palette": palette.name,
-              "classes": list(palette.names), "source": {"kind": source.kind,
+    marker = {"format": "claravid-predictions", "palette": palette and palette.name,
+              "classes": palette and list(palette.names), "source": {"kind": source.kind,
               "path": source.path}, "images": len(paths)}  # fmt: skip
     atomic_write_text(out / "predictions.json", json.dumps(marker, indent=2))
     print(f"{len(paths)} label maps: {out}/<name>.png" + ("" if args.no_overlays else

@@ -93,6 +93,9 @@ def test_predict_writes_label_maps_and_overlays(claravid_root, tmp_path, capsys)
     argv = ["--checkpoint", str(ckpt), str(flight[1]), "--output", str(one), "--window", "42"]
     assert predict_main([*argv, "--no-overlays"]) == 0
     assert {p.name for p in one.iterdir()} == {"000001.png", "predictions.json"}
+    # A plain checkpoint does not record its palette: overlays need --palette, never a guess.
+    assert predict_main([*argv, "--overwrite"]) == 2
+    assert "pass --palette for the overlays" in capsys.readouterr().err
     assert predict_main(["--checkpoint", str(ckpt), "--onnx", "m.onnx", str(flight[0]),
                          "--output", str(tmp_path / "x")]) == 2  # fmt: skip
     assert "exactly one of --checkpoint and --onnx" in capsys.readouterr().err
