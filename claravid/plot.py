@@ -10,6 +10,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
+from claravid.cli import atomic_save
 from claravid.palettes import Palette
 
 
@@ -89,7 +90,4 @@ def save_sample_sheet(
         for ax in axes[row]:
             ax.set_axis_off()
     fig.legend(handles=_legend(palette, present), loc="outside right center", fontsize="small")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    return path
+    return atomic_save(path, lambda tmp: fig.savefig(tmp, dpi=90))
