@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from claravid import modalities
 from claravid.cli import UsageError
 from eval.data import EvalData
 from eval.metrics import confusion_matrix
@@ -50,14 +51,22 @@ def write_prediction(directory: str | Path, key: str, ids: np.ndarray) -> Path:
 def read_prediction(path: str | Path, shape: tuple[int, int], num_classes: int) -> np.ndarray:
     """Read and check one prediction: uint8 [H,W] of ids in ``[0, num_classes)``.
 
+    Decoded through the data layer's reader, so an empty or truncated file, or JPEG bytes under
+    a ``.png`` name (lossy: ids change along every edge), is refused instead of half-read.
+
     Raises:
-        PredictionError: unreadable, not single-channel 8-bit, of the wrong size, or holding
-            ids outside the palette; the message names the file.
+        PredictionError: unreadable, not a single-channel 8-bit PNG, of the wrong size, or
+            holding ids outside the palette; the message names the file.
+        CorruptFileError: an empty or truncated file (the message names it).
     """
     path = Path(path)
-    ids = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if ids is None:
-        raise PredictionError(f"cannot read the prediction {path}: not a readable PNG")
+    data = modalities.read_checked(path)
+    if modalities.png_header(data) is None:
+        raise PredictionError(
+            f"prediction {path} holds {modalities.describe_bytes(data)}; expected a "
+            "single-channel 8-bit PNG of train ids"
+        )
+    ids = modalities.decode_bytes(data, path, cv2.IMREAD_UNCHANGED)
     if ids.ndim != 2:
         raise PredictionError(
             f"prediction {path} has {ids.shape[2]} channels; expected a single-channel PNG of "

@@ -177,6 +177,24 @@ def test_bad_prediction_files_are_named(case, tmp_path, capsys, make, expected):
 
 
 @pytest.mark.parametrize(
+    ("corrupt", "expected"),
+    [
+        # JPEG bytes under a .png name decode to ids that are wrong along every edge.
+        (lambda png, truth: cv2.imencode(".jpg", truth)[1].tobytes(), "holds JPEG data"),
+        (lambda png, truth: png[: len(png) // 2], "truncated PNG"),
+        (lambda png, truth: b"", "empty"),
+    ],
+    ids=["jpeg-as-png", "truncated", "empty"],
+)
+def test_undecodable_prediction_files_are_named(case, tmp_path, capsys, corrupt, expected):
+    preds, target = _damaged(case, tmp_path, 0, case["truths"][0])
+    target.write_bytes(corrupt(target.read_bytes(), case["truths"][0]))
+    assert main(_args(case, tmp_path / "rep", preds=preds)) == 2
+    line = _error_line(capsys)
+    assert str(target) in line and expected in line
+
+
+@pytest.mark.parametrize(
     ("extra", "expected"),
     [
         (["--bins", "4"], "4 bins for 3 images"),
