@@ -9,6 +9,7 @@ viewpoint to group by. :class:`EvalData` gathers these behind one interface.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -112,20 +113,26 @@ class _Opened:
     attributes: dict[str, list[str]] = field(default_factory=dict)
 
 
-def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -> _Opened:
-    def make(transforms: Any) -> ClaraVidSegmentation:
-        return ClaraVidSegmentation(
-            root, split=split, palette=pal, transforms=transforms, **selection
-        )
+def _with_transforms(dataset: Any, transforms: Any) -> Any:
+    """The same dataset (frame list shared, nothing listed or read again) with ``transforms``.
 
-    raw = make(None)
+    Building it a second time would list the tree and, for ClaraVid splits, read every
+    extrinsics file again.
+    """
+    view = copy.copy(dataset)
+    view.transforms = transforms
+    return view
+
+
+def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -> _Opened:
+    raw = ClaraVidSegmentation(root, split=split, palette=pal, **selection)
     attributes = {
         "mission": [f.mission for f in raw.frames],
         "viewpoint": [f.viewpoint for f in raw.frames],
     }
     return _Opened(
         raw,
-        make(eval_transforms()),
+        _with_transforms(raw, eval_transforms()),
         [str(f.paths["rgb"]) for f in raw.frames],
         [f.key for f in raw.frames],
         raw.read_mask,
@@ -134,15 +141,12 @@ def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -
 
 
 def _uavid(root: Path, split: str, pal: Palette) -> _Opened:
-    def make(transforms: Any) -> targets.UAVidSegmentation:
-        return targets.UAVidSegmentation(root, split=split, palette=pal, transforms=transforms)
-
-    raw = make(None)
+    raw = targets.UAVidSegmentation(root, split=split, palette=pal)
     if not raw.has_labels:
         raise ValueError(f"UAVid {split} has no labels to evaluate against; use val or train")
     return _Opened(
         raw,
-        make(eval_transforms()),
+        _with_transforms(raw, eval_transforms()),
         [str(p) for p in raw.images],
         [_relative_key(p, root) for p in raw.images],  # as the samples' "key"
         lambda i: read_label_mask(raw.label_path(raw.images[i]), pal),
@@ -155,13 +159,10 @@ def _folder(root: Path, masks: Path | None, palette: Any, pal: Palette) -> _Open
     if palette is None:
         raise ValueError("--dataset folder needs --palette: the palette its masks are written in")
 
-    def make(transforms: Any) -> targets.FolderSegmentation:
-        return targets.FolderSegmentation(root, masks, palette=pal, transforms=transforms)
-
-    raw = make(None)
+    raw = targets.FolderSegmentation(root, masks, palette=pal)
     return _Opened(
         raw,
-        make(eval_transforms()),
+        _with_transforms(raw, eval_transforms()),
         [str(p) for p in raw.images],
         list(raw.keys),
         lambda i: read_label_mask(raw.masks[i], pal),
