@@ -15,14 +15,21 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from claravid.cli import UsageError, add_debug_flag, check_output_dir, run_cli
+from claravid.cli import (
+    UsageError,
+    add_debug_flag,
+    check_output_dir,
+    non_negative_int,
+    positive_int,
+    run_cli,
+)
 from claravid.dsp import plot_profile, profile_images
 from claravid.dsp.plot import save_figure
 from claravid.layout import ALTITUDES, DIRECTIONS, MISSIONS, MODALITIES, viewpoint_folder
 from claravid.plot import save_sample_sheet
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.synth import MARKER as SYNTH_MARKER
-from claravid.synth import non_negative_int, parse_size, positive_int, synthesize
+from claravid.synth import parse_size, synthesize
 
 #: Left in OUT: the folder is the demo's, so a later run may write there again.
 MARKER = ".claravid-demo"

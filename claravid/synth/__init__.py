@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from claravid import modalities
-from claravid.cli import add_debug_flag, run_cli
+from claravid.cli import add_debug_flag, non_negative_int, positive_int, run_cli
 from claravid.layout import (
     ALTITUDES,
     DIRECTIONS,
@@ -38,9 +38,7 @@ __all__ = [
     "MARKER",
     "check_output_root",
     "main",
-    "non_negative_int",
     "parse_size",
-    "positive_int",
     "synthesize",
 ]
 
@@ -220,28 +218,6 @@ def parse_size(text: str) -> tuple[int, int]:
     if width <= 0 or height <= 0:
         raise argparse.ArgumentTypeError(f"width and height must be positive, got {text!r}")
     return width, height
-
-
-def non_negative_int(text: str) -> int:
-    """argparse type for an integer >= 0 (a seed)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
-    return value
-
-
-def positive_int(text: str) -> int:
-    """argparse type for a positive integer."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
