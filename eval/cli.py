@@ -17,7 +17,6 @@ user's mistake (one line; ``--debug`` shows the traceback).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -26,16 +25,16 @@ from claravid.cli import (
     EXIT_PARTIAL,
     UsageError,
     add_debug_flag,
-    atomic_write_text,
     check_output_dir,
     run_cli,
 )
 from eval.bins import parse_edges
 from eval.complexity import parse_measures
 from eval.data import DATASETS, GROUP_BY
+from eval.predictions import MARKER, write_marker
+from eval.report import REPORT
 
 PROG = "claravid-eval"
-PREDICTIONS_MARKER = "predictions.json"
 SOURCES = ("checkpoint", "onnx", "predictions", "merge", "compare")
 
 
@@ -150,7 +149,7 @@ def _run_merge(args: argparse.Namespace) -> int:
     from eval.report import build_report, load_result, merge_results
     from eval.run import write_outputs
 
-    check_output_dir(args.output, marker="report.json", overwrite=args.overwrite)
+    check_output_dir(args.output, marker=REPORT, overwrite=args.overwrite)
     result = merge_results([load_result(p) for p in args.merge], [str(p) for p in args.merge])
     _check_bins(args, len(result.paths))
     report = build_report(result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by)
@@ -206,13 +205,13 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
 
     info = distributed.init_distributed(args.device)
     main_rank = info.is_main
-    check_output_dir(args.output, marker="report.json", overwrite=args.overwrite)
+    check_output_dir(args.output, marker=REPORT, overwrite=args.overwrite)
     if args.save_predictions is not None:
         if source_kind == "predictions":
             raise UsageError("--save-predictions needs a model (--checkpoint or --onnx)")
         check_output_dir(
             args.save_predictions,
-            marker=PREDICTIONS_MARKER,
+            marker=MARKER,
             overwrite=args.overwrite,
             what="--save-predictions",
         )
@@ -296,11 +295,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
         items = hardest_items(result, data, args.hardest, collected.hardest, dirs)
         write_outputs(args.output, report, result, items, data.palette.colors)
         if args.save_predictions is not None:
-            marker = {"format": "claravid-predictions", "palette": data.palette.name,
-                      "classes": list(data.palette.names), "source": source}  # fmt: skip
-            atomic_write_text(
-                args.save_predictions / PREDICTIONS_MARKER, json.dumps(marker, indent=2)
-            )
+            write_marker(args.save_predictions, data.palette, source)
             print(f"predictions: {args.save_predictions}")
         _print_done(args.output, report)
     finally:

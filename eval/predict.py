@@ -14,7 +14,6 @@ its stem, for images listed one by one). Same sliding windows as the evaluation.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from pathlib import Path
 from typing import Any
@@ -26,10 +25,10 @@ from torch.utils.data import DataLoader, Dataset
 from tqdm.auto import tqdm
 
 from claravid import modalities
-from claravid.cli import UsageError, add_debug_flag, atomic_write_text, check_output_dir, run_cli
+from claravid.cli import UsageError, add_debug_flag, check_output_dir, run_cli
 from claravid.palettes import Palette, load_palette
 from claravid.transforms import eval_transforms
-from eval.predictions import write_prediction
+from eval.predictions import MARKER, write_marker, write_prediction
 from eval.windows import WindowConfig, predict_labels
 
 PROG = "claravid-predict"
@@ -137,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
 
     if (args.checkpoint is None) == (args.onnx is None):
         raise UsageError("give exactly one of --checkpoint and --onnx")
-    out = check_output_dir(args.output, marker="predictions.json", overwrite=args.overwrite)
+    out = check_output_dir(args.output, marker=MARKER, overwrite=args.overwrite)
     paths, keys = list_images(args.images)
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     source = load_source(args.checkpoint, args.onnx, device=device)
@@ -168,10 +167,7 @@ def run(args: argparse.Namespace) -> int:
             tmp = target.with_name(f".{target.stem}.{os.getpid()}.tmp.jpg")
             cv2.imwrite(str(tmp), blend, [cv2.IMWRITE_JPEG_QUALITY, 90])
             os.replace(tmp, target)
-    marker = {"format": "claravid-predictions", "palette": palette and palette.name,
-              "classes": palette and list(palette.names), "source": {"kind": source.kind,
-              "path": source.path}, "images": len(paths)}  # fmt: skip
-    atomic_write_text(out / "predictions.json", json.dumps(marker, indent=2))
+    write_marker(out, palette, {"kind": source.kind, "path": source.path}, images=len(paths))
     print(f"{len(paths)} label maps: {out}/<name>.png" + ("" if args.no_overlays else
           f"; overlays: {out / 'overlays'}"))  # fmt: skip
     return 0

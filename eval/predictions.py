@@ -8,20 +8,26 @@ evaluated this way: write its label maps in this layout.
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from claravid import modalities
-from claravid.cli import UsageError
+from claravid.cli import UsageError, atomic_write_text
+from claravid.palettes import Palette
 from eval.data import EvalData
 from eval.metrics import confusion_matrix
 
 SHOW_MISSING = 5
+#: What a folder of label maps written by claravid-eval/claravid-predict holds besides them: its
+#: presence marks the folder as ours (rewritable without --overwrite).
+MARKER = "predictions.json"
 
 
 class PredictionError(ValueError):
@@ -46,6 +52,20 @@ def write_prediction(directory: str | Path, key: str, ids: np.ndarray) -> Path:
         raise OSError(f"cannot write {path}")
     os.replace(tmp, path)
     return path
+
+
+def write_marker(
+    directory: str | Path, palette: Palette | None, source: dict[str, Any], **extra: Any
+) -> Path:
+    """Write ``DIR/predictions.json``: the format, the palette its ids refer to, the source."""
+    marker = {
+        "format": "claravid-predictions",
+        "palette": palette.name if palette is not None else None,
+        "classes": list(palette.names) if palette is not None else None,
+        "source": source,
+        **extra,
+    }
+    return atomic_write_text(Path(directory) / MARKER, json.dumps(marker, indent=2))
 
 
 def read_prediction(path: str | Path, shape: tuple[int, int], num_classes: int) -> np.ndarray:
