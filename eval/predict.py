@@ -14,7 +14,6 @@ its stem, for images listed one by one). Same sliding windows as the evaluation.
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +27,7 @@ from claravid import modalities
 from claravid.cli import UsageError, add_debug_flag, check_output_dir, run_cli
 from claravid.palettes import Palette, load_palette
 from claravid.transforms import eval_transforms
-from eval.predictions import MARKER, write_marker, write_prediction
+from eval.predictions import MARKER, write_image, write_marker, write_prediction
 from eval.windows import WindowConfig, predict_labels
 
 PROG = "claravid-predict"
@@ -163,10 +162,7 @@ def run(args: argparse.Namespace) -> int:
             rgb = modalities.read_rgb(sample["path"])
             blend = cv2.cvtColor(overlay(rgb, ids, palette.colors), cv2.COLOR_RGB2BGR)  # type: ignore[union-attr]
             target = out / "overlays" / f"{sample['key']}.jpg"
-            target.parent.mkdir(parents=True, exist_ok=True)
-            tmp = target.with_name(f".{target.stem}.{os.getpid()}.tmp.jpg")
-            cv2.imwrite(str(tmp), blend, [cv2.IMWRITE_JPEG_QUALITY, 90])
-            os.replace(tmp, target)
+            write_image(target, blend, [cv2.IMWRITE_JPEG_QUALITY, 90])
     write_marker(out, palette, {"kind": source.kind, "path": source.path}, images=len(paths))
     print(f"{len(paths)} label maps: {out}/<name>.png" + ("" if args.no_overlays else
           f"; overlays: {out / 'overlays'}"))  # fmt: skip

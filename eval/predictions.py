@@ -9,7 +9,6 @@ evaluated this way: write its label maps in this layout.
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -19,7 +18,7 @@ import cv2
 import numpy as np
 
 from claravid import modalities
-from claravid.cli import UsageError, atomic_write_text
+from claravid.cli import UsageError, atomic_save, atomic_write_text
 from claravid.palettes import Palette
 from eval.data import EvalData
 from eval.metrics import confusion_matrix
@@ -42,16 +41,21 @@ def prediction_file(directory: str | Path, key: str) -> Path:
 def write_prediction(directory: str | Path, key: str, ids: np.ndarray) -> Path:
     """Write train ids (uint8 H×W) as ``DIR/<key>.png``, atomically (temp file + rename)."""
     path = prediction_file(directory, key)
-    path.parent.mkdir(parents=True, exist_ok=True)
     ids = np.asarray(ids)
     if ids.ndim != 2 or ids.dtype != np.uint8:
         raise ValueError(f"a prediction is uint8 [H,W], got {ids.dtype} {ids.shape}")
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
     # Level 1: label maps compress well anyway, and it keeps saving off the critical path.
-    if not cv2.imwrite(str(tmp), ids, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
-        raise OSError(f"cannot write {path}")
-    os.replace(tmp, path)
-    return path
+    return write_image(path, ids, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+
+
+def write_image(path: Path, image: np.ndarray, params: list[int]) -> Path:
+    """``cv2.imwrite`` atomically (temp file + rename), raising when OpenCV cannot write."""
+
+    def write(tmp: Path) -> None:
+        if not cv2.imwrite(str(tmp), image, params):
+            raise OSError(f"cannot write {path}")
+
+    return atomic_save(path, write)
 
 
 def write_marker(
