@@ -99,12 +99,12 @@ def load_source(
     if (checkpoint is None) == (onnx is None):
         raise ValueError("give exactly one of a checkpoint and an ONNX file")
     if checkpoint is not None:
-        from models.checkpoint import load_checkpoint, read_checkpoint
+        from models.checkpoint import model_from_checkpoint, read_checkpoint
 
-        ckpt = read_checkpoint(checkpoint)
+        ckpt = read_checkpoint(checkpoint)  # read once: the model and the training config
         defaults = checkpoint_defaults(ckpt)
-        del ckpt  # load_checkpoint re-reads it; keeping both would double the memory
-        model = load_checkpoint(checkpoint, map_location=device).eval()
+        model = model_from_checkpoint(ckpt, checkpoint, map_location=device).eval()
+        del ckpt  # the model holds its own copy of the weights now
         return ModelSource(
             model, "checkpoint", str(checkpoint), model.num_classes, model.patch_size, defaults
         )

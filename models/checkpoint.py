@@ -123,7 +123,19 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
 
 def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = "cpu") -> Segmenter:
     """Rebuild the model from the file alone (weights source included when referenced)."""
-    ckpt = read_checkpoint(path)
+    return model_from_checkpoint(read_checkpoint(path), path, map_location)
+
+
+def model_from_checkpoint(
+    ckpt: dict[str, Any],
+    path: str | os.PathLike = "<checkpoint>",
+    map_location: str | torch.device = "cpu",
+) -> Segmenter:
+    """Rebuild the model from a checkpoint dict already read by `read_checkpoint`.
+
+    For callers that also need the checkpoint's other entries (a training config), so the
+    file is read once. ``path`` names the file in errors.
+    """
     args = dict(ckpt["model_args"])
     included = bool(ckpt.get("backbone_included", True))
     # A stored backbone overwrites whatever init we build, so skip loading the source file.
