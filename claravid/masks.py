@@ -21,7 +21,7 @@ import numpy as np
 
 from claravid.errors import CorruptFileError
 from claravid.modalities import decode_bytes, describe_bytes, png_header, read_checked
-from claravid.palettes import Palette
+from claravid.palettes import Palette, color_indices
 
 _PALETTE_COLOR_TYPE = 3
 
@@ -46,11 +46,6 @@ def _png_palette(data: np.ndarray) -> np.ndarray | None:
     return None
 
 
-def _pack(rgb: np.ndarray) -> np.ndarray:
-    rgb = np.asarray(rgb, dtype=np.uint32)
-    return (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
-
-
 def _palette_indices(image: np.ndarray, data: np.ndarray, path: Path) -> np.ndarray:
     """Recover the indices of a palette PNG from its decoded colours and its PLTE chunk.
 
@@ -59,18 +54,15 @@ def _palette_indices(image: np.ndarray, data: np.ndarray, path: Path) -> np.ndar
     table = _png_palette(data)
     if table is None:
         raise CorruptFileError(path, "palette PNG without a PLTE chunk")
-    keys = _pack(table)
-    if len(np.unique(keys)) != len(keys):
+    if len(np.unique(table, axis=0)) != len(table):
         raise CorruptFileError(
             path,
             "palette PNG whose palette repeats a colour, so its indices cannot be recovered; "
             "save the mask as a single-channel (grey) PNG of ids",
         )
     rgb = image[..., 2::-1] if image.ndim == 3 else np.dstack([image] * 3)
-    packed = _pack(rgb)
-    order = np.argsort(keys)
-    slot = np.searchsorted(keys[order], packed).clip(0, len(keys) - 1)
-    return order[slot].astype(np.uint8)
+    # Every decoded colour is a PLTE entry; 255 (ignore) would only mark a decoder surprise.
+    return color_indices(rgb, table, missing=255)
 
 
 def read_label_image(path: str | Path) -> np.ndarray:

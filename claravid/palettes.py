@@ -71,16 +71,7 @@ class Palette:
 
     def ids_from_colors(self, rgb: np.ndarray) -> np.ndarray:
         """A colour-coded label image (uint8 H×W×3 RGB) -> train ids; other colours -> ignore."""
-
-        def pack(c: np.ndarray) -> np.ndarray:
-            c = np.asarray(c, dtype=np.uint32)
-            return (c[..., 0] << 16) | (c[..., 1] << 8) | c[..., 2]
-
-        packed, keys = pack(rgb), pack(self.colors)
-        order = np.argsort(keys)
-        slot = np.searchsorted(keys[order], packed).clip(0, len(keys) - 1)
-        found = keys[order][slot] == packed
-        return np.where(found, order[slot], self.ignore_index).astype(np.uint8)
+        return color_indices(rgb, self.colors, missing=self.ignore_index)
 
     def colorize(self, train_ids: np.ndarray) -> np.ndarray:
         """Train ids -> uint8 RGB image; ignored pixels black."""
@@ -92,6 +83,23 @@ class Palette:
 def _is_int(value: Any) -> bool:
     # YAML reads `true` as a bool, which Python counts as an int; 1.5 or "7" are not ids.
     return isinstance(value, int) and not isinstance(value, bool)
+
+
+def color_indices(rgb: np.ndarray, table: np.ndarray, missing: int) -> np.ndarray:
+    """Index in ``table`` (N×3 RGB, distinct colours) of each pixel's colour, exact match.
+
+    Returns uint8 H×W indices; colours not in the table get ``missing``.
+    """
+
+    def pack(c: np.ndarray) -> np.ndarray:
+        c = np.asarray(c, dtype=np.uint32)
+        return (c[..., 0] << 16) | (c[..., 1] << 8) | c[..., 2]
+
+    packed, keys = pack(rgb), pack(table)
+    order = np.argsort(keys)
+    slot = np.searchsorted(keys[order], packed).clip(0, len(keys) - 1)
+    found = keys[order][slot] == packed
+    return np.where(found, order[slot], missing).astype(np.uint8)
 
 
 def _fail(source: str, message: str) -> PaletteError:
