@@ -169,6 +169,16 @@ def test_palette_mode_png_indices_are_the_ids(folder):
     np.testing.assert_array_equal(mask, ids)
 
 
+def test_palette_png_with_a_repeated_colour_is_refused(folder):
+    # Two indices share one colour: the decoded colours cannot tell which index a pixel held.
+    images, masks = folder
+    voc = Image.fromarray(np.zeros((12, 16), np.uint8), "P")
+    voc.putpalette([0, 0, 0] * 256)
+    voc.save(masks / "a.png")
+    with pytest.raises(CorruptFileError, match=r"a\.png: .*repeats a colour"):
+        FolderSegmentation(images, masks, palette="aeroscapes")[0]
+
+
 def test_images_only_and_with_transforms(folder):
     images, masks = folder
     bare = FolderSegmentation(images)
