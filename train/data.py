@@ -12,6 +12,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.data import DataLoader, Dataset
 
+from claravid.masks import read_mask
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.targets import UAVidSegmentation
 from claravid.transforms import AugmentConfig, eval_transforms, train_transforms
@@ -194,7 +195,11 @@ def class_frequencies(dataset: Dataset, num_classes: int) -> np.ndarray:
         return dataset.class_frequencies(progress=False)
     counts = np.zeros(num_classes, dtype=np.int64)
     for i in range(len(dataset)):  # type: ignore[arg-type]
-        mask = dataset[i]["mask"].numpy().ravel()
+        if isinstance(dataset, UAVidSegmentation):  # the label file alone, not the image
+            path = dataset.label_path(dataset.images[i])
+            mask = read_mask(path, dataset.palette).ravel()
+        else:
+            mask = dataset[i]["mask"].numpy().ravel()
         counts += np.bincount(mask[mask < num_classes], minlength=num_classes)
     return counts
 

@@ -183,14 +183,15 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     autocast, fp16 = _autocast(device, cfg.train.amp)
     scaler = torch.amp.GradScaler(device.type, enabled=fp16)
 
-    # Class frequencies are cached on disk: rank 0 counts, the others then read the cache.
-    if main:
-        counts = class_frequencies(train_set, palette.num_classes)
-    barrier()
-    if not main:
-        counts = class_frequencies(train_set, palette.num_classes)
-    weights = class_weights(counts, cfg.data.class_weights)
-    weights = weights.to(device) if weights is not None else None
+    weights = None
+    if cfg.data.class_weights != "none":  # counting decodes every label file of the split
+        # Class frequencies are cached on disk: rank 0 counts, the others then read the cache.
+        if main:
+            counts = class_frequencies(train_set, palette.num_classes)
+        barrier()
+        if not main:
+            counts = class_frequencies(train_set, palette.num_classes)
+        weights = class_weights(counts, cfg.data.class_weights).to(device)  # type: ignore[union-attr]
 
     best_miou, best_step, last_val = None, None, {}
     if ckpt:

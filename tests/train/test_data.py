@@ -92,3 +92,21 @@ def test_complexity_balanced_draws_each_bin_in_turn():
     assert r1 == full[3:6] + full[9:12]
     with pytest.raises(ValueError, match="at least one frame"):
         StepSampler(9, 6, seed=2, groups=[[0], []])
+
+
+def test_uavid_class_frequencies_count_the_label_files(uavid_root):
+    from claravid.palettes import load_palette
+    from claravid.targets import UAVidSegmentation
+    from train.data import class_frequencies
+
+    ds = UAVidSegmentation(uavid_root, split="train", palette="uavid")
+    counts = class_frequencies(ds, 8)
+    # The fixture's labels: 3 frames of 48×64 in blocks of random UAVid ids, re-drawn here.
+    rng = np.random.default_rng(0)
+    expected = np.zeros(8, dtype=np.int64)
+    for _ in range(3):
+        ids = np.repeat(np.repeat(rng.integers(0, 8, (6, 8)), 8, 0), 8, 1)
+        rng.integers(0, 50, (48, 64, 3))  # the image noise the fixture draws next
+        expected += np.bincount(ids.ravel(), minlength=8)
+    np.testing.assert_array_equal(counts, expected)
+    assert counts.sum() == 3 * 48 * 64 and len(load_palette("uavid").names) == 8

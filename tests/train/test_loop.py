@@ -205,6 +205,15 @@ def test_every_shipped_config_trains_two_steps(name, claravid_root, uavid_root, 
     )
 
 
+def test_class_weighted_training_on_uavid(uavid_root, tmp_path):
+    args = tiny(uavid_root, tmp_path / "w", "data.dataset=uavid", "data.val_dataset=uavid",
+                "data.train_split=train", "data.val_split=val", "train.steps=1",
+                "data.class_weights=median_frequency", "train.batch_size=2",
+                "val.every=0")  # fmt: skip
+    result = train(load_config("demo", args))
+    assert result.step == 1 and result.best_miou is not None
+
+
 @pytest.mark.slow
 def test_loader_workers_draw_the_same_batches(claravid_root, tmp_path):
     """Crops are seeded by position, not by worker: 2 workers train the very same weights."""
