@@ -30,13 +30,13 @@ import cv2
 import numpy as np
 import torch
 
-import models
+from claravid import models
 from claravid.dsp import compute_complexities
+from claravid.eval.data import open_data
+from claravid.eval.evaluate import evaluate_model
+from claravid.eval.run import collect
+from claravid.eval.windows import WindowConfig
 from claravid.synth import synthesize
-from eval.data import open_data
-from eval.evaluate import evaluate_model
-from eval.run import collect
-from eval.windows import WindowConfig
 
 
 def _cold_cache(tmp: Path, name: str) -> None:

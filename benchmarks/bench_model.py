@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from models import OnnxSegmenter, build_model, export_onnx
+from claravid.models import OnnxSegmenter, build_model, export_onnx
 
 BACKBONE_TFLOP_630 = 1.63  # ViT-L/14, 2026 tokens, forward
 

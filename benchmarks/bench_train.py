@@ -2,7 +2,7 @@
 
 Run: ``.venv/bin/python benchmarks/bench_train.py [--frames-per-viewpoint 1] [--workers 0 2]``
 
-1. Loader: the training loader (``train.data.build_train_loader``: decode a full 4032×3024
+1. Loader: the training loader (``claravid.train.data.build_train_loader``: decode a full 4032×3024
    frame, k random 630² crops with the training augmentations) on generated full-size frames,
    images/s for each number of workers and ``crops_per_frame`` k. Baseline: k = 1 (the paper).
 2. Step: forward + backward + AdamW of the segmenter on CPU (``--cpu-backbone``, default a
@@ -26,11 +26,11 @@ os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
 import torch
 import torch.nn.functional as F
 
-import models
+from claravid import models
 from claravid.synth import synthesize
-from train.config import load_config
-from train.data import build_train_dataset, build_train_loader
-from train.optim import build_optimizer
+from claravid.train.config import load_config
+from claravid.train.data import build_train_dataset, build_train_loader
+from claravid.train.optim import build_optimizer
 
 
 def loader_rate(root: Path, workers: int, k: int, batch: int, batches: int) -> float:

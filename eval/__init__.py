@@ -2,17 +2,17 @@
 
 The core that training validates through::
 
-    from eval import WindowConfig, evaluate_model, stratify
+    from claravid.eval import WindowConfig, evaluate_model, stratify
 
     scores = evaluate_model(model, val_dataset, num_classes=8, config=WindowConfig(scale=0.5))
     report = stratify([s.path for s in scores], np.stack([s.confusion for s in scores]),
                       classes, {"delent": values}, bins=3)
 
-The product on top (``claravid-eval``, ``claravid-predict``; see :mod:`eval.cli`)::
+The product on top (``claravid-eval``, ``claravid-predict``; see :mod:`claravid.eval.cli`)::
 
-    from eval.data import open_data            # ClaraVid / UAVid / folder: keys, labels
-    from eval.run import collect, write_outputs
-    from eval.report import build_report
+    from claravid.eval.data import open_data            # ClaraVid / UAVid / folder: keys, labels
+    from claravid.eval.run import collect, write_outputs
+    from claravid.eval.report import build_report
 
     data = open_data("/data/claravid", split="val", palette="uavid")
     collected = collect(data, predictions="preds/")    # or model=eval.sources.load_source(...)
@@ -25,9 +25,9 @@ sharded under torchrun), ``report`` (JSON, confusions, merge), ``markdown``, ``p
 ``compare``, ``cli``, ``predict``.
 """
 
-from eval.bins import Bin, bin_names, fixed_bins, parse_edges, quantile_bins
-from eval.evaluate import ImageScore, evaluate_model, sample_key
-from eval.metrics import (
+from claravid.eval.bins import Bin, bin_names, fixed_bins, parse_edges, quantile_bins
+from claravid.eval.evaluate import ImageScore, evaluate_model, sample_key
+from claravid.eval.metrics import (
     CONVENTION,
     IGNORE_INDEX,
     confusion_matrix,
@@ -36,8 +36,8 @@ from eval.metrics import (
     pixel_accuracy,
     scores,
 )
-from eval.stratify import bin_mious, correlation, stratify
-from eval.windows import WindowConfig, predict_labels, sliding_window_logits, window_starts
+from claravid.eval.stratify import bin_mious, correlation, stratify
+from claravid.eval.windows import WindowConfig, predict_labels, sliding_window_logits, window_starts
 
 __all__ = [
     "CONVENTION",

@@ -1,5 +1,5 @@
-"""``python -m eval`` (and ``torchrun ... -m eval``): the ``claravid-eval`` command."""
+"""``python -m claravid.eval`` (and ``torchrun ... -m claravid.eval``): ``claravid-eval``."""
 
-from eval.cli import main
+from claravid.eval.cli import main
 
 raise SystemExit(main())

@@ -8,7 +8,7 @@
     claravid-eval --merge part0/ part1/ --output all/            # job-array parts -> one report
     claravid-eval --merge rep/ --edges 4,4.5,5,5.5 --output rep-fixed   # re-bin, no model
     claravid-eval --compare a/report.json b/report.json --output cmp/
-    torchrun --nproc_per_node=8 -m eval --checkpoint best.pt --output rep   # many GPUs
+    torchrun --nproc_per_node=8 -m claravid.eval --checkpoint best.pt --output rep   # many GPUs
 
 Exit 0 on success, 1 when some images were skipped (``--allow-missing``; listed), 2 for a
 user's mistake (one line; ``--debug`` shows the traceback).
@@ -28,11 +28,11 @@ from claravid.cli import (
     check_output_dir,
     run_cli,
 )
-from eval.bins import parse_edges
-from eval.complexity import parse_measures
-from eval.data import DATASETS, GROUP_BY
-from eval.predictions import MARKER, write_marker
-from eval.report import REPORT
+from claravid.eval.bins import parse_edges
+from claravid.eval.complexity import parse_measures
+from claravid.eval.data import DATASETS, GROUP_BY
+from claravid.eval.predictions import MARKER, write_marker
+from claravid.eval.report import REPORT
 
 PROG = "claravid-eval"
 SOURCES = ("checkpoint", "onnx", "predictions", "merge", "compare")
@@ -51,7 +51,7 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``claravid-eval`` arguments (also ``python -m eval``)."""
+    """The ``claravid-eval`` arguments (also ``python -m claravid.eval``)."""
     p = argparse.ArgumentParser(
         prog=PROG,
         description="Evaluate semantic segmentation per scene-complexity (delentropy) bin.",
@@ -123,14 +123,14 @@ def _check_args(args: argparse.Namespace) -> str:
 
 
 def _print_done(out: Path, report: dict[str, Any]) -> None:
-    from eval.markdown import bin_table
+    from claravid.eval.markdown import bin_table
 
     print(bin_table(report))
     print(f"\nreport: {out / 'report.md'} ({out / 'report.json'}, plots and confusions beside)")
 
 
 def _run_compare(args: argparse.Namespace) -> int:
-    from eval.compare import compare_reports
+    from claravid.eval.compare import compare_reports
 
     if args.output is not None:
         check_output_dir(args.output, marker="compare.md", overwrite=args.overwrite)
@@ -146,8 +146,8 @@ def _run_compare(args: argparse.Namespace) -> int:
 
 
 def _run_merge(args: argparse.Namespace) -> int:
-    from eval.report import build_report, load_result, merge_results
-    from eval.run import write_outputs
+    from claravid.eval.report import build_report, load_result, merge_results
+    from claravid.eval.run import write_outputs
 
     check_output_dir(args.output, marker=REPORT, overwrite=args.overwrite)
     result = merge_results([load_result(p) for p in args.merge], [str(p) for p in args.merge])
@@ -196,12 +196,12 @@ def _resolve_data(args: argparse.Namespace, defaults: dict[str, Any]) -> dict[st
 def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     import torch
 
-    from eval import distributed
-    from eval.data import open_data
-    from eval.report import build_report
-    from eval.run import collect, hardest_items, write_outputs
-    from eval.sources import load_source
-    from eval.windows import WindowConfig
+    from claravid.eval import distributed
+    from claravid.eval.data import open_data
+    from claravid.eval.report import build_report
+    from claravid.eval.run import collect, hardest_items, write_outputs
+    from claravid.eval.sources import load_source
+    from claravid.eval.windows import WindowConfig
 
     info = distributed.init_distributed(args.device)
     main_rank = info.is_main

@@ -13,9 +13,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from eval.markdown import compare_markdown
-from eval.plots import plot_compare
-from eval.report import read_report
+from claravid.eval.markdown import compare_markdown
+from claravid.eval.plots import plot_compare
+from claravid.eval.report import read_report
 
 
 def _edges(report: dict[str, Any]) -> list[tuple[Any, Any]]:

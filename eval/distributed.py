@@ -1,7 +1,7 @@
 """Many processes, one report: shard images across ranks and gather the results in order.
 
-Used by ``torchrun ... -m eval`` and by training's validation. Without an initialised process
-group everything here is the single-process identity, so the same code runs everywhere.
+Used by ``torchrun ... -m claravid.eval`` and by training's validation. Without an initialised
+process group everything here is the single-process identity, so the same code runs everywhere.
 """
 
 from __future__ import annotations

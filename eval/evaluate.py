@@ -2,7 +2,7 @@
 
 Training validates through this function and ``claravid-eval`` reports from it, so windows,
 confusions and mIoU have one implementation. Under DDP each rank passes its own ``indices``
-and the per-image results are gathered afterwards (``eval.distributed``).
+and the per-image results are gathered afterwards (``claravid.eval.distributed``).
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm.auto import tqdm
 
-from eval.metrics import IGNORE_INDEX, confusion_matrix
-from eval.windows import Model, WindowConfig, predict_labels
+from claravid.eval.metrics import IGNORE_INDEX, confusion_matrix
+from claravid.eval.windows import Model, WindowConfig, predict_labels
 
 
 @dataclass

@@ -25,10 +25,10 @@ from tqdm.auto import tqdm
 
 from claravid import modalities
 from claravid.cli import UsageError, add_debug_flag, check_output_dir, run_cli
+from claravid.eval.predictions import MARKER, write_image, write_marker, write_prediction
+from claravid.eval.windows import WindowConfig, predict_labels
 from claravid.palettes import Palette, load_palette
 from claravid.transforms import eval_transforms
-from eval.predictions import MARKER, write_image, write_marker, write_prediction
-from eval.windows import WindowConfig, predict_labels
 
 PROG = "claravid-predict"
 EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
@@ -131,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Predict every image and write its label map and overlay."""
-    from eval.sources import load_source
+    from claravid.eval.sources import load_source
 
     if (args.checkpoint is None) == (args.onnx is None):
         raise UsageError("give exactly one of --checkpoint and --onnx")

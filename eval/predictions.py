@@ -19,9 +19,9 @@ import numpy as np
 
 from claravid import modalities
 from claravid.cli import UsageError, atomic_save, atomic_write_text
+from claravid.eval.data import EvalData
+from claravid.eval.metrics import confusion_matrix
 from claravid.palettes import Palette
-from eval.data import EvalData
-from eval.metrics import confusion_matrix
 
 SHOW_MISSING = 5
 #: What a folder of label maps written by claravid-eval/claravid-predict holds besides them: its

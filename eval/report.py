@@ -7,7 +7,7 @@ A report folder holds:
   or predictions, data, windows, binning, skipped images);
 - ``confusions.npz`` (compressed): per-image confusions with their paths, keys, complexity
   values and missions/viewpoints: everything needed to re-bin or merge;
-- ``report.md`` and the plots (:mod:`eval.plots`).
+- ``report.md`` and the plots (:mod:`claravid.eval.plots`).
 
 :class:`EvalResult` is the per-image table; :func:`build_report` turns it into the JSON.
 """
@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from claravid.cli import UsageError, atomic_save, atomic_write_text
-from eval.stratify import stratify
+from claravid.eval.stratify import stratify
 
 REPORT = "report.json"
 CONFUSIONS = "confusions.npz"

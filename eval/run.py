@@ -1,10 +1,10 @@
 """One evaluation, end to end: images -> per-image confusions and complexity -> report folder.
 
-:func:`collect` produces the per-image table (:class:`eval.report.EvalResult`) from a model or
-from saved label maps, on one process or sharded over ``torchrun`` ranks (each rank evaluates
-every ``world_size``-th image and measures its complexity meanwhile; rank 0 gathers
-everything in dataset order, so the table is the same as one process's). :func:`write_outputs`
-writes the report folder. The command line (:mod:`eval.cli`) is a thin layer over both.
+:func:`collect` produces the per-image table (:class:`claravid.eval.report.EvalResult`) from a model
+or from saved label maps, on one process or sharded over ``torchrun`` ranks (each rank evaluates
+every ``world_size``-th image and measures its complexity meanwhile; rank 0 gathers everything in
+dataset order, so the table is the same as one process's). :func:`write_outputs` writes the report
+folder. The command line (:mod:`claravid.eval.cli`) is a thin layer over both.
 """
 
 from __future__ import annotations
@@ -20,18 +20,23 @@ import numpy as np
 import torch
 
 from claravid.cli import USER_ERRORS, UsageError, atomic_write_text
-from eval import distributed
-from eval.complexity import ComplexityJob
-from eval.data import EvalData
-from eval.evaluate import ImageScore, evaluate_model
-from eval.markdown import report_markdown
-from eval.metrics import mean_iou
-from eval.plots import PLOTS, plot_bins, plot_hardest, plot_heatmap, plot_scatter
-from eval.predictions import check_missing, prediction_file, read_prediction, score_predictions
-from eval.predictions import write_prediction as save_label_map
-from eval.report import CONFUSIONS, REPORT, EvalResult, save_confusions, write_json
-from eval.sources import ModelSource
-from eval.windows import WindowConfig
+from claravid.eval import distributed
+from claravid.eval.complexity import ComplexityJob
+from claravid.eval.data import EvalData
+from claravid.eval.evaluate import ImageScore, evaluate_model
+from claravid.eval.markdown import report_markdown
+from claravid.eval.metrics import mean_iou
+from claravid.eval.plots import PLOTS, plot_bins, plot_hardest, plot_heatmap, plot_scatter
+from claravid.eval.predictions import (
+    check_missing,
+    prediction_file,
+    read_prediction,
+    score_predictions,
+)
+from claravid.eval.predictions import write_prediction as save_label_map
+from claravid.eval.report import CONFUSIONS, REPORT, EvalResult, save_confusions, write_json
+from claravid.eval.sources import ModelSource
+from claravid.eval.windows import WindowConfig
 
 THUMB = 512  # longest side of a hardest-image panel
 
@@ -126,7 +131,7 @@ def collect(
     returns the full, gathered table.
 
     Args:
-        data: the images (:func:`eval.data.open_data`).
+        data: the images (:func:`claravid.eval.data.open_data`).
         model: a loaded model (exclusive with ``predictions``).
         predictions: the folder of saved label maps.
         window: sliding windows (model only).

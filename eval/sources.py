@@ -1,7 +1,7 @@
 """Where predictions come from: a PyTorch checkpoint or an ONNX file (or saved label maps).
 
-A training checkpoint (``models.save_checkpoint`` with the resolved training ``config`` as an
-extra entry) also says which data and palette it was trained for; :func:`checkpoint_defaults`
+A training checkpoint (``claravid.models.save_checkpoint`` with the resolved training ``config``
+as an extra entry) also says which data and palette it was trained for; :func:`checkpoint_defaults`
 reads those defensively, so an older or plain model checkpoint still works when the command
 line gives ``--data`` and ``--palette``.
 """
@@ -15,7 +15,7 @@ from typing import Any
 
 import torch
 
-from eval.windows import Model
+from claravid.eval.windows import Model
 
 
 @dataclass
@@ -99,7 +99,7 @@ def load_source(
     if (checkpoint is None) == (onnx is None):
         raise ValueError("give exactly one of a checkpoint and an ONNX file")
     if checkpoint is not None:
-        from models.checkpoint import model_from_checkpoint, read_checkpoint
+        from claravid.models.checkpoint import model_from_checkpoint, read_checkpoint
 
         ckpt = read_checkpoint(checkpoint)  # read once: the model and the training config
         defaults = checkpoint_defaults(ckpt)
@@ -108,7 +108,7 @@ def load_source(
         return ModelSource(
             model, "checkpoint", str(checkpoint), model.num_classes, model.patch_size, defaults
         )
-    from models.onnx_runtime import OnnxSegmenter
+    from claravid.models.onnx_runtime import OnnxSegmenter
 
     device = torch.device(device)
     providers = None if device.type == "cuda" else ["CPUExecutionProvider"]

@@ -17,8 +17,8 @@ import numpy as np
 from scipy import stats
 
 from claravid.dsp import DegenerateProfileWarning, fit_profile
-from eval.bins import Bin, fixed_bins, quantile_bins
-from eval.metrics import (
+from claravid.eval.bins import Bin, fixed_bins, quantile_bins
+from claravid.eval.metrics import (
     CONVENTION,
     IGNORE_INDEX,
     finite_or_none,

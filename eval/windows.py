@@ -8,7 +8,8 @@ smaller than a window is padded at the bottom/right with zeros (the mean colour 
 normalisation) and the padding is cut off the logits. With ``scale != 1`` the logits are resized
 back (bilinear) to the input size, so scores are always against the native-resolution labels.
 
-Any model works: a ``torch.nn.Module`` or a callable returning numpy (``models.OnnxSegmenter``).
+Any model works: a ``torch.nn.Module`` or a callable returning numpy
+(``claravid.models.OnnxSegmenter``).
 """
 
 from __future__ import annotations

@@ -9,13 +9,18 @@ Public API::
     OnnxSegmenter(path)                      # onnxruntime runner
 """
 
-from models.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from models.dpt import DPT_DEFAULTS, DPTHead
-from models.export import ExportCheckError, export_onnx
-from models.onnx_runtime import OnnxSegmenter
-from models.segmenter import Segmenter, build_model
-from models.vit import BACKBONE_NAMES, DinoVisionTransformer, backbone_config, build_backbone
-from models.weights import WeightsError, hf_to_official, official_to_hf, official_url
+from claravid.models.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from claravid.models.dpt import DPT_DEFAULTS, DPTHead
+from claravid.models.export import ExportCheckError, export_onnx
+from claravid.models.onnx_runtime import OnnxSegmenter
+from claravid.models.segmenter import Segmenter, build_model
+from claravid.models.vit import (
+    BACKBONE_NAMES,
+    DinoVisionTransformer,
+    backbone_config,
+    build_backbone,
+)
+from claravid.models.weights import WeightsError, hf_to_official, official_to_hf, official_url
 
 __all__ = [
     "BACKBONE_NAMES",

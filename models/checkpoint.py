@@ -18,8 +18,8 @@ from typing import Any
 
 import torch
 
-from models.segmenter import Segmenter, build_model
-from models.torchfile import read_tensor_file
+from claravid.models.segmenter import Segmenter, build_model
+from claravid.models.torchfile import read_tensor_file
 
 FORMAT = "claravid-model"
 VERSION = 1

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from models.cli import (
+from claravid.models.cli import (
     EXIT_FAILED,
     UsageError,
     add_debug_flag,
@@ -34,8 +34,8 @@ from models.cli import (
     positive_int,
     run_cli,
 )
-from models.onnx_runtime import META_PREFIX, OnnxSegmenter
-from models.segmenter import Segmenter
+from claravid.models.onnx_runtime import META_PREFIX, OnnxSegmenter
+from claravid.models.segmenter import Segmenter
 
 # Opset 23 has a fused Attention op (SDPA maps to it; onnxruntime runs it without materialising
 # the N x N score matrix in memory-bound MatMul/Softmax pairs).
@@ -241,7 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from models.checkpoint import load_checkpoint
+    from claravid.models.checkpoint import load_checkpoint
 
     output = check_output_file(args.output)
     if output.suffix.lower() != ".onnx":

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from models.inputs import check_image_batch
+from claravid.models.inputs import check_image_batch
 
 META_PREFIX = "claravid."
 
@@ -17,7 +17,7 @@ class OnnxSegmenter:
     """An exported segmenter: normalised float images [B,3,H,W] -> logits [B,K,H,W] (numpy).
 
     Args:
-        path: The ``.onnx`` file written by `models.export_onnx`.
+        path: The ``.onnx`` file written by `claravid.models.export_onnx`.
         providers: ONNX Runtime execution providers (default: CUDA when available, then CPU).
         threads: Intra-op threads (default: ONNX Runtime's choice).
 

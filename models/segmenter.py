@@ -9,8 +9,8 @@ from typing import Any
 import torch
 from torch import nn
 
-from models.dpt import DPT_DEFAULTS, DPTHead
-from models.vit import DinoVisionTransformer, build_backbone
+from claravid.models.dpt import DPT_DEFAULTS, DPTHead
+from claravid.models.vit import DinoVisionTransformer, build_backbone
 
 
 class Segmenter(nn.Module):

@@ -19,8 +19,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from models.inputs import check_image_batch, check_image_size
-from models.weights import download_official, load_backbone_state, read_state_dict
+from claravid.models.inputs import check_image_batch, check_image_size
+from claravid.models.weights import download_official, load_backbone_state, read_state_dict
 
 # Architecture of each official size; the name suffix `_reg` adds 4 register tokens.
 ARCHS: dict[str, dict[str, Any]] = {

@@ -14,7 +14,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from models.torchfile import read_tensor_file
+from claravid.models.torchfile import read_tensor_file
 
 BASE_URL = "https://dl.fbaipublicfiles.com/dinov2"
 

@@ -1,5 +1,11 @@
-"""The built wheel, installed outside the checkout, carries everything it reads at run time."""
+"""The built wheel, installed outside the checkout, carries everything it reads at run time.
 
+It installs one top-level package, ``claravid`` (``claravid.models``, ``claravid.train``,
+``claravid.eval``): a user's own ``models``/``train``/``eval`` packages neither shadow ours nor
+are shadowed by them.
+"""
+
+import os
 import shutil
 import subprocess
 import sys
@@ -16,8 +22,8 @@ PROBE = """
 import sys
 from pathlib import Path
 target = Path(sys.argv[1]).resolve()
-import claravid, models, train, eval
-for module in (claravid, models, train, eval):
+import claravid, claravid.models, claravid.train, claravid.eval
+for module in (claravid, claravid.models, claravid.train, claravid.eval):
     assert Path(module.__file__).resolve().is_relative_to(target), module.__file__
 from claravid.palettes import available_palettes, load_palette
 from claravid.resources import shipped_names
@@ -30,7 +36,7 @@ synthesize(Path(sys.argv[2]) / "data", seed=0, frames_per_viewpoint=1, size=(84,
            missions=["urban_1"], progress=False)
 sample = ClaraVidSegmentation(Path(sys.argv[2]) / "data", split="all", palette="uavid")[0]
 assert tuple(sample["mask"].shape) == (70, 84), sample["mask"].shape
-from train.config import load_config
+from claravid.train.config import load_config
 cfg = load_config("demo", ["train.steps=3"])  # a named experiment config, from the wheel
 assert cfg.model.freeze_backbone is False and cfg.train.steps == 3, cfg
 assert load_config("claravid_dpt_vitl14").model.backbone == "dinov2_vitl14"
@@ -56,6 +62,10 @@ def test_wheel_installed_outside_checkout_loads_palettes_and_a_sample(tmp_path):
     assert build.returncode == 0, build.stderr[-3000:]
     (wheel,) = wheels.glob("claravid_toolkit-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
+    top_level = {name.split("/")[0] for name in names if not name.startswith("claravid_toolkit-")}
+    assert top_level == {"claravid"}, sorted(top_level)
+    assert "claravid/models/vit.py" in names and "claravid/train/loop.py" in names
+    assert "claravid/eval/cli.py" in names
     assert "claravid/configs/palettes/uavid.yaml" in names
     assert "claravid/configs/augment.yaml" in names
     assert "claravid/configs/demo.yaml" in names
@@ -78,3 +88,31 @@ def test_wheel_installed_outside_checkout_loads_palettes_and_a_sample(tmp_path):
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-3000:]
     ok, palettes, _ = run.stdout.split(" ", 2)
     assert ok == "OK" and {"claravid", "uavid", "udd6"} <= set(palettes.split(","))
+
+    # A user's project with its own models/, train/ and eval/ packages, ahead of ours on the
+    # path: the console scripts must never import them.
+    user = tmp_path / "user_project"
+    for package in ("models", "train", "eval"):
+        (user / package).mkdir(parents=True)
+        (user / package / "__init__.py").write_text(
+            f"raise ImportError('the user\\'s own {package} package was imported')\n"
+        )
+    env = {"PYTHONPATH": f"{user}{os.pathsep}{target}", "PATH": "/usr/bin:/bin",
+           "HOME": str(tmp_path), "NO_ALBUMENTATIONS_UPDATE": "1",
+           "CLARAVID_CACHE": str(tmp_path / "cache")}  # fmt: skip
+    data = work / "data"
+    train = subprocess.run(
+        [str(target / "bin" / "claravid-train"), "--config", "demo", f"data.root={data}",
+         "train.steps=2", "train.batch_size=2", "data.num_workers=0", "val.every=0",
+         f"out_dir={user / 'run'}"],
+        capture_output=True, text=True, cwd=user, env=env, timeout=600,
+    )  # fmt: skip
+    assert train.returncode == 0, train.stdout[-2000:] + train.stderr[-3000:]
+    assert (user / "run" / "last.pt").is_file()
+    evaluate = subprocess.run(
+        [str(target / "bin" / "claravid-eval"), "--checkpoint", str(user / "run" / "last.pt"),
+         "--split", "all", "--no-progress", "--output", str(user / "report")],
+        capture_output=True, text=True, cwd=user, env=env, timeout=600,
+    )  # fmt: skip
+    assert evaluate.returncode == 0, evaluate.stdout[-2000:] + evaluate.stderr[-3000:]
+    assert (user / "report" / "report.json").is_file()

@@ -2,15 +2,15 @@
 
 ::
 
-    from train import load_config, train
+    from claravid.train import load_config, train
 
     cfg = load_config("demo", ["train.steps=100"])
     result = train(cfg)  # out_dir: config.yaml, metrics.jsonl, last.pt, best.pt, curves.png
 
-From the shell: ``claravid-train --config demo`` (``torchrun ... -m train`` for DDP).
+From the shell: ``claravid-train --config demo`` (``torchrun ... -m claravid.train`` for DDP).
 """
 
-from train.config import ConfigError, load_config
-from train.loop import RunResult, TrainingDiverged, train
+from claravid.train.config import ConfigError, load_config
+from claravid.train.loop import RunResult, TrainingDiverged, train
 
 __all__ = ["ConfigError", "RunResult", "TrainingDiverged", "load_config", "train"]

@@ -1,5 +1,5 @@
-"""``python -m train`` (and ``torchrun ... -m train``): the ``claravid-train`` command."""
+"""``python -m claravid.train`` (and ``torchrun ... -m claravid.train``): ``claravid-train``."""
 
-from train.cli import main
+from claravid.train.cli import main
 
 raise SystemExit(main())

@@ -1,4 +1,4 @@
-"""Training checkpoints: the model file of ``models.save_checkpoint`` plus everything resume needs.
+"""Training checkpoints: ``claravid.models.save_checkpoint``'s model file plus what resume needs.
 
 ``last.pt`` and ``best.pt`` are both complete model files (``claravid-eval`` and
 ``claravid-export`` read them) holding also::
@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 import torch
 
-import models
-from models.checkpoint import read_checkpoint
+from claravid import models
+from claravid.models.checkpoint import read_checkpoint
 
 
 def rng_state() -> dict[str, Any]:

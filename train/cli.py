@@ -1,8 +1,8 @@
-"""``claravid-train --config CONFIG [key=value ...] [--resume]`` (also ``python -m train``).
+"""``claravid-train --config CONFIG [key=value ...] [--resume]`` (``python -m claravid.train``).
 
 CONFIG is a YAML file or the name of a shipped config (``demo``, ``claravid_dpt_vitl14``, ...).
-Multi-GPU: ``torchrun --nproc_per_node=N -m train --config ...``. The last lines say where the
-results are and how to evaluate and export them.
+Multi-GPU: ``torchrun --nproc_per_node=N -m claravid.train --config ...``. The last lines say
+where the results are and how to evaluate and export them.
 """
 
 from __future__ import annotations
@@ -36,8 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from train.config import load_config  # heavy imports after argparse: --help stays fast
-    from train.loop import TrainingDiverged, train
+    from claravid.train.config import load_config  # heavy imports after argparse: --help stays fast
+    from claravid.train.loop import TrainingDiverged, train
 
     cfg = load_config(args.config, args.overrides)
     try:

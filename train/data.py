@@ -1,5 +1,5 @@
 """Training data: the datasets a config names, k augmented crops per frame, the loader, class
-weights. Which frame comes when is `train.sampler`'s business.
+weights. Which frame comes when is `claravid.train.sampler`'s business.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from torch.utils.data import DataLoader, Dataset
 from claravid.masks import read_mask
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.targets import UAVidSegmentation
+from claravid.train.sampler import StepSampler
 from claravid.transforms import AugmentConfig, eval_transforms, train_transforms
-from train.sampler import StepSampler
 
 
 class EmptySplitError(ValueError):

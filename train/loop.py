@@ -3,7 +3,8 @@
 ::
 
     claravid-train --config demo                                  # one process
-    torchrun --nproc_per_node=8 -m train --config claravid_dpt_vitl14 data.root=/data/claravid
+    torchrun --nproc_per_node=8 -m claravid.train --config claravid_dpt_vitl14 \
+        data.root=/data/claravid
 
 One optimiser step takes ``train.batch_size`` crops over all ranks and ``train.grad_accum``
 micro-batches; its loss is the mean of the micro-batches' losses (each the pixel mean of
@@ -30,18 +31,18 @@ from omegaconf import DictConfig
 from torch import nn
 from tqdm.auto import tqdm
 
-import models
+from claravid import models
+from claravid.eval import WindowConfig
+from claravid.eval.distributed import DistInfo, barrier, init_distributed
 from claravid.palettes import load_palette
-from eval import WindowConfig
-from eval.distributed import DistInfo, barrier, init_distributed
-from train import config as C
-from train.checkpoint import (
+from claravid.train import config as C
+from claravid.train.checkpoint import (
     load_training_checkpoint,
     restore_model,
     save_training_checkpoint,
     set_rng_state,
 )
-from train.data import (
+from claravid.train.data import (
     build_train_dataset,
     build_train_loader,
     build_val_dataset,
@@ -50,11 +51,11 @@ from train.data import (
     class_weights,
     image_paths,
 )
-from train.logs import RunLog, plot_curves, read_metrics
-from train.optim import build_optimizer, build_scheduler, clip_gradients
-from train.outdir import prepare_out_dir
-from train.sampler import complexity_groups
-from train.validate import Validator
+from claravid.train.logs import RunLog, plot_curves, read_metrics
+from claravid.train.optim import build_optimizer, build_scheduler, clip_gradients
+from claravid.train.outdir import prepare_out_dir
+from claravid.train.sampler import complexity_groups
+from claravid.train.validate import Validator
 
 IGNORE_INDEX = 255
 
@@ -129,7 +130,7 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     """Run (or resume) the training a resolved config describes; rank 0 writes ``out_dir``.
 
     Args:
-        cfg: from `train.config.load_config`.
+        cfg: from `claravid.train.config.load_config`.
         resume: continue from ``out_dir/last.pt`` (a fresh start when there is none).
         say: where rank 0's messages go.
 

@@ -15,8 +15,8 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from claravid.cli import UsageError, atomic_write_text, check_output_dir
-from train import config as C
-from train.checkpoint import load_training_checkpoint
+from claravid.train import config as C
+from claravid.train.checkpoint import load_training_checkpoint
 
 MARKER = "config.yaml"
 

@@ -19,8 +19,8 @@ import torch
 from torch.utils.data import Sampler
 
 from claravid.dsp import compute_complexities
-from eval.bins import quantile_bins
-from eval.distributed import gather_in_order, shard_indices
+from claravid.eval.bins import quantile_bins
+from claravid.eval.distributed import gather_in_order, shard_indices
 
 
 def sample_seed(seed: int, position: int) -> int:
@@ -120,7 +120,7 @@ def sharded_delentropy(paths: list[str]) -> np.ndarray:
 
 
 def complexity_groups(paths: list[str], bins: int) -> list[list[int]]:
-    """Image indices of each of ``bins`` delentropy quantile bins (``eval.quantile_bins``)."""
+    """Image indices of each of ``bins`` delentropy quantile bins (as `eval.quantile_bins`)."""
     values = sharded_delentropy(paths)
     bad = [p for p, v in zip(paths, values, strict=True) if not math.isfinite(v)]
     if bad:

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-import models
+from claravid import models
 
 TINY = {
     "backbone_kwargs": {"embed_dim": 32, "depth": 4, "num_heads": 2},

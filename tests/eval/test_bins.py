@@ -2,7 +2,7 @@
 
 import pytest
 
-from eval.bins import fixed_bins, parse_edges, quantile_bins
+from claravid.eval.bins import fixed_bins, parse_edges, quantile_bins
 
 
 def test_quantile_bins_split_like_array_split_in_value_order():

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import torch
 
+from claravid.eval.cli import main
+from claravid.eval.sources import checkpoint_defaults
+from claravid.eval.windows import WindowConfig, predict_labels
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.transforms import eval_transforms
-from eval.cli import main
-from eval.sources import checkpoint_defaults
-from eval.windows import WindowConfig, predict_labels
 from tests.eval.conftest import WINDOW
 from tests.torchrun import torchrun
 
@@ -56,7 +56,7 @@ def test_checkpoint_rebuilds_data_and_palette_and_matches_a_direct_count(
     ds = ClaraVidSegmentation(
         claravid_root, split=splits["both"], palette="uavid", transforms=eval_transforms()
     )
-    from models import load_checkpoint
+    from claravid.models import load_checkpoint
 
     model = load_checkpoint(model_files["checkpoint"]).eval()
     with np.load(tmp_path / "rep" / "confusions.npz") as saved:
@@ -173,7 +173,7 @@ def test_merge_of_parts_and_rebinning_equal_one_run(model_files, splits, tmp_pat
 
 @pytest.mark.slow
 def test_torchrun_two_processes_equal_one(model_files, splits, tmp_path):
-    argv = ["-m", "eval", "--checkpoint", str(model_files["checkpoint"]), "--split",
+    argv = ["-m", "claravid.eval", "--checkpoint", str(model_files["checkpoint"]), "--split",
             str(splits["both"]), "--window", WINDOW, "--no-progress", "--device", "cpu",
             "--save-predictions", str(tmp_path / "preds2")]  # fmt: skip
     run = subprocess.run(

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from claravid import modalities
+from claravid.eval.cli import main
+from claravid.eval.predict import main as predict_main
+from claravid.eval.windows import WindowConfig, predict_labels
 from claravid.transforms import eval_transforms
-from eval.cli import main
-from eval.predict import main as predict_main
-from eval.windows import WindowConfig, predict_labels
 from tests.eval.conftest import tiny_model
 
 
@@ -70,7 +70,7 @@ def test_compare_refuses_foreign_json_in_one_line(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_predict_writes_label_maps_and_overlays(claravid_root, tmp_path, capsys):
-    import models
+    from claravid import models
 
     model = tiny_model(seed=3)
     ckpt = models.save_checkpoint(model, tmp_path / "m.pt")  # plain: no config, 8 classes

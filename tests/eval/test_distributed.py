@@ -5,14 +5,14 @@ import textwrap
 
 import pytest
 
-from eval.distributed import gather_in_order, shard_indices
+from claravid.eval.distributed import gather_in_order, shard_indices
 from tests.torchrun import torchrun
 
 SCRIPT = textwrap.dedent(
     """
     import sys
     from pathlib import Path
-    from eval.distributed import init_distributed, shard_indices, gather_in_order
+    from claravid.eval.distributed import init_distributed, shard_indices, gather_in_order
     info = init_distributed("cpu")
     mine = shard_indices(7)
     out = gather_in_order([f"item{i}" for i in mine], mine)

@@ -3,10 +3,10 @@
 import numpy as np
 import torch
 
+from claravid.eval.evaluate import evaluate_model
+from claravid.eval.windows import WindowConfig
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.transforms import eval_transforms
-from eval.evaluate import evaluate_model
-from eval.windows import WindowConfig
 
 
 def test_per_image_confusions_match_a_direct_count(claravid_root):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from eval.metrics import confusion_matrix, iou_per_class, mean_iou, pixel_accuracy, scores
+from claravid.eval.metrics import confusion_matrix, iou_per_class, mean_iou, pixel_accuracy, scores
 
 # 3 classes, one ignored pixel (255). Truth row by row, prediction below it.
 TRUTH = np.array([[0, 0, 1, 1], [1, 2, 2, 255]])

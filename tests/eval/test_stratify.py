@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from eval.stratify import bin_mious, correlation, stratify
+from claravid.eval.stratify import bin_mious, correlation, stratify
 
 CLASSES = ["a", "b"]
 PATHS = ["p/a.jpg", "p/b.jpg", "p/c.jpg", "p/d.jpg"]

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from eval.windows import WindowConfig, predict_labels, sliding_window_logits, window_starts
+from claravid.eval.windows import WindowConfig, predict_labels, sliding_window_logits, window_starts
 
 
 def test_window_starts_cover_the_axis_with_the_last_flush():
@@ -87,7 +87,7 @@ def test_numpy_models_work_and_labels_are_the_argmax():
 
 def test_matches_a_real_segmenter_within_one_window():
     """Inside one window, the windowed logits are the segmenter's own forward."""
-    import models
+    from claravid import models
 
     model = models.build_model(
         "dinov2_vits14",

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from models import CheckpointError, build_model, load_checkpoint, save_checkpoint
+from claravid.models import CheckpointError, build_model, load_checkpoint, save_checkpoint
 from tests.models.reference import random_official_state
 
 TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}

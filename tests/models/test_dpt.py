@@ -13,7 +13,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from models import DPTHead
+from claravid.models import DPTHead
 
 D, FEATURES, OUT = 24, 16, (8, 12, 16, 20)
 

@@ -4,8 +4,14 @@ import numpy as np
 import pytest
 import torch
 
-from models import ExportCheckError, OnnxSegmenter, build_model, export_onnx, save_checkpoint
-from models.export import check_export, main
+from claravid.models import (
+    ExportCheckError,
+    OnnxSegmenter,
+    build_model,
+    export_onnx,
+    save_checkpoint,
+)
+from claravid.models.export import check_export, main
 
 TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
 HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
@@ -137,7 +143,7 @@ def test_cli_checks_paths_before_loading(tmp_path, capsys):
 
 
 def test_failed_check_writes_nothing_and_keeps_the_old_file(tmp_path, capsys, monkeypatch):
-    import models.export as export
+    import claravid.models.export as export
 
     def fake_export(model, path, height, width, dynamic):
         path.write_bytes(b"new onnx")

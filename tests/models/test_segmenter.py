@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from models import DPTHead, build_model
+from claravid.models import DPTHead, build_model
 from tests.models.reference import random_official_state, reference_layers
 
 TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}

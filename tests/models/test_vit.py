@@ -4,8 +4,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from models import BACKBONE_NAMES, build_backbone
-from models.vit import bicubic_matrix, swiglu_hidden
+from claravid.models import BACKBONE_NAMES, build_backbone
+from claravid.models.vit import bicubic_matrix, swiglu_hidden
 from tests.models.reference import random_official_state, reference_layers
 
 TINY = {"embed_dim": 32, "depth": 3, "num_heads": 2, "img_size": 56}  # native grid 4x4

@@ -6,8 +6,14 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
-from models import WeightsError, build_backbone, hf_to_official, official_to_hf, official_url
-from models.weights import official_checkpoint_path
+from claravid.models import (
+    WeightsError,
+    build_backbone,
+    hf_to_official,
+    official_to_hf,
+    official_url,
+)
+from claravid.models.weights import official_checkpoint_path
 from tests.models.reference import random_official_state
 
 TINY = {"embed_dim": 32, "depth": 2, "num_heads": 2, "img_size": 28}

@@ -6,7 +6,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from claravid.resources import shipped_file
-from train.config import (
+from claravid.train.config import (
     ConfigError,
     changed_keys,
     derive_steps,

@@ -7,9 +7,9 @@ import pytest
 import torch
 
 from claravid.segmentation import ClaraVidSegmentation
+from claravid.train.data import CropDataset, class_weights, collate_crops
+from claravid.train.sampler import StepSampler
 from claravid.transforms import AugmentConfig
-from train.data import CropDataset, class_weights, collate_crops
-from train.sampler import StepSampler
 
 
 def draw(sampler, n):
@@ -97,7 +97,7 @@ def test_complexity_balanced_draws_each_bin_in_turn():
 def test_uavid_class_frequencies_count_the_label_files(uavid_root):
     from claravid.palettes import load_palette
     from claravid.targets import UAVidSegmentation
-    from train.data import class_frequencies
+    from claravid.train.data import class_frequencies
 
     ds = UAVidSegmentation(uavid_root, split="train", palette="uavid")
     counts = class_frequencies(ds, 8)

@@ -1,15 +1,15 @@
 """DDP on CPU: 2 gloo processes train what 1 process trains with the same global batch.
 
-Step semantics (``train.loop``): the loss of a step is the mean of its micro-batch losses, and
-rank r of W takes micro-batch r of each step. So 2 ranks × 1 micro-batch of 2 frames equals 1
-process × 2 micro-batches of 2 frames: same frames, same crops, same mean gradient. With 2 ranks
-the weights are even bit for bit the same: DDP computes (g0 + g1) / 2 where one process
-accumulates g0 / 2 + g1 / 2, and halving is exact in floating point. (With 3 ranks they would
-agree to rounding only; one process with one micro-batch of 4 frames differs by ~6e-7 after 8
-steps: the pixel mean over 4 crops is not summed in the same order.) With accumulation on
-each rank (2 ranks × 2 micro-batches vs 1 × 4) the sums are grouped differently: equal to
-float rounding, which is what the second case checks (and that ``no_sync`` still all-reduces).
-"""
+Step semantics (``claravid.train.loop``): the loss of a step is the mean of its micro-batch losses,
+and rank r of W takes micro-batch r of each step. So 2 ranks × 1 micro-batch of 2 frames equals 1
+process × 2 micro-batches of 2 frames: same frames, same crops, same mean gradient. With 2 ranks the
+weights are even bit for bit the same: DDP computes (g0 + g1) / 2 where one process accumulates
+g0 / 2 + g1 / 2, and halving is exact in floating point. (With 3 ranks they would agree to
+rounding only;
+one process with one micro-batch of 4 frames differs by ~6e-7 after 8 steps: the pixel mean over 4
+crops is not summed in the same order.) With accumulation on each rank (2 ranks × 2 micro-batches vs
+1 × 4) the sums are grouped differently: equal to float rounding, which is what the second case
+checks (and that ``no_sync`` still all-reduces)."""
 
 import os
 import subprocess
@@ -17,11 +17,11 @@ import subprocess
 import pytest
 import torch
 
-from models.checkpoint import read_checkpoint
+from claravid.models.checkpoint import read_checkpoint
+from claravid.train import load_config, train
+from claravid.train.logs import read_metrics
 from tests.torchrun import torchrun
 from tests.train.conftest import tiny
-from train import load_config, train
-from train.logs import read_metrics
 
 EXTRA = ("train.steps=8", "train.checkpoint_every=4", "val.every=4", "train.log_every=1")
 
@@ -42,7 +42,7 @@ def test_two_gloo_ranks_match_one_process_with_the_same_global_batch(
 
     ddp = tmp_path / "ddp"
     run = subprocess.run(
-        [*torchrun(2), "-m", "train", "--config", "demo",
+        [*torchrun(2), "-m", "claravid.train", "--config", "demo",
          *tiny(claravid_root, ddp, *EXTRA, batch, f"train.grad_accum={accum}")],
         capture_output=True, text=True, timeout=300,
         env={**os.environ, "OMP_NUM_THREADS": "1"},

@@ -7,14 +7,14 @@ import sys
 import pytest
 import torch
 
-import models
+from claravid import models
+from claravid.models.checkpoint import read_checkpoint
 from claravid.palettes import load_palette
 from claravid.resources import shipped_names
-from models.checkpoint import read_checkpoint
+from claravid.train import TrainingDiverged, load_config, train
+from claravid.train.checkpoint import save_training_checkpoint
+from claravid.train.cli import main
 from tests.train.conftest import tiny
-from train import TrainingDiverged, load_config, train
-from train.checkpoint import save_training_checkpoint
-from train.cli import main
 
 
 def rows(out):
@@ -63,7 +63,7 @@ def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(claravid_root, tmp_pa
 
 
 def test_injected_inf_stops_before_the_step(claravid_root, tmp_path, monkeypatch):
-    import train.loop as loop
+    import claravid.train.loop as loop
 
     real = loop.F.cross_entropy
     calls = []

@@ -4,9 +4,9 @@ import math
 
 import pytest
 
-import models
-from train.config import load_config
-from train.optim import build_optimizer, lr_factor
+from claravid import models
+from claravid.train.config import load_config
+from claravid.train.optim import build_optimizer, lr_factor
 
 
 def test_warmup_then_poly_and_cosine():

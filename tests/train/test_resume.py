@@ -9,10 +9,10 @@ import time
 import pytest
 import torch
 
-from models.checkpoint import read_checkpoint
+from claravid.models.checkpoint import read_checkpoint
+from claravid.train import load_config, train
+from claravid.train.logs import read_metrics
 from tests.train.conftest import tiny
-from train import load_config, train
-from train.logs import read_metrics
 
 STEPS = 40
 EXTRA = (f"train.steps={STEPS}", "train.checkpoint_every=3", "val.every=10", "train.log_every=1",
@@ -20,7 +20,15 @@ EXTRA = (f"train.steps={STEPS}", "train.checkpoint_every=3", "val.every=10", "tr
 
 
 def command(root, out, *flags):
-    return [sys.executable, "-m", "train", "--config", "demo", *tiny(root, out, *EXTRA), *flags]
+    return [
+        sys.executable,
+        "-m",
+        "claravid.train",
+        "--config",
+        "demo",
+        *tiny(root, out, *EXTRA),
+        *flags,
+    ]
 
 
 def env():
