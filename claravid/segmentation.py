@@ -41,7 +41,7 @@ from claravid.layout import MISSIONS, frame_file
 from claravid.palettes import Palette, load_palette
 from claravid.plot import plot_sample
 from claravid.samples import Transform, finish_sample, image_tensor
-from claravid.splits import SplitConfig, select_split
+from claravid.splits import SPLITS, SplitConfig, SplitSummary, select_split, summarize_split
 
 
 class ClaraVidSegmentation(Dataset):
@@ -102,8 +102,12 @@ class ClaraVidSegmentation(Dataset):
         frames = list_frames(
             self.root, missions, altitude, direction, fields, skip_incomplete=skip_incomplete
         )
+        # The whole selection and its camera positions (read once, when a block split needs
+        # them) stay for split_summary().
+        self._selection = frames
+        self._positions: np.ndarray | None = None
         self.frames: list[Frame] = select_split(
-            frames, split, self.split_config, lambda: camera_positions(self.root, frames)
+            frames, split, self.split_config, self._camera_positions
         )
         if label_cache is True:
             self.label_cache: LabelCache | None = LabelCache()
@@ -174,6 +178,28 @@ class ClaraVidSegmentation(Dataset):
         cache_file.parent.mkdir(parents=True, exist_ok=True)
         cache_file.write_text(json.dumps({"classes": self.classes, "counts": counts.tolist()}))
         return counts
+
+    def _camera_positions(self) -> np.ndarray:
+        if self._positions is None:
+            self._positions = camera_positions(self.root, self._selection)
+        return self._positions
+
+    def split_summary(self) -> SplitSummary:
+        """The shares of train/val/test the block split realises on this dataset's selection.
+
+        Per mission and overall: frames, blocks and the share of frames in each split, with
+        the targets (``summary.table()`` prints them, ``summary.as_dict()`` for JSON). The
+        same whichever of train/val/test (or ``all``) this dataset holds.
+
+        Raises:
+            ValueError: the dataset reads a split file, which has no blocks to summarise.
+        """
+        if self.split not in (*SPLITS, "all"):
+            raise ValueError(
+                f"split_summary describes the block split; this dataset reads the split file "
+                f"{self.split}: count its frames per mission instead"
+            )
+        return summarize_split(self._selection, self._camera_positions(), self.split_config)
 
     def plot(
         self,

@@ -4,28 +4,54 @@ ClaraVid has no official split, and neighbouring frames overlap heavily, so a ra
 split would put the same ground in train and test. The default split therefore assigns
 *spatial blocks* of camera positions: the ground plane of each mission is cut into square
 blocks of ``block_size`` metres (camera x, y from the extrinsics), and whole blocks go to
-one split, so every altitude and direction over a block lands in the same split. Blocks
-are shuffled with ``seed`` and dealt to train/val/test until each split holds its fraction
-of the mission's frames. Frames near a block edge still see a little of the neighbouring
-block: use a larger ``block_size`` (the footprint of a frame is about 1.5× its altitude
-across, 70-110 m) for a stricter split.
+one split, so every altitude and direction over a block lands in the same split
+(:func:`block_ids` names each frame's block). Frames near a block edge still see a little of
+the neighbouring block: use a larger ``block_size`` (the footprint of a frame is about 1.5×
+its altitude across, 70-110 m) for a stricter split.
+
+Blocks are dealt over all missions together (``claravid.blocks``): the overall shares as
+close to ``fractions`` as the block sizes allow, then each mission's own shares as close as
+its blocks allow, no open split left empty, the same dealing for the same seed. A mission of
+a few blocks cannot hold 70/15/15 % by itself; when a mission's shares end up more than
+:data:`TOLERANCE` off the targets, :func:`assign_blocks` warns once
+(:class:`SplitBalanceWarning`), naming the missions and the largest block size that
+balances them, found by dealing at smaller sizes. :func:`summarize_split` and
+:class:`SplitSummary` report the realised shares per mission and overall.
 
 Also: a text file listing the frames of a published split, and hold-out by mission.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
-from collections import defaultdict
+import warnings
+from collections import Counter, defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from claravid.blocks import block_ids, deal_blocks, group_blocks
 from claravid.index import Frame
 from claravid.layout import MISSIONS, canonical_mission
+
+__all__ = [
+    "SPLITS",
+    "SplitBalanceWarning",
+    "SplitConfig",
+    "SplitSummary",
+    "assign_blocks",
+    "block_ids",
+    "read_split_file",
+    "select_split",
+    "split_summary",
+    "suggest_block_size",
+    "summarize_split",
+]
 
 SPLITS = ("train", "val", "test")
 
@@ -36,9 +62,9 @@ class SplitConfig:
 
     Attributes:
         block_size: side of the square blocks of camera positions, in metres.
-        fractions: target share of each mission's frames in train, val and test; finite,
-            non-negative, summing to 1.
-        seed: shuffles the blocks; the same seed gives the same split.
+        fractions: target share of the frames in train, val and test (overall, and in each
+            mission as far as its blocks allow); finite, non-negative, summing to 1.
+        seed: orders the dealing of the blocks; the same seed gives the same split.
         val_missions: missions held out whole as the validation split (a string: one).
         test_missions: missions held out whole as the test split. With any held-out
             mission, every other mission goes whole to train.
@@ -95,36 +121,215 @@ def _as_tuple(missions: Sequence[str] | str | None) -> tuple[str, ...]:
 
 
 def assign_blocks(frames: Sequence[Frame], positions: np.ndarray, config: SplitConfig) -> list[str]:
-    """The split of each frame, from its camera position (N×2 metres) and the config."""
+    """The split of each frame, from its camera position (N×2 metres) and the config.
+
+    Blocks are dealt by ``claravid.blocks.deal_blocks`` (see the module docstring). Warns
+    once (:class:`SplitBalanceWarning`) when a mission's shares are more than
+    :data:`TOLERANCE` off the targets, naming the missions and the block size that would
+    balance them.
+    """
     if config.val_missions or config.test_missions:
         held = {canonical_mission(m): "val" for m in config.val_missions}
         held |= {canonical_mission(m): "test" for m in config.test_missions}
         return [held.get(f.mission, "train") for f in frames]
-
-    blocks = np.floor(np.asarray(positions, dtype=np.float64) / config.block_size).astype(int)
-    by_mission: dict[str, dict[tuple[int, int], list[int]]] = defaultdict(lambda: defaultdict(list))
-    for i, frame in enumerate(frames):
-        by_mission[frame.mission][tuple(blocks[i])].append(i)
-
-    fractions = np.asarray(config.fractions, dtype=np.float64)
-    targets = np.cumsum(fractions)
-    result = [""] * len(frames)
-    for mission, mission_blocks in by_mission.items():
-        keys = sorted(mission_blocks)
-        order = np.random.default_rng([config.seed, list(MISSIONS).index(mission)]).permutation(
-            len(keys)
+    splits, names = _deal(frames, positions, config)
+    summary = split_summary(frames, splits, names, config)
+    if summary.off_target():
+        # stacklevel 2: every dataset built from one selection warns from the same line, so
+        # Python shows the identical message once (train and val sets of one run).
+        warnings.warn(
+            _balance_message(summary, suggest_block_size(frames, positions, config)),
+            SplitBalanceWarning,
+            stacklevel=2,
         )
-        total = sum(len(v) for v in mission_blocks.values())
-        dealt = 0
-        for rank in order:
-            members = mission_blocks[keys[rank]]
-            # Give the block to the split whose cumulative target the block's middle falls in.
-            middle = (dealt + len(members) / 2) / total
-            split = SPLITS[min(int(np.searchsorted(targets, middle, side="right")), 2)]
-            for i in members:
-                result[i] = split
-            dealt += len(members)
-    return result
+    return splits
+
+
+def _deal(
+    frames: Sequence[Frame], positions: np.ndarray, config: SplitConfig
+) -> tuple[list[str], list[str]]:
+    """(split, block id) of each frame under the block split of ``config``."""
+    blocks = group_blocks(frames, positions, config.block_size)
+    dealt = deal_blocks(blocks.size, blocks.mission, config.fractions, config.seed)
+    names = blocks.names()
+    of_frame = blocks.of_frame.tolist()
+    return [SPLITS[dealt[b]] for b in of_frame], [names[b] for b in of_frame]
+
+
+class SplitBalanceWarning(UserWarning):
+    """A mission's train/val/test shares are far from the targets: its blocks are too few."""
+
+
+#: How far (a share, 0.10 = 10 percentage points) a mission may be off its targets unwarned.
+TOLERANCE: float = 0.10
+#: Block sizes (metres) tried, largest first, to suggest one that balances every mission.
+CANDIDATE_BLOCK_SIZES: tuple[float, ...] = (150, 120, 100, 80, 75, 60, 50, 40, 30, 25, 20)
+
+
+@dataclass(frozen=True)
+class Shares:
+    """Frames and blocks of one mission (or of all) in each split, in ``SPLITS`` order."""
+
+    name: str
+    frames: tuple[int, ...]
+    blocks: tuple[int, ...]
+
+    @property
+    def shares(self) -> tuple[float, ...]:
+        """Fraction of the frames in each split (zeros when there are none)."""
+        total = sum(self.frames)
+        return tuple(n / total if total else 0.0 for n in self.frames)
+
+
+@dataclass(frozen=True)
+class SplitSummary:
+    """The realised train/val/test shares of a split, per mission and overall.
+
+    Attributes:
+        targets: the fractions asked for.
+        block_size: metres; seed: the dealing's seed.
+        missions: one row per mission folder, in ClaraVid's order.
+        overall: all missions together (``name`` is ``"all"``).
+    """
+
+    targets: tuple[float, ...]
+    block_size: float
+    seed: int
+    missions: tuple[Shares, ...]
+    overall: Shares
+
+    def off_target(self, tolerance: float = TOLERANCE) -> list[Shares]:
+        """Rows (missions, then overall) with a share more than ``tolerance`` off its target."""
+        targets = np.asarray(self.targets)
+        # 1e-12: a share exactly at the tolerance (a float a hair over) is not off.
+        return [
+            r
+            for r in (*self.missions, self.overall)
+            if np.abs(np.asarray(r.shares) - targets).max() > tolerance + 1e-12
+        ]
+
+    def table(self) -> str:
+        """A fixed-width table: frames, blocks and the % of frames in each split per mission."""
+        head = "/".join(SPLITS)
+        target = "/".join(f"{100 * t:.0f}" for t in self.targets)
+        lines = [
+            f"split shares ({self.block_size:g} m blocks, seed {self.seed}; target {head} "
+            f"{target} %):",
+            f"  {'mission':<20} {'frames':>6} {'blocks':>6}  "
+            + " ".join(f"{s:>6}" for s in SPLITS),
+        ]
+        for row in [*self.missions, self.overall]:
+            shares = " ".join(f"{100 * s:6.1f}" for s in row.shares)
+            lines.append(f"  {row.name:<20} {sum(row.frames):6d} {sum(row.blocks):6d}  {shares}")
+        return "\n".join(lines)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready: targets, block size, seed, and frames/blocks/shares per row."""
+
+        def row(r: Shares) -> dict[str, Any]:
+            return {
+                "frames": dict(zip(SPLITS, r.frames, strict=True)),
+                "blocks": dict(zip(SPLITS, r.blocks, strict=True)),
+                "shares": dict(zip(SPLITS, r.shares, strict=True)),
+            }
+
+        return {
+            "targets": dict(zip(SPLITS, self.targets, strict=True)),
+            "block_size": self.block_size,
+            "seed": self.seed,
+            "missions": {r.name: row(r) for r in self.missions},
+            "overall": row(self.overall),
+        }
+
+
+def split_summary(
+    frames: Sequence[Frame], splits: Sequence[str], blocks: Sequence[str], config: SplitConfig
+) -> SplitSummary:
+    """Count frames and blocks per mission and split.
+
+    Args:
+        frames: the frames that were split.
+        splits: the split of each frame (``assign_blocks``).
+        blocks: the block id of each frame (:func:`block_ids`).
+        config: the split's config (for its targets, block size and seed).
+    """
+    frame_count: dict[str, Counter] = defaultdict(Counter)
+    block_sets: dict[str, dict[str, set[str]]] = defaultdict(lambda: defaultdict(set))
+    for frame, split, block in zip(frames, splits, blocks, strict=True):
+        folder = MISSIONS[frame.mission]
+        frame_count[folder][split] += 1
+        block_sets[folder][split].add(block)
+    order = [m for m in MISSIONS.values() if m in frame_count]
+    rows = tuple(
+        Shares(
+            m,
+            tuple(frame_count[m][s] for s in SPLITS),
+            tuple(len(block_sets[m][s]) for s in SPLITS),
+        )
+        for m in order
+    )
+    overall = Shares(
+        "all",
+        tuple(sum(r.frames[i] for r in rows) for i in range(len(SPLITS))),
+        tuple(sum(r.blocks[i] for r in rows) for i in range(len(SPLITS))),
+    )
+    return SplitSummary(tuple(config.fractions), config.block_size, config.seed, rows, overall)
+
+
+def summarize_split(
+    frames: Sequence[Frame], positions: np.ndarray, config: SplitConfig
+) -> SplitSummary:
+    """The shares the split of ``config`` realises on these frames (no warning)."""
+    if config.val_missions or config.test_missions:
+        splits = assign_blocks(frames, positions, config)
+        return split_summary(
+            frames, splits, block_ids(frames, positions, config.block_size), config
+        )
+    return split_summary(frames, *_deal(frames, positions, config), config)
+
+
+def suggest_block_size(
+    frames: Sequence[Frame],
+    positions: np.ndarray,
+    config: SplitConfig,
+    tolerance: float = TOLERANCE,
+) -> float | None:
+    """The largest of :data:`CANDIDATE_BLOCK_SIZES` below ``config.block_size`` whose dealing
+    keeps every mission within ``tolerance`` of the targets (measured by dealing at each);
+    None when none does.
+    """
+    for size in CANDIDATE_BLOCK_SIZES:
+        if size < config.block_size:
+            candidate = dataclasses.replace(config, block_size=float(size))
+            if not summarize_split(frames, positions, candidate).off_target(tolerance):
+                return float(size)
+    return None
+
+
+def _balance_message(summary: SplitSummary, suggestion: float | None) -> str:
+    off = [r for r in summary.off_target() if r.name != "all"] or [summary.overall]
+
+    def pct(values: Sequence[float]) -> str:
+        return "/".join(f"{100 * v:.0f}" for v in values)
+
+    rows = ", ".join(f"{r.name} ({sum(r.blocks)} block(s): {pct(r.shares)} %)" for r in off)
+    size = f"{summary.block_size:g}"
+    if suggestion is not None:
+        advice = (
+            f"block_size={suggestion:g} (measured) brings every mission within "
+            f"{100 * TOLERANCE:.0f} points, at the cost of more frames near split borders"
+        )
+    else:
+        advice = (
+            f"no block size down to {min(CANDIDATE_BLOCK_SIZES):g} m balances them: hold whole "
+            "missions out (val_missions/test_missions) or use a split file"
+        )
+    return (
+        f"{len(off)} of {len(summary.missions)} mission(s) have {'/'.join(SPLITS)} shares more "
+        f"than {100 * TOLERANCE:.0f} points off the target {pct(summary.targets)} % with "
+        f"{size} m blocks: {rows}; overall {pct(summary.overall.shares)} % of "
+        f"{sum(summary.overall.frames)} frames. {advice}"
+    )
 
 
 def read_split_file(path: str | Path) -> list[str]:

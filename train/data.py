@@ -14,6 +14,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from claravid.masks import read_mask
 from claravid.segmentation import ClaraVidSegmentation
+from claravid.splits import SPLITS
 from claravid.targets import UAVidSegmentation
 from claravid.train.sampler import StepSampler
 from claravid.transforms import AugmentConfig, eval_transforms, train_transforms
@@ -96,6 +97,13 @@ def build_val_dataset(cfg: DictConfig) -> Dataset:
             "widen the selection or change data.split (validation needs images)"
         )
     return ds
+
+
+def split_table(dataset: Dataset) -> str | None:
+    """The realised train/val/test shares of a ClaraVid block split, for the log; else None."""
+    if isinstance(dataset, ClaraVidSegmentation) and dataset.split in SPLITS:
+        return dataset.split_summary().table()
+    return None
 
 
 def image_paths(dataset: Dataset) -> list[str]:

@@ -50,6 +50,7 @@ from claravid.train.data import (
     class_frequencies,
     class_weights,
     image_paths,
+    split_table,
 )
 from claravid.train.logs import RunLog, plot_curves, read_metrics
 from claravid.train.optim import build_optimizer, build_scheduler, clip_gradients
@@ -163,6 +164,8 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
         return RunResult(out, start, total, ckpt.get("best_miou"), ckpt.get("best_step"),
                          ckpt.get("metrics") or {}, already_finished=True)  # fmt: skip
     val_set = build_val_dataset(cfg)
+    if (shares := split_table(train_set)) is not None:
+        say(shares)
     palette = load_palette(cfg.data.palette)
     classes = list(palette.names)
 
