@@ -134,7 +134,7 @@ def assign_blocks(frames: Sequence[Frame], positions: np.ndarray, config: SplitC
         return [held.get(f.mission, "train") for f in frames]
     splits, names = _deal(frames, positions, config)
     summary = split_summary(frames, splits, names, config)
-    if summary.off_target():
+    if frames and summary.off_target():
         # stacklevel 2: every dataset built from one selection warns from the same line, so
         # Python shows the identical message once (train and val sets of one run).
         warnings.warn(
@@ -320,9 +320,10 @@ def _balance_message(summary: SplitSummary, suggestion: float | None) -> str:
             f"{100 * TOLERANCE:.0f} points, at the cost of more frames near split borders"
         )
     else:
+        tried = [c for c in CANDIDATE_BLOCK_SIZES if c < summary.block_size]
+        tried_text = f"no block size down to {min(tried):g} m balances them: " if tried else ""
         advice = (
-            f"no block size down to {min(CANDIDATE_BLOCK_SIZES):g} m balances them: hold whole "
-            "missions out (val_missions/test_missions) or use a split file"
+            f"{tried_text}hold whole missions out (val_missions/test_missions) or use a split file"
         )
     return (
         f"{len(off)} of {len(summary.missions)} mission(s) have {'/'.join(SPLITS)} shares more "

@@ -8,7 +8,7 @@ from claravid import modalities
 from claravid.palettes import load_palette
 
 # A tiny random-init backbone (of the config's architecture) and head, 28² crops, the fixture's
-# 7 test frames as val set (its 150 m val blocks are empty), CPU, no workers, no progress bar.
+# 5 test frames as val set (26/5/5 with 150 m blocks), CPU, no workers, no progress bar.
 TINY = [
     "model.weights=null",
     "model.backbone_kwargs.embed_dim=32",
