@@ -41,7 +41,14 @@ from claravid.layout import MISSIONS, frame_file
 from claravid.palettes import Palette, load_palette
 from claravid.plot import plot_sample
 from claravid.samples import Transform, finish_sample, image_tensor
-from claravid.splits import SPLITS, SplitConfig, SplitSummary, select_split, summarize_split
+from claravid.splits import (
+    SPLITS,
+    SplitConfig,
+    SplitSummary,
+    block_ids,
+    select_split,
+    summarize_split,
+)
 
 
 class ClaraVidSegmentation(Dataset):
@@ -200,6 +207,16 @@ class ClaraVidSegmentation(Dataset):
                 f"{self.split}: count its frames per mission instead"
             )
         return summarize_split(self._selection, self._camera_positions(), self.split_config)
+
+    def block_ids(self) -> list[str]:
+        """The spatial block of each of this dataset's frames, e.g. ``"003_urban_1/3_-2"``.
+
+        ``claravid.splits.block_ids`` at ``split_config.block_size``: the unit the block split
+        deals whole, and the cluster of dependent frames for a bootstrap.
+        """
+        row = {f.key: i for i, f in enumerate(self._selection)}
+        positions = self._camera_positions()[[row[f.key] for f in self.frames]]
+        return block_ids(self.frames, positions, self.split_config.block_size)
 
     def plot(
         self,

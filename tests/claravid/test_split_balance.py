@@ -16,6 +16,7 @@ import pytest
 from claravid import ClaraVidSegmentation
 from claravid.index import Frame
 from claravid.layout import ALTITUDES, DIRECTIONS, MISSIONS
+from claravid.modalities import read_extrinsics
 from claravid.splits import (
     CANDIDATE_BLOCK_SIZES,
     SPLITS,
@@ -120,6 +121,11 @@ def test_claravid_size_default_blocks_hold_the_targets_without_leakage(claravid_
     for frame, cell, split in zip(frames, cells(positions, 150.0), splits, strict=True):
         assert seen.setdefault((frame.mission, cell), split) == split
     assert len(seen) == 32
+    # Second, each mission as near its targets as four blocks allow: 3/1/0, 3/0/1 or 2/1/1
+    # blocks (never all in train, never a mission without train or in one split alone).
+    for mission in MISSIONS:
+        blocks = Counter(s for (m, _), s in seen.items() if m == mission)
+        assert blocks["train"] in (2, 3) and len(blocks) >= 2, (mission, blocks)
 
 
 def test_claravid_size_50m_blocks_balance_every_mission(claravid_size):
@@ -239,6 +245,15 @@ def test_split_summary_counts_what_the_splits_hold(claravid_root, tmp_path):
     assert summary.as_dict()["overall"]["frames"] == {
         s: sum(frames[m, s] for m in missions) for s in SPLITS
     }
+    # Each frame's block, from its extrinsics file read here.
+    for ds in parts.values():
+        expected = []
+        for f in ds.frames:
+            pose = read_extrinsics(claravid_root / MISSIONS[f.mission] / "extrinsics" / f.viewpoint
+                                   / f"{f.stem}.json")  # fmt: skip
+            x, y = np.floor(pose[:2, 3] / 20.0).astype(int)
+            expected.append(f"{MISSIONS[f.mission]}/{x}_{y}")
+        assert ds.block_ids() == expected
     listed = tmp_path / "val.txt"
     listed.write_text(parts["val"].frames[0].key + "\n")
     with pytest.raises(ValueError, match=r"this dataset reads the split file .*val\.txt"):
