@@ -8,7 +8,7 @@ block goes whole to one split. :func:`block_ids` names each frame's block
 How blocks are dealt (:func:`deal_blocks`). A mission of a few hundred metres spans only a
 handful of blocks, so the shares its blocks can make are coarse: with four blocks of ~25 %
 each, 70/15/15 % is out of reach for the mission itself (the best it can do is 75/25/0), but
-over eight missions the blocks can make 69/16/16. The dealing therefore minimises one cost
+over eight missions the blocks can make 69/15/15. The dealing therefore minimises one cost
 over all missions together:
 
     J = GLOBAL_WEIGHT · Σ_s (share_s − f_s)²  +  Σ_m (N_m / N) · Σ_s (share_{m,s} − f_s)²
