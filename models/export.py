@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from claravid.models.cli import (
+from claravid.cli import (
     EXIT_FAILED,
     UsageError,
     add_debug_flag,
