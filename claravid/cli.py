@@ -209,12 +209,17 @@ def check_output_file(
 
 
 def check_output_dir(
-    path: str | os.PathLike, *, marker: str, overwrite: bool = False, what: str = "output"
+    path: str | os.PathLike,
+    *,
+    marker: str,
+    overwrite: bool | None = False,
+    what: str = "output",
 ) -> Path:
     """Fail now if ``path`` cannot be the tool's output folder.
 
     A folder that exists, is not empty and holds no ``marker`` file (what this tool writes) is
-    someone else's: refused unless ``overwrite``.
+    someone else's: refused unless ``overwrite``. ``overwrite=None``: the tool has no
+    ``--overwrite`` flag, so the message does not advise one.
     """
     path = Path(path)
     if path.exists() and not path.is_dir():
@@ -222,9 +227,10 @@ def check_output_dir(
     if path.is_dir():
         foreign = any(path.iterdir()) and not (path / marker).exists()
         if foreign and not overwrite:
+            fix = "pass --overwrite" if overwrite is not None else "empty it"
             raise UsageError(
                 f"{what} {path} is not empty and was not written by this tool (no {marker}); "
-                "choose a new folder or pass --overwrite"
+                f"choose a new folder or {fix}"
             )
         if not os.access(path, os.W_OK | os.X_OK):
             raise UsageError(f"{what} {path} is not writable")
