@@ -25,13 +25,16 @@ from claravid.cli import (
     EXIT_PARTIAL,
     UsageError,
     add_debug_flag,
+    check_device,
     check_output_dir,
+    non_negative_int,
+    positive_int,
     run_cli,
 )
 from claravid.eval.bins import parse_edges
 from claravid.eval.complexity import parse_measures
 from claravid.eval.data import DATASETS, GROUP_BY
-from claravid.eval.predictions import MARKER, write_marker
+from claravid.eval.predictions import MARKER, predictions_defaults, write_marker
 from claravid.eval.report import REPORT
 
 PROG = "claravid-eval"
@@ -80,19 +83,25 @@ def build_parser() -> argparse.ArgumentParser:
     infer.add_argument("--window", type=_size, help="window N or HxW (default 630)")
     infer.add_argument("--stride", type=_size, help="window step (default 2/3 of the window)")
     infer.add_argument("--scale", type=float, help="resize images first (default 1; paper 0.5)")
-    infer.add_argument("--batch-size", type=int, help="windows per forward pass (default 4)")
+    infer.add_argument(
+        "--batch-size", type=positive_int, help="windows per forward pass (default 4)"
+    )
     infer.add_argument("--device", help="cpu or cuda (default: cuda when available)")
     infer.add_argument("--no-amp", action="store_true", help="no autocast on CUDA")
     rep = p.add_argument_group("report")
     rep.add_argument("--output", "-o", type=Path, help="report folder")
-    rep.add_argument("--bins", type=int, help="quantile bins of delentropy (default 3)")
+    rep.add_argument("--bins", type=positive_int, help="quantile bins of delentropy (default 3)")
     rep.add_argument("--edges", help="fixed delentropy edges e1,e2,... instead of --bins")
     rep.add_argument("--group-by", choices=GROUP_BY, help="rows per mission or viewpoint")
     rep.add_argument("--measures", default="delent", help="delent,glcment,pixent")
-    rep.add_argument("--hardest", type=int, default=4, help="overlays of the K hardest images")
+    rep.add_argument(
+        "--hardest", type=non_negative_int, default=4, help="overlays of the K hardest images"
+    )
     rep.add_argument("--save-predictions", type=Path, metavar="DIR", help="write label maps")
     rep.add_argument("--allow-missing", action="store_true", help="skip images w/o prediction")
-    rep.add_argument("--workers", type=int, default=0, help="processes (complexity, decoding)")
+    rep.add_argument(
+        "--workers", type=non_negative_int, default=0, help="processes (complexity, decoding)"
+    )
     rep.add_argument("--overwrite", action="store_true", help="replace a foreign output folder")
     rep.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_debug_flag(p)
@@ -113,8 +122,6 @@ def _check_args(args: argparse.Namespace) -> str:
         raise UsageError(f"--bins must be at least 1, got {args.bins}")
     if args.edges is not None:
         args.edges = parse_edges(args.edges)
-    if args.workers < 0 or args.hardest < 0 or (args.batch_size or 1) < 1:
-        raise UsageError("--workers and --hardest must be >= 0 and --batch-size >= 1")
     args.measures = parse_measures(args.measures)
     source = given[0]
     if source != "compare" and args.output is None:
@@ -203,6 +210,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     from claravid.eval.sources import load_source
     from claravid.eval.windows import WindowConfig
 
+    check_device(args.device)  # one line, not CUDA's traceback
     info = distributed.init_distributed(args.device)
     main_rank = info.is_main
     check_output_dir(args.output, marker=REPORT, overwrite=args.overwrite)
@@ -221,7 +229,9 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     if source_kind in ("checkpoint", "onnx"):
         threads = torch.get_num_threads() if info.device.type == "cpu" else None
         model = load_source(args.checkpoint, args.onnx, device=info.device, threads=threads)
-    spec = _resolve_data(args, model.defaults if model else {})
+    if model is None:  # saved label maps: the palette their predictions.json names
+        defaults = predictions_defaults(args.predictions, args.palette)
+    spec = _resolve_data(args, model.defaults if model else defaults)
     data = open_data(
         spec["root"],
         dataset=spec["dataset"],

@@ -21,7 +21,7 @@ from claravid import modalities
 from claravid.cli import UsageError, atomic_save, atomic_write_text
 from claravid.eval.data import EvalData
 from claravid.eval.metrics import confusion_matrix
-from claravid.palettes import Palette
+from claravid.palettes import Palette, load_palette
 
 SHOW_MISSING = 5
 #: What a folder of label maps written by claravid-eval/claravid-predict holds besides them: its
@@ -70,6 +70,39 @@ def write_marker(
         **extra,
     }
     return atomic_write_text(Path(directory) / MARKER, json.dumps(marker, indent=2))
+
+
+def predictions_defaults(directory: str | Path, palette: str | None = None) -> dict[str, Any]:
+    """What a folder of label maps says about evaluating it: the palette of its ids.
+
+    The palette comes from ``DIR/predictions.json`` (written by ``--save-predictions`` and
+    claravid-predict); a ``palette`` given by the user must agree with it.
+
+    Raises:
+        UsageError: the folder does not exist, or ``palette`` contradicts the marker.
+    """
+    directory = Path(directory)
+    if not directory.exists():
+        raise UsageError(f"--predictions {directory}: folder not found")
+    if not directory.is_dir():
+        raise UsageError(f"--predictions {directory} is a file; give the folder of label maps")
+    try:
+        marker = json.loads((directory / MARKER).read_text(encoding="utf-8"))
+    except (OSError, ValueError):  # no marker (label maps of another program): nothing known
+        return {}
+    written = marker.get("palette") if isinstance(marker, dict) else None
+    if not isinstance(written, str):
+        return {}
+    if palette is not None:
+        classes = marker.get("classes")
+        given = load_palette(palette)
+        same = list(given.names) == classes if isinstance(classes, list) else given.name == written
+        if not same:
+            raise UsageError(
+                f"--palette {palette} contradicts {directory / MARKER}: these label maps hold "
+                f"ids of palette {written}; drop --palette"
+            )
+    return {"palette": written}
 
 
 def read_prediction(path: str | Path, shape: tuple[int, int], num_classes: int) -> np.ndarray:
