@@ -21,6 +21,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from claravid.cli import (
     EXIT_PARTIAL,
     UsageError,
@@ -93,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--bins", type=positive_int, help="quantile bins of delentropy (default 3)")
     rep.add_argument("--edges", help="fixed delentropy edges e1,e2,... instead of --bins")
     rep.add_argument("--group-by", choices=GROUP_BY, help="rows per mission or viewpoint")
-    rep.add_argument("--measures", default="delent", help="delent,glcment,pixent")
+    rep.add_argument("--measures", help="delent,glcment,pixent (default delent)")
     rep.add_argument(
         "--hardest", type=non_negative_int, default=4, help="overlays of the K hardest images"
     )
@@ -122,11 +124,46 @@ def _check_args(args: argparse.Namespace) -> str:
         raise UsageError(f"--bins must be at least 1, got {args.bins}")
     if args.edges is not None:
         args.edges = parse_edges(args.edges)
-    args.measures = parse_measures(args.measures)
     source = given[0]
+    _refuse_idle_options(args, source)
+    args.measures = parse_measures(args.measures or "delent")
     if source != "compare" and args.output is None:
         raise UsageError("--output is required: the folder the report is written to")
     return source
+
+
+#: Options that change nothing in a mode: given there, they are a user's misunderstanding.
+_MODEL_ONLY = ("window", "stride", "scale", "batch_size", "device", "no_amp", "save_predictions")
+_DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing")
+IDLE = {
+    "compare": (*_MODEL_ONLY, *_DATA, "bins", "edges", "group_by", "measures"),
+    "merge": (*_MODEL_ONLY, *_DATA, "measures"),
+}
+
+
+def _refuse_idle_options(args: argparse.Namespace, source: str) -> None:
+    """Refuse an option that would silently do nothing with this source."""
+    for name in IDLE.get(source, ()):
+        if getattr(args, name) not in (None, False):
+            flag = "--" + name.replace("_", "-")
+            raise UsageError(f"{flag} does nothing with --{source}; drop it")
+
+
+def _warn_outside_edges(report: dict[str, Any], result: Any) -> None:
+    """Say when fixed --edges leave images in no bin (the report counts them only)."""
+    outside = report["source"].get("binning", {}).get("outside") or []
+    if outside:
+        import warnings
+
+        values = np.asarray(result.complexity["delent"], dtype=float)
+        values = values[np.isfinite(values)]
+        span = f"{values.min():.2f}..{values.max():.2f}" if values.size else "n/a"
+        warnings.warn(
+            f"{len(outside)} of {len(result.paths)} image(s) fall outside --edges (delentropy "
+            f"of the images: {span}): they are in no bin",
+            UserWarning,
+            stacklevel=1,
+        )
 
 
 def _print_done(out: Path, report: dict[str, Any]) -> None:
@@ -157,12 +194,30 @@ def _run_merge(args: argparse.Namespace) -> int:
     from claravid.eval.run import write_outputs
 
     check_output_dir(args.output, marker=REPORT, overwrite=args.overwrite)
-    result = merge_results([load_result(p) for p in args.merge], [str(p) for p in args.merge])
+    parts = [load_result(p) for p in args.merge]
+    _warn_different_runs(parts, args.merge)
+    result = merge_results(parts, [str(p) for p in args.merge])
     _check_bins(args, len(result.paths))
     report = build_report(result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by)
+    _warn_outside_edges(report, result)
     write_outputs(args.output, report, result)
     _print_done(args.output, report)
     return 0
+
+
+def _warn_different_runs(parts: list[Any], names: list[Path]) -> None:
+    """Job-array parts share one model and one data selection; say when they do not."""
+    import warnings
+
+    for key, what in (("path", "model"), ("split", "split"), ("data", "data root")):
+        seen = {str(p.source.get(key)) for p in parts if p.source.get(key) is not None}
+        if len(seen) > 1:
+            warnings.warn(
+                f"merging reports of different {what}s ({', '.join(sorted(seen))}): the merged "
+                "numbers mix them",
+                UserWarning,
+                stacklevel=1,
+            )
 
 
 def _check_bins(args: argparse.Namespace, n: int) -> None:
@@ -184,6 +239,8 @@ def _resolve_data(args: argparse.Namespace, defaults: dict[str, Any]) -> dict[st
     dataset = args.dataset or defaults.get("dataset") or "claravid"
     if dataset not in DATASETS:
         dataset = "claravid"
+    if args.masks is not None and dataset != "folder":
+        raise UsageError(f"--masks does nothing with --dataset {dataset}; drop it")
     selection = {}
     if dataset == "claravid" and defaults.get("dataset", "claravid") == "claravid":
         # ClaraVid as in training: the same selection and split settings, so --split val is
@@ -301,6 +358,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
         result = collected.result
         _check_bins(args, len(result.paths))
         report = build_report(result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by)
+        _warn_outside_edges(report, result)
         dirs = [d for d in (args.predictions, args.save_predictions) if d is not None]
         items = hardest_items(result, data, args.hardest, collected.hardest, dirs)
         write_outputs(args.output, report, result, items, data.palette.colors)

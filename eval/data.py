@@ -84,6 +84,8 @@ class EvalData:
 
     def groups(self, by: str) -> dict[str, list[int]]:
         """Indices per mission or viewpoint, in first-seen order (ClaraVid only)."""
+        if by not in GROUP_BY:
+            raise ValueError(f"unknown group_by {by!r}; use one of {', '.join(GROUP_BY)}")
         if by not in self.attributes:
             raise ValueError(
                 f"--group-by {by} needs ClaraVid data (missions and viewpoints); "

@@ -7,10 +7,14 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from PIL import Image
 
 import claravid.eval.run as run_module
+from claravid.cli import UsageError
 from claravid.eval.cli import main
 from claravid.eval.predict import main as predict_main
+from claravid.eval.report import build_report, load_result
+from claravid.palettes import load_palette
 from tests.eval.conftest import WINDOW
 
 FRAMES = ["001_rural_1/45deg_low_h/000000", "003_urban_1/55deg_mid_v/000001"]
@@ -134,3 +138,89 @@ def test_predict_finds_webp_in_a_folder(model_files, tmp_path, capsys):
             "--window", "28", "--no-progress"]  # fmt: skip
     assert predict_main(argv) == 0
     assert (out / "a.png").is_file() and (out / "overlays" / "a.jpg").is_file()
+
+
+COLORS = load_palette("uavid").colors
+
+
+def _uavid(root, ids):
+    """uavid_val/seq1 with one 32×24 frame labelled ``ids`` (colour labels), random pixels."""
+    base = root / "uavid_val" / "seq1"
+    (base / "Images").mkdir(parents=True)
+    (base / "Labels").mkdir(parents=True)
+    image = np.random.default_rng(0).integers(0, 256, (24, 32, 3), dtype=np.uint8)
+    cv2.imwrite(str(base / "Images" / "000000.png"), image)
+    cv2.imwrite(str(base / "Labels" / "000000.png"), COLORS[ids][..., ::-1])
+    return root
+
+
+@pytest.fixture
+def uavid_case(tmp_path):
+    ids = np.zeros((24, 32), np.uint8)
+    ids[:, :16], ids[:, 16:] = 1, 4  # half Building, half Tree
+    root = _uavid(tmp_path / "uavid", ids)
+    preds = tmp_path / "preds" / "uavid_val" / "seq1" / "Images"
+    preds.mkdir(parents=True)
+    return root, ids, preds / "000000.png"
+
+
+def _uavid_args(root, preds, out, *extra):
+    return ["--predictions", str(preds), "--dataset", "uavid", "--data", str(root), "--split",
+            "val", "--bins", "1", "--output", str(out), "--no-progress", *extra]  # fmt: skip
+
+
+def test_a_palette_mode_png_prediction_is_read_by_its_indices(uavid_case, tmp_path):
+    root, ids, target = uavid_case
+    image = Image.fromarray(ids, mode="P")
+    image.putpalette([v for i in range(256) for v in (i, 255 - i, (7 * i) % 256)])
+    image.save(target)
+    out = tmp_path / "rep"
+    assert main(_uavid_args(root, tmp_path / "preds", out)) == 0
+    assert json.loads((out / "report.json").read_text())["overall"]["miou"] == 1.0
+
+
+def test_edges_that_leave_images_outside_are_reported(uavid_case, tmp_path, capsys):
+    root, ids, target = uavid_case
+    cv2.imwrite(str(target), ids)
+    argv = _uavid_args(root, tmp_path / "preds", tmp_path / "rep")
+    argv.remove("--bins"), argv.remove("1")
+    assert main([*argv, "--edges", "1,2"]) == 0  # random pixels: delentropy far above 2
+    err = capsys.readouterr().err
+    assert "1 of 1 image(s) fall outside --edges" in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "flag"),
+    [
+        (["--compare", "a", "b", "--bins", "3"], "--bins does nothing with --compare"),
+        (["--compare", "a", "--window", "28"], "--window does nothing with --compare"),
+        (["--merge", "a", "--measures", "pixent", "-o", "x"], "--measures does nothing with"),
+    ],
+)
+def test_options_that_do_nothing_in_a_mode_are_refused(argv, flag, capsys):
+    assert main(argv) == 2
+    _one_line(capsys, flag)
+
+
+def test_masks_with_a_dataset_that_has_its_own_labels_is_refused(uavid_case, tmp_path, capsys):
+    root, ids, target = uavid_case
+    cv2.imwrite(str(target), ids)
+    argv = _uavid_args(root, tmp_path / "preds", tmp_path / "rep", "--masks", str(tmp_path))
+    assert main(argv) == 2
+    _one_line(capsys, "--masks does nothing with --dataset uavid")
+
+
+def test_merging_reports_of_different_data_warns_and_group_by_is_checked(
+    uavid_case, tmp_path, capsys
+):
+    root, ids, target = uavid_case
+    cv2.imwrite(str(target), ids)
+    other = _uavid(tmp_path / "other", ids)
+    assert main(_uavid_args(root, tmp_path / "preds", tmp_path / "a")) == 0
+    assert main(_uavid_args(other, tmp_path / "preds", tmp_path / "b")) == 0
+    capsys.readouterr()
+    merged = ["--merge", str(tmp_path / "a"), str(tmp_path / "b"), "--bins", "1"]
+    assert main([*merged, "--output", str(tmp_path / "m")]) == 0
+    assert "merging reports of different data roots" in capsys.readouterr().err
+    with pytest.raises(UsageError, match="unknown group_by 'color'"):
+        build_report(load_result(tmp_path / "a"), bins=1, group_by="color")
