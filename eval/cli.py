@@ -289,14 +289,22 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     if model is None:  # saved label maps: the palette their predictions.json names
         defaults = predictions_defaults(args.predictions, args.palette)
     spec = _resolve_data(args, model.defaults if model else defaults)
-    data = open_data(
-        spec["root"],
-        dataset=spec["dataset"],
-        split=spec["split"],
-        palette=spec["palette"],
-        masks=spec["masks"],
-        selection=spec["selection"],
-    )
+    try:
+        data = open_data(
+            spec["root"],
+            dataset=spec["dataset"],
+            split=spec["split"],
+            palette=spec["palette"],
+            masks=spec["masks"],
+            selection=spec["selection"],
+        )
+    except FileNotFoundError as exc:
+        if args.data is not None or model is None or "data" not in model.defaults:
+            raise
+        raise UsageError(  # the data moved since training: say where the path came from
+            f"{exc} (that path comes from the checkpoint {model.path}; pass --data to give the "
+            "data's new place)"
+        ) from None
     num_classes = data.palette.num_classes
     if model is not None and model.num_classes not in (None, num_classes):
         raise UsageError(

@@ -35,6 +35,7 @@ from tqdm.auto import tqdm
 from claravid import models
 from claravid.cli import check_device
 from claravid.eval import WindowConfig
+from claravid.eval.data import check_palette_fit
 from claravid.eval.distributed import DistInfo, barrier, init_distributed
 from claravid.palettes import load_palette
 from claravid.train import config as C
@@ -152,6 +153,9 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
 
     frames_per_step = check_batch(cfg, info.world_size)
     train_set = build_train_dataset(cfg)
+    if cfg.data.dataset == "uavid":  # label files in a palette: the right one?
+        check_palette_fit([train_set.label_path(p) for p in train_set.images],
+                          load_palette(cfg.data.palette), "data.palette")  # fmt: skip
     cfg.train.steps = C.derive_steps(cfg, len(train_set))  # resolved: stored in config.yaml
     total = int(cfg.train.steps)
     out = Path(cfg.out_dir)

@@ -224,3 +224,23 @@ def test_merging_reports_of_different_data_warns_and_group_by_is_checked(
     assert "merging reports of different data roots" in capsys.readouterr().err
     with pytest.raises(UsageError, match="unknown group_by 'color'"):
         build_report(load_result(tmp_path / "a"), bins=1, group_by="color")
+
+
+def test_labels_read_with_the_wrong_palette_stop_naming_the_right_one(uavid_case, tmp_path, capsys):
+    root, ids, target = uavid_case
+    cv2.imwrite(str(target), ids)
+    argv = _uavid_args(root, tmp_path / "preds", tmp_path / "rep", "--palette", "claravid")
+    assert main(argv) == 2
+    _one_line(capsys, "outside palette claravid", "--palette uavid")
+
+
+def test_a_moved_data_root_says_the_path_came_from_the_checkpoint(tmp_path, capsys):
+    from claravid import models
+    from tests.eval.conftest import tiny_model
+
+    moved = tmp_path / "moved"
+    ckpt = models.save_checkpoint(
+        tiny_model(), tmp_path / "m.pt", config={"data": {"root": str(moved)}}
+    )
+    assert _eval(tmp_path / "r", "--checkpoint", str(ckpt)) == 2
+    _one_line(capsys, str(moved), "comes from the checkpoint", "pass --data")

@@ -111,3 +111,11 @@ def test_a_config_file_that_is_no_mapping_of_sections(name, tmp_path, capsys):
 def test_overrides_as_one_string():
     cfg = load_config("demo", "train.steps=5 out_dir=x data.root=y")
     assert (cfg.train.steps, cfg.out_dir, cfg.data.root) == (5, "x", "y")
+
+
+def test_uavid_labels_with_the_claravid_palette_stop_before_training(uavid_root, tmp_path, capsys):
+    args = tiny(uavid_root, tmp_path / "run", "data.dataset=uavid", "data.val_dataset=uavid",
+                "data.val_split=val", "data.palette=claravid", "train.steps=1")  # fmt: skip
+    assert main(["--config", "demo", *args]) == 2
+    _one_line(capsys, "outside palette claravid", "data.palette uavid")
+    assert not (tmp_path / "run" / "last.pt").exists()
