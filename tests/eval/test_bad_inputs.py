@@ -244,3 +244,21 @@ def test_a_moved_data_root_says_the_path_came_from_the_checkpoint(tmp_path, caps
     )
     assert _eval(tmp_path / "r", "--checkpoint", str(ckpt)) == 2
     _one_line(capsys, str(moved), "comes from the checkpoint", "pass --data")
+
+
+def test_an_exif_rotated_photo_is_explained(tmp_path):
+    from claravid.targets import FolderSegmentation
+
+    images, masks = tmp_path / "images", tmp_path / "masks"
+    images.mkdir(), masks.mkdir()
+    exif = Image.Exif()
+    exif[0x0112] = 6  # "rotate 90° clockwise to display": stored 30×20, shown 20×30
+    Image.new("RGB", (30, 20), (90, 120, 30)).save(images / "a.jpg", exif=exif)
+    cv2.imwrite(str(masks / "a.png"), np.zeros((30, 20), np.uint8))  # drawn on the shown one
+    data = FolderSegmentation(images, masks, palette="udd6")
+    with pytest.raises(ValueError, match="EXIF orientation tag rotates it") as info:
+        data[0]
+    assert "a.jpg is 30×20 but its mask" in str(info.value)
+    cv2.imwrite(str(masks / "a.png"), np.zeros((7, 9), np.uint8))  # simply another image's
+    with pytest.raises(ValueError, match="does not belong to this image"):
+        data[0]
