@@ -292,7 +292,7 @@ def write_outputs(
     if "delent" in report["correlation"]:
         written["scatter"] = plot_scatter(report, out / PLOTS["scatter"])
     if hardest and colors is not None:
-        written["hardest"] = plot_hardest(hardest, colors, out / PLOTS["hardest"])
+        written["hardest"] = plot_hardest(hardest, colors, out / PLOTS["hardest"], result.classes)
     for name in ("bins", "scatter", "heatmap", "hardest"):
         if name in written:
             plots[name] = PLOTS[name]

@@ -262,3 +262,21 @@ def test_an_exif_rotated_photo_is_explained(tmp_path):
     cv2.imwrite(str(masks / "a.png"), np.zeros((7, 9), np.uint8))  # simply another image's
     with pytest.raises(ValueError, match="does not belong to this image"):
         data[0]
+
+
+def test_hardest_images_have_a_legend_of_the_class_colours(tmp_path):
+    from claravid.eval.plots import hardest_figure, plot_hardest
+
+    palette = load_palette("uavid")
+    mask = np.array([[0, 1], [255, 1]], np.uint8)
+    item = {"image": np.zeros((2, 2, 3), np.uint8), "mask": mask,
+            "prediction": np.array([[4, 1], [1, 1]], np.uint8), "title": "a"}  # fmt: skip
+    fig = hardest_figure([item], palette.colors, palette.names)
+    (legend,) = fig.legends
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert labels == [palette.names[0], palette.names[1], palette.names[4], "ignored"]
+    colours = [
+        tuple(np.round(np.asarray(h.get_facecolor()[:3]) * 255)) for h in legend.legend_handles
+    ]
+    assert colours[:3] == [tuple(palette.colors[k].astype(float)) for k in (0, 1, 4)]
+    assert plot_hardest([item], palette.colors, tmp_path / "h.png", palette.names).is_file()
