@@ -211,6 +211,8 @@ def _warn_different_runs(parts: list[Any], names: list[Path]) -> None:
 
     for key, what in (("path", "model"), ("split", "split"), ("data", "data root")):
         seen = {str(p.source.get(key)) for p in parts if p.source.get(key) is not None}
+        if key == "split":  # split files are how job-array parts shard a split: fine
+            seen &= {"train", "val", "test", "all"}
         if len(seen) > 1:
             warnings.warn(
                 f"merging reports of different {what}s ({', '.join(sorted(seen))}): the merged "

@@ -280,3 +280,24 @@ def test_hardest_images_have_a_legend_of_the_class_colours(tmp_path):
     ]
     assert colours[:3] == [tuple(palette.colors[k].astype(float)) for k in (0, 1, 4)]
     assert plot_hardest([item], palette.colors, tmp_path / "h.png", palette.names).is_file()
+
+
+def test_merging_a_val_and_a_test_report_warns(model_files, two_frames, tmp_path, capsys):
+    ckpt = ["--checkpoint", str(model_files["checkpoint"])]
+    split = two_frames.parent / "one.txt"
+    split.write_text(FRAMES[0] + "\n")
+    assert _eval(tmp_path / "a", *ckpt, "--split", str(split)) == 0
+    rest = two_frames.parent / "rest.txt"
+    rest.write_text(FRAMES[1] + "\n")
+    assert _eval(tmp_path / "b", *ckpt, "--split", str(rest)) == 0
+    capsys.readouterr()
+    merge = ["--merge", str(tmp_path / "a"), str(tmp_path / "b"), "--bins", "1", "--output"]
+    assert main([*merge, str(tmp_path / "m")]) == 0  # two shards of one split: no warning
+    assert "warning" not in capsys.readouterr().err
+    for part, split in (("a", "val"), ("b", "test")):  # as if run with --split val / test
+        file = tmp_path / part / "report.json"
+        report = json.loads(file.read_text())
+        report["source"]["split"] = split
+        file.write_text(json.dumps(report))
+    assert main([*merge, str(tmp_path / "m2")]) == 0
+    assert "merging reports of different splits" in capsys.readouterr().err
