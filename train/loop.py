@@ -174,6 +174,9 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
                          ckpt.get("metrics") or {}, already_finished=True)  # fmt: skip
     val_set = build_val_dataset(cfg)
     palette = load_palette(cfg.data.palette)
+    if cfg.data.val_dataset == "uavid":  # UAVid val labels in data.palette: the right one?
+        check_palette_fit([val_set.label_path(p) for p in val_set.images], palette,
+                          "data.palette")  # fmt: skip
     classes = list(palette.names)
 
     m = cfg.model
