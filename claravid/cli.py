@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import os
 import sys
 import tempfile
@@ -25,7 +26,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 EXIT_OK = 0
-EXIT_PARTIAL = 1
+EXIT_PARTIAL = 1  # the work ran, some inputs could not be used (listed)
+EXIT_FAILED = 1  # the work ran and its result failed a check (nothing written)
 EXIT_USAGE = 2
 
 
@@ -67,6 +69,59 @@ def non_negative_int(text: str) -> int:
     return value
 
 
+def positive_float(text: str) -> float:
+    """argparse type for a finite number > 0 (a tolerance, a scale)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
+def check_device(name: str | None, what: str = "--device") -> None:
+    """Fail now, in one line, when ``name`` is not a device this PyTorch can use.
+
+    ``None`` (choose automatically) always passes. torch is imported here, not at module import,
+    so this module stays light for the console scripts' ``--help``.
+
+    Raises:
+        UsageError: an unknown device kind, CUDA on a PyTorch without CUDA (or no GPU), or a
+            GPU index beyond the GPUs present.
+    """
+    if name is None:
+        return
+    import torch
+
+    try:
+        device = torch.device(name)
+    except (RuntimeError, ValueError):
+        raise UsageError(f"{what} {name!r} is not a device; use cpu, cuda or cuda:N") from None
+    if device.type == "cpu":
+        return
+    if device.type != "cuda":
+        raise UsageError(f"{what} {name!r} is not supported; use cpu, cuda or cuda:N")
+    if not torch.cuda.is_available():
+        why = "this PyTorch has no CUDA" if torch.version.cuda is None else "no GPU is visible"
+        raise UsageError(f"{what} {name!r}: {why}; use cpu (or leave it unset)")
+    count = torch.cuda.device_count()
+    if device.index is not None and device.index >= count:
+        raise UsageError(
+            f"{what} {name!r}: only {count} GPU(s) are visible (cuda:0..cuda:{count - 1})"
+        )
+
+
+def _one_line_usage_errors(parser: argparse.ArgumentParser) -> None:
+    """argparse's own errors (a bad number, a missing flag) as one line, not usage + error."""
+    prog = parser.prog
+
+    def error(message: str):  # argparse's signature: never returns
+        parser.exit(EXIT_USAGE, f"{prog}: error: {message} (see {prog} --help)\n")
+
+    parser.error = error  # type: ignore[method-assign]
+
+
 def _debug(argv: list[str]) -> bool:
     return "--debug" in argv or os.environ.get("CLARAVID_DEBUG", "") not in ("", "0")
 
@@ -91,12 +146,16 @@ def run_cli(
     run: Callable[[argparse.Namespace], int | None],
     parser: argparse.ArgumentParser,
     argv: list[str] | None = None,
+    user_errors: tuple[type[BaseException], ...] = (),
 ) -> int:
     """Parse ``argv``, call ``run(args)`` and map errors to the exit-code conventions.
 
-    Returns the exit status (argparse's own usage errors exit 2 through ``SystemExit``).
+    ``user_errors`` adds exception types (beyond `USER_ERRORS`) that mean the user's input was
+    wrong; anything else is a bug and keeps its traceback. Returns the exit status (argparse's
+    own errors exit 2 through ``SystemExit``, as one line too).
     """
     argv = list(sys.argv[1:] if argv is None else argv)
+    _one_line_usage_errors(parser)
     args = parser.parse_args(argv)
     debug = _debug(argv)
     with short_warnings(prog):
@@ -105,12 +164,14 @@ def run_cli(
         except KeyboardInterrupt:
             print(f"{prog}: interrupted", file=sys.stderr)
             return 130
-        except USER_ERRORS as exc:
+        except (*USER_ERRORS, *user_errors) as exc:
             if debug:
                 traceback.print_exc()
             message = str(exc) or exc.__class__.__name__
             if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in message:
                 message = f"{message}: {exc.filename}"
+            # One line: a multi-line message (a list of mismatched keys) is joined.
+            message = "; ".join(line.strip() for line in message.splitlines() if line.strip())
             print(f"{prog}: error: {message}", file=sys.stderr)
             return EXIT_USAGE
     return EXIT_OK if code is None else int(code)
@@ -134,9 +195,11 @@ def check_output_file(
     """
     path = Path(path)
     if path.is_dir():
-        raise UsageError(f"{what} {path} is a directory; give a file path inside it")
+        raise UsageError(f"{what} {path} is a folder; give a file path inside it")
     if path.exists() and not overwrite:
         raise UsageError(f"{what} {path} exists; pass --overwrite to replace it")
+    if path.exists() and not os.access(path, os.W_OK):
+        raise UsageError(f"{what} {path} exists and is not writable")
     anchor = _first_existing(path.parent)
     if not anchor.is_dir():
         raise UsageError(f"{what} {path} cannot be created: {anchor} is a file, not a folder")
@@ -146,12 +209,17 @@ def check_output_file(
 
 
 def check_output_dir(
-    path: str | os.PathLike, *, marker: str, overwrite: bool = False, what: str = "output"
+    path: str | os.PathLike,
+    *,
+    marker: str,
+    overwrite: bool | None = False,
+    what: str = "output",
 ) -> Path:
     """Fail now if ``path`` cannot be the tool's output folder.
 
     A folder that exists, is not empty and holds no ``marker`` file (what this tool writes) is
-    someone else's: refused unless ``overwrite``.
+    someone else's: refused unless ``overwrite``. ``overwrite=None``: the tool has no
+    ``--overwrite`` flag, so the message does not advise one.
     """
     path = Path(path)
     if path.exists() and not path.is_dir():
@@ -159,9 +227,10 @@ def check_output_dir(
     if path.is_dir():
         foreign = any(path.iterdir()) and not (path / marker).exists()
         if foreign and not overwrite:
+            fix = "pass --overwrite" if overwrite is not None else "empty it"
             raise UsageError(
                 f"{what} {path} is not empty and was not written by this tool (no {marker}); "
-                "choose a new folder or pass --overwrite"
+                f"choose a new folder or {fix}"
             )
         if not os.access(path, os.W_OK | os.X_OK):
             raise UsageError(f"{what} {path} is not writable")
@@ -174,10 +243,24 @@ def check_output_dir(
     return path
 
 
+def current_umask() -> int:
+    """The process's umask, read without changing it where the OS allows (Linux)."""
+    with contextlib.suppress(OSError, ValueError), open("/proc/self/status") as status:
+        for line in status:
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    mask = os.umask(0o022)  # elsewhere: the classic read-by-setting, restored at once
+    os.umask(mask)
+    return mask
+
+
 def atomic_save(path: str | os.PathLike, write: Callable[[Path], object]) -> Path:
     """Call ``write(tmp)`` on a temp file beside ``path`` (same suffix), then rename it over.
 
-    A crash at any moment leaves either the old file or the new one, never half a file.
+    A crash at any moment leaves either the old file or the new one, never half a file. The
+    file gets the permissions a plain ``open(path, "w")`` would give (0666 minus the umask),
+    not the temp file's private 0600: others may read reports and checkpoints on a shared
+    machine when the umask says so.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -185,6 +268,7 @@ def atomic_save(path: str | os.PathLike, write: Callable[[Path], object]) -> Pat
     os.close(fd)
     try:
         write(Path(tmp))
+        os.chmod(tmp, 0o666 & ~current_umask())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -22,6 +22,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import cv2
 import torch
 from matplotlib.figure import Figure
 from torch.utils.data import Dataset
@@ -64,10 +65,19 @@ def index_folder(folder: Path, what: str) -> dict[str, Path]:
 
 def _check_same_size(image: Any, mask: Any, image_path: Path, mask_path: Path) -> None:
     if mask.shape[:2] != image.shape[:2]:
+        what = "the mask does not belong to this image (check the folders)"
+        # Pixels are read as stored (as PIL does); a photo's EXIF tag may rotate it on screen,
+        # where the mask was drawn. Decoded again only on this error path.
+        shown = modalities.decode_image(image_path, cv2.IMREAD_GRAYSCALE, exif_orientation=True)
+        if shown.shape[:2] != image.shape[:2] and shown.shape[:2] == mask.shape[:2]:
+            what = (
+                "the image's EXIF orientation tag rotates it to the mask's size on screen, but "
+                "its pixels are stored unrotated and read as stored: save the image upright "
+                "(e.g. PIL ImageOps.exif_transpose, or exiftran -ai)"
+            )
         raise ValueError(
             f"size mismatch: {image_path} is {image.shape[1]}×{image.shape[0]} but its mask "
-            f"{mask_path} is {mask.shape[1]}×{mask.shape[0]}; the mask does not belong to this "
-            "image (check the folders)"
+            f"{mask_path} is {mask.shape[1]}×{mask.shape[0]}; {what}"
         )
 
 

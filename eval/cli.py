@@ -21,17 +21,22 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from claravid.cli import (
     EXIT_PARTIAL,
     UsageError,
     add_debug_flag,
+    check_device,
     check_output_dir,
+    non_negative_int,
+    positive_int,
     run_cli,
 )
 from claravid.eval.bins import parse_edges
 from claravid.eval.complexity import parse_measures
 from claravid.eval.data import DATASETS, GROUP_BY
-from claravid.eval.predictions import MARKER, write_marker
+from claravid.eval.predictions import MARKER, predictions_defaults, write_marker
 from claravid.eval.report import REPORT
 
 PROG = "claravid-eval"
@@ -80,19 +85,25 @@ def build_parser() -> argparse.ArgumentParser:
     infer.add_argument("--window", type=_size, help="window N or HxW (default 630)")
     infer.add_argument("--stride", type=_size, help="window step (default 2/3 of the window)")
     infer.add_argument("--scale", type=float, help="resize images first (default 1; paper 0.5)")
-    infer.add_argument("--batch-size", type=int, help="windows per forward pass (default 4)")
+    infer.add_argument(
+        "--batch-size", type=positive_int, help="windows per forward pass (default 4)"
+    )
     infer.add_argument("--device", help="cpu or cuda (default: cuda when available)")
     infer.add_argument("--no-amp", action="store_true", help="no autocast on CUDA")
     rep = p.add_argument_group("report")
     rep.add_argument("--output", "-o", type=Path, help="report folder")
-    rep.add_argument("--bins", type=int, help="quantile bins of delentropy (default 3)")
+    rep.add_argument("--bins", type=positive_int, help="quantile bins of delentropy (default 3)")
     rep.add_argument("--edges", help="fixed delentropy edges e1,e2,... instead of --bins")
     rep.add_argument("--group-by", choices=GROUP_BY, help="rows per mission or viewpoint")
-    rep.add_argument("--measures", default="delent", help="delent,glcment,pixent")
-    rep.add_argument("--hardest", type=int, default=4, help="overlays of the K hardest images")
+    rep.add_argument("--measures", help="delent,glcment,pixent (default delent)")
+    rep.add_argument(
+        "--hardest", type=non_negative_int, default=4, help="overlays of the K hardest images"
+    )
     rep.add_argument("--save-predictions", type=Path, metavar="DIR", help="write label maps")
     rep.add_argument("--allow-missing", action="store_true", help="skip images w/o prediction")
-    rep.add_argument("--workers", type=int, default=0, help="processes (complexity, decoding)")
+    rep.add_argument(
+        "--workers", type=non_negative_int, default=0, help="processes (complexity, decoding)"
+    )
     rep.add_argument("--overwrite", action="store_true", help="replace a foreign output folder")
     rep.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_debug_flag(p)
@@ -113,13 +124,46 @@ def _check_args(args: argparse.Namespace) -> str:
         raise UsageError(f"--bins must be at least 1, got {args.bins}")
     if args.edges is not None:
         args.edges = parse_edges(args.edges)
-    if args.workers < 0 or args.hardest < 0 or (args.batch_size or 1) < 1:
-        raise UsageError("--workers and --hardest must be >= 0 and --batch-size >= 1")
-    args.measures = parse_measures(args.measures)
     source = given[0]
+    _refuse_idle_options(args, source)
+    args.measures = parse_measures(args.measures or "delent")
     if source != "compare" and args.output is None:
         raise UsageError("--output is required: the folder the report is written to")
     return source
+
+
+#: Options that change nothing in a mode: given there, they are a user's misunderstanding.
+_MODEL_ONLY = ("window", "stride", "scale", "batch_size", "device", "no_amp", "save_predictions")
+_DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing")
+IDLE = {
+    "compare": (*_MODEL_ONLY, *_DATA, "bins", "edges", "group_by", "measures"),
+    "merge": (*_MODEL_ONLY, *_DATA, "measures"),
+}
+
+
+def _refuse_idle_options(args: argparse.Namespace, source: str) -> None:
+    """Refuse an option that would silently do nothing with this source."""
+    for name in IDLE.get(source, ()):
+        if getattr(args, name) not in (None, False):
+            flag = "--" + name.replace("_", "-")
+            raise UsageError(f"{flag} does nothing with --{source}; drop it")
+
+
+def _warn_outside_edges(report: dict[str, Any], result: Any) -> None:
+    """Say when fixed --edges leave images in no bin (the report counts them only)."""
+    outside = report["source"].get("binning", {}).get("outside") or []
+    if outside:
+        import warnings
+
+        values = np.asarray(result.complexity["delent"], dtype=float)
+        values = values[np.isfinite(values)]
+        span = f"{values.min():.2f}..{values.max():.2f}" if values.size else "n/a"
+        warnings.warn(
+            f"{len(outside)} of {len(result.paths)} image(s) fall outside --edges (delentropy "
+            f"of the images: {span}): they are in no bin",
+            UserWarning,
+            stacklevel=1,
+        )
 
 
 def _print_done(out: Path, report: dict[str, Any]) -> None:
@@ -150,12 +194,32 @@ def _run_merge(args: argparse.Namespace) -> int:
     from claravid.eval.run import write_outputs
 
     check_output_dir(args.output, marker=REPORT, overwrite=args.overwrite)
-    result = merge_results([load_result(p) for p in args.merge], [str(p) for p in args.merge])
+    parts = [load_result(p) for p in args.merge]
+    _warn_different_runs(parts, args.merge)
+    result = merge_results(parts, [str(p) for p in args.merge])
     _check_bins(args, len(result.paths))
     report = build_report(result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by)
+    _warn_outside_edges(report, result)
     write_outputs(args.output, report, result)
     _print_done(args.output, report)
     return 0
+
+
+def _warn_different_runs(parts: list[Any], names: list[Path]) -> None:
+    """Job-array parts share one model and one data selection; say when they do not."""
+    import warnings
+
+    for key, what in (("path", "model"), ("split", "split"), ("data", "data root")):
+        seen = {str(p.source.get(key)) for p in parts if p.source.get(key) is not None}
+        if key == "split":  # split files are how job-array parts shard a split: fine
+            seen &= {"train", "val", "test", "all"}
+        if len(seen) > 1:
+            warnings.warn(
+                f"merging reports of different {what}s ({', '.join(sorted(seen))}): the merged "
+                "numbers mix them",
+                UserWarning,
+                stacklevel=1,
+            )
 
 
 def _check_bins(args: argparse.Namespace, n: int) -> None:
@@ -177,6 +241,8 @@ def _resolve_data(args: argparse.Namespace, defaults: dict[str, Any]) -> dict[st
     dataset = args.dataset or defaults.get("dataset") or "claravid"
     if dataset not in DATASETS:
         dataset = "claravid"
+    if args.masks is not None and dataset != "folder":
+        raise UsageError(f"--masks does nothing with --dataset {dataset}; drop it")
     selection = {}
     if dataset == "claravid" and defaults.get("dataset", "claravid") == "claravid":
         # ClaraVid as in training: the same selection and split settings, so --split val is
@@ -203,6 +269,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     from claravid.eval.sources import load_source
     from claravid.eval.windows import WindowConfig
 
+    check_device(args.device)  # one line, not CUDA's traceback
     info = distributed.init_distributed(args.device)
     main_rank = info.is_main
     check_output_dir(args.output, marker=REPORT, overwrite=args.overwrite)
@@ -221,15 +288,25 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     if source_kind in ("checkpoint", "onnx"):
         threads = torch.get_num_threads() if info.device.type == "cpu" else None
         model = load_source(args.checkpoint, args.onnx, device=info.device, threads=threads)
-    spec = _resolve_data(args, model.defaults if model else {})
-    data = open_data(
-        spec["root"],
-        dataset=spec["dataset"],
-        split=spec["split"],
-        palette=spec["palette"],
-        masks=spec["masks"],
-        selection=spec["selection"],
-    )
+    if model is None:  # saved label maps: the palette their predictions.json names
+        defaults = predictions_defaults(args.predictions, args.palette)
+    spec = _resolve_data(args, model.defaults if model else defaults)
+    try:
+        data = open_data(
+            spec["root"],
+            dataset=spec["dataset"],
+            split=spec["split"],
+            palette=spec["palette"],
+            masks=spec["masks"],
+            selection=spec["selection"],
+        )
+    except FileNotFoundError as exc:
+        if args.data is not None or model is None or "data" not in model.defaults:
+            raise
+        raise UsageError(  # the data moved since training: say where the path came from
+            f"{exc} (that path comes from the checkpoint {model.path}; pass --data to give the "
+            "data's new place)"
+        ) from None
     num_classes = data.palette.num_classes
     if model is not None and model.num_classes not in (None, num_classes):
         raise UsageError(
@@ -291,6 +368,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
         result = collected.result
         _check_bins(args, len(result.paths))
         report = build_report(result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by)
+        _warn_outside_edges(report, result)
         dirs = [d for d in (args.predictions, args.save_predictions) if d is not None]
         items = hardest_items(result, data, args.hardest, collected.hardest, dirs)
         write_outputs(args.output, report, result, items, data.palette.colors)

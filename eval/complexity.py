@@ -16,6 +16,7 @@ from claravid.dsp import METRICS, compute_complexities
 from claravid.dsp.metrics import ImageReadError
 
 PRIMARY = "delent"
+CHUNK = 8  # images per call in this process: how soon `ComplexityJob.stop` takes effect
 
 
 def parse_measures(text: str | Sequence[str]) -> list[str]:
@@ -55,6 +56,7 @@ class ComplexityJob:
         self._slices = [list(range(i, len(self.paths), parts)) for i in range(parts)]
         self._values: dict[str, list[float]] = {m: [0.0] * len(self.paths) for m in measures}
         self._errors: list[BaseException] = []
+        self._stop = threading.Event()
         self._threads = [
             threading.Thread(
                 target=self._run, args=(part, workers, cache), name="complexity", daemon=True
@@ -66,17 +68,36 @@ class ComplexityJob:
 
     def _run(self, part: list[int], workers: int, cache: bool) -> None:
         try:
-            paths = [self.paths[i] for i in part]
+            # In this process: a few images at a time, so `stop` takes effect between them.
+            step = len(part) if workers > 1 else CHUNK
             for measure in self.measures:
-                results, errors = compute_complexities(paths, measure, workers=workers, cache=cache)
-                if errors:
-                    first = errors[0]
-                    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
-                    raise ImageReadError(first.image_path, f"{first.error}{more}")
-                for i, result in zip(part, results, strict=True):
-                    self._values[measure][i] = result.complexity
+                for start in range(0, len(part), step):
+                    if self._stop.is_set():
+                        return
+                    chunk = part[start : start + step]
+                    paths = [self.paths[i] for i in chunk]
+                    results, errors = compute_complexities(
+                        paths, measure, workers=workers, cache=cache
+                    )
+                    if errors:
+                        first = errors[0]
+                        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+                        raise ImageReadError(first.image_path, f"{first.error}{more}")
+                    for i, result in zip(chunk, results, strict=True):
+                        self._values[measure][i] = result.complexity
         except BaseException as exc:  # re-raised in the caller's thread by result()
             self._errors.append(exc)
+
+    def stop(self) -> None:
+        """Stop after the images being measured now and wait for the threads.
+
+        Called when the caller's own work failed: the interpreter must not exit while a thread
+        is inside OpenCV (that aborts the process: "terminate called without an active
+        exception").
+        """
+        self._stop.set()
+        for thread in self._threads:
+            thread.join()
 
     def result(self) -> dict[str, list[float]]:
         """Wait for the values: ``{measure: [value per path]}``.

@@ -20,13 +20,16 @@ import torch
 from torch.utils.data import Dataset
 
 from claravid import targets
+from claravid.masks import mask_to_ids, read_label_image
 from claravid.masks import read_mask as read_label_mask
-from claravid.palettes import Palette, load_palette
+from claravid.palettes import Palette, available_palettes, load_palette
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.transforms import eval_transforms
 
 DATASETS = ("claravid", "uavid", "folder")
 GROUP_BY = ("mission", "viewpoint")
+FIT_FILES = 3  # label files sampled by check_palette_fit
+FIT_MAX_UNKNOWN = 0.5  # more label pixels than this outside the palette: the wrong palette
 
 
 class KeyedDataset(Dataset):
@@ -84,6 +87,8 @@ class EvalData:
 
     def groups(self, by: str) -> dict[str, list[int]]:
         """Indices per mission or viewpoint, in first-seen order (ClaraVid only)."""
+        if by not in GROUP_BY:
+            raise ValueError(f"unknown group_by {by!r}; use one of {', '.join(GROUP_BY)}")
         if by not in self.attributes:
             raise ValueError(
                 f"--group-by {by} needs ClaraVid data (missions and viewpoints); "
@@ -93,6 +98,46 @@ class EvalData:
         for index, value in enumerate(self.attributes[by]):
             out.setdefault(value, []).append(index)
         return out
+
+
+def _unknown_share(labels: list[np.ndarray], palette: Palette) -> float:
+    total = unknown = 0
+    for label in labels:
+        ids, count = mask_to_ids(label, palette)
+        total, unknown = total + ids.size, unknown + count
+    return unknown / max(total, 1)
+
+
+def check_palette_fit(label_files: list[Path], palette: Palette, flag: str = "--palette") -> None:
+    """Stop when most label pixels fall outside ``palette``, naming the palette that fits.
+
+    Reading UAVid's colour labels with the ClaraVid palette ignores ~90 % of the pixels (one
+    warning per file) and scores the rest: a number that means nothing. A few files, spread
+    over the set, are read once more here, before any work.
+
+    Raises:
+        ValueError: more than half of the sampled label pixels are outside ``palette``.
+    """
+    if not label_files:
+        return
+    step = max(1, len(label_files) // FIT_FILES)
+    files = label_files[::step][:FIT_FILES]
+    labels = [read_label_image(f) for f in files]
+    share = _unknown_share(labels, palette)
+    if share <= FIT_MAX_UNKNOWN:
+        return
+    fits = [
+        name
+        for name in available_palettes()
+        if name != palette.name and _unknown_share(labels, load_palette(name)) < 0.05
+    ]
+    hint = f"they fit palette {' or '.join(fits)}: pass {flag} {fits[0]}" if fits else (
+        f"pass {flag} with the palette they are written in"
+    )  # fmt: skip
+    raise ValueError(
+        f"{share:.0%} of the label pixels of {len(files)} file(s) such as {files[0]} hold "
+        f"values outside palette {palette.name}; {hint}"
+    )
 
 
 def _relative_key(path: Path, root: Path) -> str:
@@ -144,6 +189,7 @@ def _uavid(root: Path, split: str, pal: Palette) -> _Opened:
     raw = targets.UAVidSegmentation(root, split=split, palette=pal)
     if not raw.has_labels:
         raise ValueError(f"UAVid {split} has no labels to evaluate against; use val or train")
+    check_palette_fit([raw.label_path(p) for p in raw.images], pal)
     return _Opened(
         raw,
         _with_transforms(raw, eval_transforms()),
@@ -160,6 +206,7 @@ def _folder(root: Path, masks: Path | None, palette: Any, pal: Palette) -> _Open
         raise ValueError("--dataset folder needs --palette: the palette its masks are written in")
 
     raw = targets.FolderSegmentation(root, masks, palette=pal)
+    check_palette_fit(list(raw.masks or []), pal)
     return _Opened(
         raw,
         _with_transforms(raw, eval_transforms()),

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.patches import Patch
 
 from claravid.cli import atomic_save
 
@@ -108,7 +109,12 @@ def plot_heatmap(report: dict[str, Any], path: str | Path) -> Path:
     return _save(fig, path)
 
 
-def plot_hardest(items: Sequence[dict[str, Any]], colors: np.ndarray, path: str | Path) -> Path:
+def plot_hardest(
+    items: Sequence[dict[str, Any]],
+    colors: np.ndarray,
+    path: str | Path,
+    names: Sequence[str] | None = None,
+) -> Path:
     """One row per image: the RGB, its ground truth and the prediction, in palette colours.
 
     Args:
@@ -116,7 +122,16 @@ def plot_hardest(items: Sequence[dict[str, Any]], colors: np.ndarray, path: str 
             "title": str}``, hardest first.
         colors: the palette's K×3 colours; ignored pixels are drawn white (black is a class
             colour in several palettes, e.g. UAVid's Clutter).
+        path: the PNG to write.
+        names: the K class names: a legend of the colours below the rows.
     """
+    return _save(hardest_figure(items, colors, names), path, dpi=80)
+
+
+def hardest_figure(
+    items: Sequence[dict[str, Any]], colors: np.ndarray, names: Sequence[str] | None = None
+) -> Figure:
+    """The figure of `plot_hardest`: with ``names``, a legend of the classes shown in it."""
     table = np.full((256, 3), 255, dtype=np.uint8)
     table[: len(colors)] = colors
     fig = Figure(figsize=(12, 3.2 * len(items)), layout="constrained")
@@ -129,7 +144,20 @@ def plot_hardest(items: Sequence[dict[str, Any]], colors: np.ndarray, path: str 
             ax.imshow(panel, interpolation="nearest")
             ax.set_axis_off()
             ax.set_title(name if name != "image" else item["title"], fontsize=9)
-    return _save(fig, path, dpi=80)
+    if names is not None:
+        shown = np.unique(np.concatenate([
+            np.concatenate([i["mask"].ravel(), i["prediction"].ravel()]) for i in items
+        ]))  # fmt: skip
+        handles = [
+            Patch(facecolor=table[k] / 255, edgecolor="grey", label=names[k])
+            for k in shown
+            if k < len(names)
+        ]
+        if (shown >= len(names)).any():
+            handles.append(Patch(facecolor="white", edgecolor="grey", label="ignored"))
+        fig.legend(handles=handles, loc="outside lower center", ncol=min(6, len(handles)),
+                   fontsize=9, frameon=False)  # fmt: skip
+    return fig
 
 
 def plot_compare(reports: Sequence[dict[str, Any]], names: Sequence[str], path: str | Path) -> Path:

@@ -24,14 +24,14 @@ from torch.utils.data import DataLoader, Dataset
 from tqdm.auto import tqdm
 
 from claravid import modalities
-from claravid.cli import UsageError, add_debug_flag, check_output_dir, run_cli
+from claravid.cli import UsageError, add_debug_flag, check_device, check_output_dir, run_cli
 from claravid.eval.predictions import MARKER, write_image, write_marker, write_prediction
 from claravid.eval.windows import WindowConfig, predict_labels
 from claravid.palettes import Palette, load_palette
 from claravid.transforms import eval_transforms
 
 PROG = "claravid-predict"
-EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
+EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 ALPHA = 0.5  # overlay: half image, half class colour
 
 
@@ -68,6 +68,8 @@ def list_images(inputs: list[Path]) -> tuple[list[Path], list[str]]:
         keys = [p.relative_to(root).with_suffix("").as_posix() for p in paths]
         return paths, keys
     for p in inputs:
+        if not p.exists():
+            raise UsageError(f"{p} not found")
         if not p.is_file():
             raise UsageError(f"{p} is not an image file (give one folder or image files)")
     keys = [p.stem for p in inputs]
@@ -137,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("give exactly one of --checkpoint and --onnx")
     out = check_output_dir(args.output, marker=MARKER, overwrite=args.overwrite)
     paths, keys = list_images(args.images)
+    check_device(args.device)  # one line, not CUDA's traceback
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     source = load_source(args.checkpoint, args.onnx, device=device)
     palette = _palette_for(args, source.defaults, source.num_classes)

@@ -1,6 +1,7 @@
 """Label maps on disk: the ``--predictions`` / ``--save-predictions`` format, and scoring them.
 
-Format: one single-channel 8-bit PNG of palette train ids per image, at ``DIR/<key>.png``;
+Format: one single-channel 8-bit PNG of palette train ids per image, at ``DIR/<key>.png`` (an
+8-bit palette-mode PNG whose indices are the ids is read too);
 for ClaraVid the key is ``<mission folder>/<altitude>_<direction>/<stem>``, for UAVid and
 folders the image's path relative to the data root without its extension. Any model can be
 evaluated this way: write its label maps in this layout.
@@ -21,12 +22,14 @@ from claravid import modalities
 from claravid.cli import UsageError, atomic_save, atomic_write_text
 from claravid.eval.data import EvalData
 from claravid.eval.metrics import confusion_matrix
-from claravid.palettes import Palette
+from claravid.masks import read_label_image
+from claravid.palettes import Palette, load_palette
 
 SHOW_MISSING = 5
 #: What a folder of label maps written by claravid-eval/claravid-predict holds besides them: its
 #: presence marks the folder as ours (rewritable without --overwrite).
 MARKER = "predictions.json"
+PALETTE_PNG = 3  # the PNG colour type of an indexed (palette-mode) image
 
 
 class PredictionError(ValueError):
@@ -72,6 +75,39 @@ def write_marker(
     return atomic_write_text(Path(directory) / MARKER, json.dumps(marker, indent=2))
 
 
+def predictions_defaults(directory: str | Path, palette: str | None = None) -> dict[str, Any]:
+    """What a folder of label maps says about evaluating it: the palette of its ids.
+
+    The palette comes from ``DIR/predictions.json`` (written by ``--save-predictions`` and
+    claravid-predict); a ``palette`` given by the user must agree with it.
+
+    Raises:
+        UsageError: the folder does not exist, or ``palette`` contradicts the marker.
+    """
+    directory = Path(directory)
+    if not directory.exists():
+        raise UsageError(f"--predictions {directory}: folder not found")
+    if not directory.is_dir():
+        raise UsageError(f"--predictions {directory} is a file; give the folder of label maps")
+    try:
+        marker = json.loads((directory / MARKER).read_text(encoding="utf-8"))
+    except (OSError, ValueError):  # no marker (label maps of another program): nothing known
+        return {}
+    written = marker.get("palette") if isinstance(marker, dict) else None
+    if not isinstance(written, str):
+        return {}
+    if palette is not None:
+        classes = marker.get("classes")
+        given = load_palette(palette)
+        same = list(given.names) == classes if isinstance(classes, list) else given.name == written
+        if not same:
+            raise UsageError(
+                f"--palette {palette} contradicts {directory / MARKER}: these label maps hold "
+                f"ids of palette {written}; drop --palette"
+            )
+    return {"palette": written}
+
+
 def read_prediction(path: str | Path, shape: tuple[int, int], num_classes: int) -> np.ndarray:
     """Read and check one prediction: uint8 [H,W] of ids in ``[0, num_classes)``.
 
@@ -85,12 +121,17 @@ def read_prediction(path: str | Path, shape: tuple[int, int], num_classes: int) 
     """
     path = Path(path)
     data = modalities.read_checked(path)
-    if modalities.png_header(data) is None:
+    header = modalities.png_header(data)
+    if header is None:
         raise PredictionError(
             f"prediction {path} holds {modalities.describe_bytes(data)}; expected a "
             "single-channel 8-bit PNG of train ids"
         )
-    ids = modalities.decode_bytes(data, path, cv2.IMREAD_UNCHANGED)
+    if header == (8, PALETTE_PNG):
+        # A palette-mode PNG (VOC style): its indices are the ids, read as masks read them.
+        ids = read_label_image(path)
+    else:
+        ids = modalities.decode_bytes(data, path, cv2.IMREAD_UNCHANGED)
     if ids.ndim != 2:
         raise PredictionError(
             f"prediction {path} has {ids.shape[2]} channels; expected a single-channel PNG of "

@@ -69,6 +69,8 @@ class EvalResult:
         """Image indices per mission or viewpoint (None: no grouping)."""
         if by is None:
             return None
+        if by not in ("mission", "viewpoint"):
+            raise UsageError(f"unknown group_by {by!r}; use mission or viewpoint")
         if by not in self.attributes or not any(self.attributes[by]):
             raise UsageError(f"--group-by {by} needs ClaraVid data; these images have no {by}")
         out: dict[str, list[int]] = {}

@@ -32,6 +32,7 @@ from claravid.eval.predictions import (
     prediction_file,
     read_prediction,
     score_predictions,
+    write_marker,
 )
 from claravid.eval.predictions import write_prediction as save_label_map
 from claravid.eval.report import CONFUSIONS, REPORT, EvalResult, save_confusions, write_json
@@ -156,6 +157,11 @@ def collect(
     error: BaseException | None = None
     confusions: list[np.ndarray] = []
     values: dict[str, list[float]] = {}
+    if save_predictions is not None and distributed.current().is_main:
+        # The marker first: an interrupted run's partial label maps are still this tool's, so
+        # the same command can be run again without --overwrite.
+        write_marker(save_predictions, data.palette, source or {}, complete=False)
+    job: ComplexityJob | None = None
     try:
         # Complexity starts first and runs while the model (or the PNG reader) works: in
         # worker processes beside a model (a long run), in threads beside the PNG reader.
@@ -190,7 +196,11 @@ def collect(
                 data, predictions, mine, threads=threads, progress=progress
             )
         values = job.result()
-    except Exception as exc:
+    except BaseException as exc:
+        if job is not None:
+            job.stop()  # join the threads before the error ends the process
+        if not isinstance(exc, Exception):  # Ctrl-C: no rank exchange, just stop
+            raise
         error = _from_worker(exc)
     _raise_any(error)
 
@@ -282,7 +292,7 @@ def write_outputs(
     if "delent" in report["correlation"]:
         written["scatter"] = plot_scatter(report, out / PLOTS["scatter"])
     if hardest and colors is not None:
-        written["hardest"] = plot_hardest(hardest, colors, out / PLOTS["hardest"])
+        written["hardest"] = plot_hardest(hardest, colors, out / PLOTS["hardest"], result.classes)
     for name in ("bins", "scatter", "heatmap", "hardest"):
         if name in written:
             plots[name] = PLOTS[name]

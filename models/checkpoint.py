@@ -12,12 +12,12 @@ Layout::
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from claravid.cli import atomic_save
 from claravid.models.segmenter import Segmenter, build_model
 from claravid.models.torchfile import read_tensor_file
 
@@ -75,17 +75,12 @@ def save_checkpoint(
         "backbone_included": include_backbone,
         **extra,
     }
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(payload, f)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return atomic_save(path, lambda tmp: _torch_save(payload, tmp))
+
+
+def _torch_save(payload: dict[str, Any], path: Path) -> None:
+    with open(path, "wb") as f:
+        torch.save(payload, f)
 
 
 def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:

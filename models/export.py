@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from claravid.models.cli import (
+from claravid.cli import (
     EXIT_FAILED,
     UsageError,
     add_debug_flag,
@@ -236,17 +236,35 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-check", action="store_true", help="skip the ONNX Runtime check")
     parser.add_argument("--tolerance", type=positive_float, default=1e-3,
                         help="max allowed abs difference of logits (default 1e-3)")  # fmt: skip
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace an --output claravid-export did not write"
+    )
     add_debug_flag(parser)
     return parser
+
+
+def _exported(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is an ONNX file claravid-export wrote (ours to replace)."""
+    if not Path(path).is_file():
+        return False
+    try:
+        import onnx
+
+        proto = onnx.load(str(path), load_external_data=False)
+    except Exception:  # not ONNX at all: someone else's file
+        return False
+    return any(p.key.startswith(META_PREFIX) for p in proto.metadata_props)
 
 
 def _run(args: argparse.Namespace) -> int:
     from claravid.models.checkpoint import load_checkpoint
 
-    output = check_output_file(args.output)
+    output = check_output_file(args.output, what="--output")
     if output.suffix.lower() != ".onnx":
         # A typo here (the checkpoint's own name, an image) would replace a file of another kind.
         raise UsageError(f"--output {output} must end in .onnx")
+    # Our own earlier export may be replaced; anyone else's file only with --overwrite.
+    check_output_file(output, overwrite=args.overwrite or _exported(output), what="--output")
     checkpoint = Path(args.checkpoint)
     if output.exists() and checkpoint.exists() and output.samefile(checkpoint):
         raise UsageError(f"--output {output} is the checkpoint itself; choose another file")

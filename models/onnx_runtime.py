@@ -13,6 +13,36 @@ from claravid.models.inputs import check_image_batch
 META_PREFIX = "claravid."
 
 
+def check_onnx_file(path: str | os.PathLike) -> None:
+    """Refuse, in one line naming it, a file that cannot be an ONNX model.
+
+    An ONNX file is a protobuf ``ModelProto`` whose first field is ``ir_version`` (tag byte
+    0x08), so an empty file, text, or a PyTorch ``.pt`` (a zip archive) is told apart from a
+    model before ONNX Runtime reports it as a long internal error.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: anything but an ONNX model; the message says what the file holds.
+    """
+    if os.path.isdir(path):
+        raise ValueError(f"ONNX model {path} is a folder; give the .onnx file")
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"ONNX model {path} not found; write one with claravid-export")
+    with open(path, "rb") as f:
+        head = f.read(64)
+    if head[:1] == b"\x08":
+        return
+    if not head:
+        what = "is empty"
+    elif head.startswith(b"PK\x03\x04") or head[:1] == b"\x80":
+        what = "is a PyTorch file, not ONNX (pass it as --checkpoint)"
+    elif all(32 <= b < 127 or b in (9, 10, 13) for b in head):
+        what = "is a text file"
+    else:
+        what = "does not hold an ONNX model"
+    raise ValueError(f"ONNX model {path} {what}; write one with claravid-export")
+
+
 class OnnxSegmenter:
     """An exported segmenter: normalised float images [B,3,H,W] -> logits [B,K,H,W] (numpy).
 
@@ -36,8 +66,7 @@ class OnnxSegmenter:
     ) -> None:
         import onnxruntime as ort
 
-        if not os.path.isfile(path):
-            raise FileNotFoundError(f"ONNX model {path} not found; write one with claravid-export")
+        check_onnx_file(path)
         options = ort.SessionOptions()
         if threads:
             options.intra_op_num_threads = threads
@@ -46,7 +75,14 @@ class OnnxSegmenter:
             providers = [
                 p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in available
             ]
-        self.session = ort.InferenceSession(str(path), options, providers=providers)
+        try:
+            self.session = ort.InferenceSession(str(path), options, providers=providers)
+        except Exception as exc:  # a truncated or damaged file: ORT's message, one line
+            reason = str(exc).strip().splitlines()[-1][:200] if str(exc).strip() else ""
+            raise ValueError(
+                f"{path} cannot be loaded as an ONNX model ({reason}); export it again with "
+                "claravid-export"
+            ) from None
         self.input_name = self.session.get_inputs()[0].name
         meta = self.session.get_modelmeta().custom_metadata_map
         self.patch_size = int(meta.get(META_PREFIX + "patch_size", 14))

@@ -8,6 +8,7 @@ where the results are and how to evaluate and export them.
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 
 from claravid.cli import add_debug_flag, run_cli
@@ -61,8 +62,10 @@ def _run(args: argparse.Namespace) -> int:
     print(f"results in {out}: config.yaml, metrics.jsonl, curves.png, last.pt, best.pt")
     best = out / "best.pt" if (out / "best.pt").is_file() else out / "last.pt"
     # claravid-eval reads the validation data, palette, split and windows from the checkpoint.
-    print(f"evaluate: claravid-eval --checkpoint {best} --output {out / 'report'}")
-    print(f"export:   claravid-export {best} --output {best.with_suffix('.onnx')}")
+    # Shell-quoted: a path with spaces is pasted back as one argument.
+    q = shlex.quote
+    print(f"evaluate: claravid-eval --checkpoint {q(str(best))} --output {q(str(out / 'report'))}")
+    print(f"export:   claravid-export {q(str(best))} --output {q(str(best.with_suffix('.onnx')))}")
     return 0
 
 

@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from omegaconf import MISSING, DictConfig, OmegaConf
+import yaml
+from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
 
 from claravid.resources import shipped_file, shipped_names
@@ -164,7 +165,7 @@ def find_config(name: str | Path) -> tuple[Path | None, str]:
     if path.suffix in (".yaml", ".yml") or path.is_file():
         if not path.is_file():
             raise ConfigError(f"config file {path} not found")
-        return path, path.read_text(encoding="utf-8")
+        return path, _read_text(path)
     entry = shipped_file(str(name))
     if entry is None:
         raise ConfigError(
@@ -172,6 +173,40 @@ def find_config(name: str | Path) -> tuple[Path | None, str]:
             f"shipped: {', '.join(n for n in shipped_names() if n != 'augment')}"
         )
     return None, entry.read_text(encoding="utf-8")
+
+
+def _read_text(path: Path) -> str:
+    """A config file's text; a binary file is refused by name."""
+    data = path.read_bytes()
+    try:
+        if b"\x00" in data:
+            raise UnicodeDecodeError("utf-8", data, data.index(b"\x00"), len(data), "NUL byte")
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"config {path} is not a YAML text file (binary data at byte {exc.start}); "
+            "pass a .yaml file or a shipped config name"
+        ) from None
+
+
+def _check_loaded(loaded: Any, source: str) -> None:
+    """The file is a mapping of sections, each section a mapping (as the schema has it)."""
+    if not isinstance(loaded, DictConfig):
+        kind = "a list" if isinstance(loaded, ListConfig) else "no mapping"
+        raise ConfigError(
+            f"{source} holds {kind}, not a mapping of sections (out_dir:, data:, model:, "
+            "train:, val:, log:)"
+        )
+    schema = OmegaConf.structured(Config)
+    for key in loaded:
+        node = schema._get_node(str(key)) if str(key) in schema else None
+        value = loaded._get_node(key)
+        if isinstance(node, DictConfig) and not isinstance(value, DictConfig):
+            got = OmegaConf.to_container(loaded)[key]  # type: ignore[index]
+            raise ConfigError(
+                f"{source}: section {key!s} must be a mapping of keys, e.g. "
+                f"{key}: {{{next(iter(node))}: ...}}; got {got!r}"
+            )
 
 
 def _merge(base: DictConfig, other: Any, source: str) -> DictConfig:
@@ -185,25 +220,44 @@ def _merge(base: DictConfig, other: Any, source: str) -> DictConfig:
         raise ConfigError(f"bad value for {key} ({source}): {msg}") from None
 
 
-def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> DictConfig:
+def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] | str = ()) -> DictConfig:
     """Defaults, then the YAML file (path or shipped name), then ``key=value`` overrides.
 
+    ``overrides`` is a list of ``key=value`` strings, or one string of them separated by spaces.
+
     Raises:
-        ConfigError: unknown key, bad value, missing required key, unreadable file.
+        ConfigError: unknown key, bad value, missing required key, unreadable file, a file
+            that is not a mapping of sections (a list, a single value, binary data).
     """
     cfg = OmegaConf.structured(Config)
     path, text = find_config(name)
+    source = f"config {path or name}"
     try:
-        loaded = OmegaConf.create(text)
-    except Exception as exc:  # a YAML syntax error: name the file
-        raise ConfigError(f"cannot parse config {path or name}: {exc}") from None
-    cfg = _merge(cfg, loaded, f"config {path or name}")
+        loaded = OmegaConf.create(text) if text.strip() else OmegaConf.create({})
+    except Exception as exc:  # a YAML syntax error, or a bare scalar: name the file
+        if not isinstance(_safe_load(text), (dict, list)):
+            raise ConfigError(
+                f"{source} holds a single value, not a mapping of sections (out_dir:, data:, "
+                "model:, train:, val:, log:)"
+            ) from None
+        raise ConfigError(f"cannot parse {source}: {exc}") from None
+    _check_loaded(loaded, source)
+    cfg = _merge(cfg, loaded, source)
+    if isinstance(overrides, str):  # "train.steps=5 val.every=0": one string, split on spaces
+        overrides = overrides.split()
     bad = [o for o in overrides if "=" not in o or o.startswith("=")]
     if bad:
         raise ConfigError(f"override {bad[0]!r} is not key=value (e.g. train.steps=100)")
     cfg = _merge(cfg, OmegaConf.from_dotlist(list(overrides)), "command line")
     check_config(cfg)
     return cfg
+
+
+def _safe_load(text: str) -> Any:
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        return {}  # a syntax error: reported as such by the caller
 
 
 def _require(ok: bool, key: str, value: Any, rule: str) -> None:
@@ -276,6 +330,7 @@ def check_config(cfg: DictConfig) -> None:
     )
     _require(v.every >= 0, "val.every", v.every, ">= 0 (0: at the end only)")
     _require(v.window >= 1, "val.window", v.window, ">= 1")
+    _require(v.stride is None or v.stride >= 1, "val.stride", v.stride, ">= 1 or null")
     _require(v.bins >= 1, "val.bins", v.bins, ">= 1")
     _require(math.isfinite(v.scale) and 0 < v.scale <= 8, "val.scale", v.scale, "in (0, 8]")
     _require(
@@ -312,6 +367,7 @@ def from_plain(data: dict[str, Any]) -> DictConfig:
 
 #: Keys a resumed run may change: where things are and how they are shown, not what is learnt.
 RESUMABLE_CHANGES = (
+    "out_dir",  # a run folder moved or copied elsewhere resumes from where it is now
     "data.root",
     "data.val_root",
     "data.num_workers",

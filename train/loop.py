@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import math
 import random
+import shlex
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +33,9 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from claravid import models
+from claravid.cli import check_device
 from claravid.eval import WindowConfig
+from claravid.eval.data import check_palette_fit
 from claravid.eval.distributed import DistInfo, barrier, init_distributed
 from claravid.palettes import load_palette
 from claravid.train import config as C
@@ -139,6 +142,7 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
         TrainingDiverged: a NaN/inf loss (``last.pt`` holds the last good state).
         ValueError, FileNotFoundError: a user's mistake (config, data, out_dir).
     """
+    check_device(cfg.train.device, "train.device")  # one line, not CUDA's traceback
     info = init_distributed(cfg.train.device)
     main = info.is_main
     say = say if main else (lambda *a, **k: None)
@@ -150,6 +154,9 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
 
     frames_per_step = check_batch(cfg, info.world_size)
     train_set = build_train_dataset(cfg)
+    if cfg.data.dataset == "uavid":  # label files in a palette: the right one?
+        check_palette_fit([train_set.label_path(p) for p in train_set.images],
+                          load_palette(cfg.data.palette), "data.palette")  # fmt: skip
     cfg.train.steps = C.derive_steps(cfg, len(train_set))  # resolved: stored in config.yaml
     total = int(cfg.train.steps)
     out = Path(cfg.out_dir)
@@ -161,12 +168,18 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     start = int(ckpt["step"]) if ckpt else 0
     if start >= total:
         say(f"{out}: this run is already finished (step {start}/{total}); nothing to do")
+        if (ckpt.get("metrics") or {}).get("step") != start:
+            say(f"its final validation did not complete: claravid-eval --checkpoint "
+                f"{shlex.quote(str(out / 'last.pt'))} evaluates it")  # fmt: skip
         return RunResult(out, start, total, ckpt.get("best_miou"), ckpt.get("best_step"),
                          ckpt.get("metrics") or {}, already_finished=True)  # fmt: skip
     val_set = build_val_dataset(cfg)
     if (shares := split_table(train_set)) is not None:
         say(shares)
     palette = load_palette(cfg.data.palette)
+    if cfg.data.val_dataset == "uavid":  # UAVid val labels in data.palette: the right one?
+        check_palette_fit([val_set.label_path(p) for p in val_set.images], palette,
+                          "data.palette")  # fmt: skip
     classes = list(palette.names)
 
     m = cfg.model
@@ -180,6 +193,7 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
         use_cls=m.use_cls,
         backbone_kwargs=dict(m.backbone_kwargs),
     )
+    window = _val_window(cfg, model.patch_size)  # before the first step, not at validation
     trained: nn.Module = model if m.freeze_backbone else EndToEnd(model)
     model.to(device)
     optimizer = build_optimizer(model, cfg)
@@ -218,7 +232,6 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     module.train()
 
     v = cfg.val
-    window = WindowConfig(v.window, v.stride, v.scale, v.batch_size, cfg.train.amp)
     validator = Validator(val_set, classes, window, v.bins, cfg.data.val_limit, device)
     groups = None
     if cfg.data.sampler == "complexity_balanced":
@@ -295,6 +308,9 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
                     f"the weights hold NaN/inf after step {done} (lr {lr:.3g}). "
                     f"{_last_good(out)} Lower train.lr."
                 )
+            if validate and save and done == total and main:
+                # The trained weights are safe before the final validation runs (and may fail).
+                checkpoint(out / "last.pt", done)
             if validate:
                 began = time.perf_counter()
                 last_val = {"step": done, **validator(model)}
@@ -320,6 +336,23 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
             if rows:
                 plot_curves(rows, out / "curves.png")
     return RunResult(out, total, total, best_miou, best_step, last_val)
+
+
+def _val_window(cfg: DictConfig, patch_size: int) -> WindowConfig:
+    """The validation windows, checked against the model before training starts.
+
+    Raises:
+        ValueError: naming ``val.window``/``val.stride``/``val.scale``/``val.batch_size``.
+    """
+    v = cfg.val
+    try:
+        window = WindowConfig(v.window, v.stride, v.scale, v.batch_size, cfg.train.amp)
+        window.check_patch(patch_size)
+    except ValueError as exc:
+        raise ValueError(
+            f"bad validation windows (val.window={v.window}, val.stride={v.stride}): {exc}"
+        ) from None
+    return window
 
 
 def _fmt(value: float | None) -> str:

@@ -2,8 +2,10 @@
 
 ``out_dir/config.yaml`` (the resolved config) marks a folder as a training run. Without
 ``--resume`` a folder holding a run is refused (so a finished run is never overwritten); with
-``--resume`` the run continues from ``last.pt`` if its config matches, or starts fresh when
-there is no ``last.pt`` yet (``make demo`` can always be re-run).
+``--resume`` the run continues from ``last.pt`` if its config matches (``out_dir`` itself may
+differ: a run folder can be moved or copied), or starts fresh when there is no ``last.pt`` yet
+(``make demo`` can always be re-run). A run that stopped before its first step binds the folder
+to nothing: the next run may use it with any config.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 from claravid.cli import UsageError, atomic_write_text, check_output_dir
 from claravid.train import config as C
 from claravid.train.checkpoint import load_training_checkpoint
+from claravid.train.logs import read_metrics
 
 MARKER = "config.yaml"
 
@@ -33,10 +36,16 @@ def prepare_out_dir(
     Raises:
         UsageError: a foreign folder, a run of another config, a run without ``--resume``.
     """
-    check_output_dir(out, marker=MARKER, what="out_dir")
+    check_output_dir(out, marker=MARKER, what="out_dir", overwrite=None)  # no --overwrite
     last = out / "last.pt"
     saved = out / MARKER
     ckpt = None
+    if saved.is_file() and not last.is_file() and not started(out):
+        # A run that stopped before its first step (a bad value, no GPU) left only its config:
+        # it binds the folder to nothing.
+        say(f"{out} holds no training step of an earlier run: starting a new run there")
+        resume = False
+        saved.unlink()
     if resume and last.is_file():
         ckpt = load_training_checkpoint(last)
         differ = C.changed_keys(C.from_plain(ckpt["config"]), cfg)
@@ -61,6 +70,12 @@ def prepare_out_dir(
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(saved, C.to_yaml(cfg))
     return ckpt
+
+
+def started(out: Path) -> bool:
+    """Whether a run in ``out`` did any step: a checkpoint or a logged row."""
+    has_rows = bool(read_metrics(out / "metrics.jsonl"))
+    return has_rows or (out / "last.pt").is_file() or (out / "best.pt").is_file()
 
 
 def _load(path: Path) -> DictConfig | None:

@@ -2,6 +2,9 @@
 
 import argparse
 import os
+import stat
+import subprocess
+import sys
 import warnings
 
 import pytest
@@ -13,6 +16,8 @@ from claravid.cli import (
     atomic_write_text,
     check_output_dir,
     check_output_file,
+    positive_float,
+    positive_int,
     run_cli,
 )
 
@@ -63,7 +68,7 @@ def test_success_is_0():
 
 
 def test_check_output_file(tmp_path):
-    with pytest.raises(UsageError, match="is a directory"):
+    with pytest.raises(UsageError, match="is a folder"):
         check_output_file(tmp_path)
     blocker = tmp_path / "afile"
     blocker.write_text("x")
@@ -108,3 +113,62 @@ def test_atomic_save_keeps_the_old_file_when_the_writer_fails(tmp_path):
         atomic_save(target, broken)
     assert target.read_text() == "old"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]  # no temp left behind
+
+
+def test_one_conventions_module_light_and_shared_by_models():
+    """models/ uses claravid/cli.py (no drifted copy) and importing it pulls in nothing heavy."""
+    code = (
+        "import sys, claravid.cli\n"
+        "print([m for m in ('cv2', 'albumentations', 'torch') if m in sys.modules])\n"
+        "import claravid.models.export as e, claravid.models.checkpoint as c\n"
+        "assert e.run_cli is claravid.cli.run_cli and c.atomic_save is claravid.cli.atomic_save\n"
+        "import importlib.util\n"
+        "assert importlib.util.find_spec('claravid.models.cli') is None\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o002, 0o664), (0o077, 0o600)])
+def test_atomic_writes_respect_the_umask(umask, mode, tmp_path):
+    from claravid.models import build_model, save_checkpoint
+
+    old = os.umask(umask)
+    try:
+        text = atomic_write_text(tmp_path / "report.json", "{}")
+        model = build_model("dinov2_vits14", 2, backbone_kwargs={"embed_dim": 8, "depth": 1,
+                            "num_heads": 1}, layers=[0, 0, 0, 0], features=4,
+                            out_channels=[4, 4, 4, 4])  # fmt: skip
+        ckpt = save_checkpoint(model, tmp_path / "m.pt")
+    finally:
+        os.umask(old)
+    # What open(path, "w") gives: 0666 minus the umask, as stat shows it.
+    assert stat.S_IMODE(text.stat().st_mode) == mode
+    assert stat.S_IMODE(ckpt.stat().st_mode) == mode
+
+
+def _numbers_parser():
+    parser = argparse.ArgumentParser(prog="tool")
+    parser.add_argument("--window", type=positive_int)
+    parser.add_argument("--tolerance", type=positive_float)
+    return parser
+
+
+@pytest.mark.parametrize("argv", [["--window", "0"], ["--tolerance", "-1"], ["--nope"]])
+def test_argparse_mistakes_are_one_line_not_the_usage(argv, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        run_cli("tool", lambda a: 0, _numbers_parser(), argv)
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert err.startswith("tool: error: ") and "usage:" not in err
+    assert argv[0] in err  # names the argument that was wrong
+
+
+def test_multi_line_messages_become_one_line(capsys):
+    def run(args):
+        raise ValueError("first part\nsecond part")
+
+    assert run_cli("tool", run, _parser(), []) == 2
+    assert capsys.readouterr().err.strip() == "tool: error: first part; second part"

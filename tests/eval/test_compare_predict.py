@@ -110,4 +110,4 @@ def test_predict_refuses_a_missing_image(tmp_path, capsys):
     code = predict_main(["--checkpoint", str(ckpt), str(tmp_path / "nope.jpg"), "--output",
                          str(tmp_path / "o")])  # fmt: skip
     assert code == 2
-    assert "nope.jpg is not an image file" in capsys.readouterr().err
+    assert "nope.jpg not found" in capsys.readouterr().err

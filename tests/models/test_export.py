@@ -156,10 +156,41 @@ def test_failed_check_writes_nothing_and_keeps_the_old_file(tmp_path, capsys, mo
     ckpt = save_checkpoint(_model("dinov2_vits14"), tmp_path / "m.pt")
     out = tmp_path / "x.onnx"
     out.write_bytes(b"old onnx")
-    assert main([str(ckpt), "-o", str(out), "--height", "28", "--width", "28"]) == 1
+    args = [str(ckpt), "-o", str(out), "--height", "28", "--width", "28", "--overwrite"]
+    assert main(args) == 1
     err = capsys.readouterr().err
     assert f"exported model {out} differs" in err and "nothing was written" in err
     assert out.read_bytes() == b"old onnx"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.pt", "x.onnx"]  # no temp left
-    assert main([str(ckpt), "-o", str(out), "--height", "28", "--width", "28", "--no-check"]) == 0
+    assert main([*args, "--no-check"]) == 0
     assert out.read_bytes() == b"new onnx"
+
+
+def test_an_output_it_did_not_write_needs_overwrite(tmp_path, capsys):
+    ckpt = save_checkpoint(_model("dinov2_vits14"), tmp_path / "m.pt")
+    out = tmp_path / "existing.txt.onnx"
+    out.write_text("someone's notes")
+    args = [str(ckpt), "-o", str(out), "--height", "28", "--width", "28", "--no-check"]
+    assert main(args) == 2
+    _one_error_line(capsys, "exists; pass --overwrite")
+    assert out.read_text() == "someone's notes"
+    assert main([*args, "--overwrite"]) == 0
+    assert OnnxSegmenter(out).num_classes == 3
+    assert main(args) == 0  # its own export: replaced without --overwrite
+
+
+@pytest.mark.parametrize(
+    ("content", "match"),
+    [
+        (b"", "is empty"),
+        (b"just some text\n", "is a text file"),
+        (b"PK\x03\x04" + bytes(60), "is a PyTorch file, not ONNX"),
+        (b"\x08\x07" + bytes(10), "cannot be loaded as an ONNX model"),  # truncated protobuf
+    ],
+)
+def test_a_file_that_is_not_onnx_is_named(content, match, tmp_path):
+    path = tmp_path / "model.onnx"
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match=match) as info:
+        OnnxSegmenter(path)
+    assert str(path) in str(info.value) and "\n" not in str(info.value)

@@ -370,9 +370,9 @@ def test_unusable_outputs_fail_before_the_computation(collection, tmp_path, caps
     photo = tmp_path / "photo.jpg"
     photo.write_bytes(b"precious")
     cases = [
-        (["--output", str(tmp_path)], "is a directory"),
+        (["--output", str(tmp_path)], "is a folder"),
         (["--output", str(blocker / "r.json")], "is a file, not a folder"),
-        (["--plot", str(tmp_path)], "is a directory"),
+        (["--plot", str(tmp_path)], "is a folder"),
         (["--plot", str(blocker / "p.png")], "is a file, not a folder"),
         (["--plot", str(tmp_path / "p.xyz")], "give a file name ending in one of"),
         (["--output", str(photo)], "is not a complexity results file; choose another name"),
