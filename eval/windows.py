@@ -75,7 +75,7 @@ def flag_precision(precision: str | None, no_amp: bool = False, *, pytorch: bool
     if no_amp:
         if precision not in (None, "fp32"):
             raise ValueError("--no-amp means --precision fp32: drop --no-amp or --precision")
-        warnings.warn("--no-amp is deprecated: use --precision fp32", FutureWarning, stacklevel=2)
+        warnings.warn("--no-amp is deprecated: use --precision fp32", UserWarning, stacklevel=2)
         precision = "fp32"
     if precision == "bf16" and not pytorch:
         raise ValueError("--precision bf16 applies to a PyTorch model (--checkpoint) only")

@@ -201,7 +201,7 @@ def test_precision_settings_and_the_old_boolean():
     with pytest.raises(ValueError, match="precision must be one of auto, fp32, bf16, fp16"):
         WindowConfig(precision="fp8")
     assert flag_precision(None) == "auto" and flag_precision("bf16") == "bf16"
-    with pytest.warns(FutureWarning, match="--precision fp32"):
+    with pytest.warns(UserWarning, match="--precision fp32"):
         assert flag_precision(None, no_amp=True) == "fp32"
     for args, message in [(("half",), "must be fp32 or bf16, got 'half'"),
                           (("bf16", True), "--no-amp means --precision fp32"),
