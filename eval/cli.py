@@ -89,7 +89,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--batch-size", type=positive_int, help="windows per forward pass (default 4)"
     )
     infer.add_argument("--device", help="cpu or cuda (default: cuda when available)")
-    infer.add_argument("--no-amp", action="store_true", help="no autocast on CUDA")
+    infer.add_argument(
+        "--precision",
+        help="PyTorch model: fp32 or bf16 autocast (default: fp32 on CPU, bf16/fp16 on CUDA)",
+    )
+    infer.add_argument("--no-amp", action="store_true", help="deprecated: --precision fp32")
     rep = p.add_argument_group("report")
     rep.add_argument("--output", "-o", type=Path, help="report folder")
     rep.add_argument("--bins", type=positive_int, help="quantile bins of delentropy (default 3)")
@@ -127,13 +131,25 @@ def _check_args(args: argparse.Namespace) -> str:
     source = given[0]
     _refuse_idle_options(args, source)
     args.measures = parse_measures(args.measures or "delent")
+    from claravid.eval.windows import flag_precision
+
+    args.precision = flag_precision(args.precision, args.no_amp, pytorch=source == "checkpoint")
     if source != "compare" and args.output is None:
         raise UsageError("--output is required: the folder the report is written to")
     return source
 
 
 #: Options that change nothing in a mode: given there, they are a user's misunderstanding.
-_MODEL_ONLY = ("window", "stride", "scale", "batch_size", "device", "no_amp", "save_predictions")
+_MODEL_ONLY = (
+    "window",
+    "stride",
+    "scale",
+    "batch_size",
+    "device",
+    "precision",
+    "no_amp",
+    "save_predictions",
+)
 _DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing")
 IDLE = {
     "compare": (*_MODEL_ONLY, *_DATA, "bins", "edges", "group_by", "measures"),
@@ -267,7 +283,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     from claravid.eval.report import build_report
     from claravid.eval.run import collect, hardest_items, write_outputs
     from claravid.eval.sources import load_source
-    from claravid.eval.windows import WindowConfig
+    from claravid.eval.windows import WindowConfig, autocast_dtype, precision_name
 
     check_device(args.device)  # one line, not CUDA's traceback
     info = distributed.init_distributed(args.device)
@@ -332,7 +348,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
             stride=args.stride or (given.get("stride") if args.window is None else None),
             scale=_first(args.scale, given.get("scale"), 1.0),
             batch_size=_first(args.batch_size, given.get("batch_size"), 4),
-            amp=not args.no_amp,
+            precision=args.precision,
         )
         if model.patch_size:
             window.check_patch(model.patch_size)
@@ -342,6 +358,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
             "stride": list(window.stride),
             "scale": window.scale,
         }
+        source["precision"] = precision_name(autocast_dtype(window.precision, info.device))
     else:
         source["predictions"] = str(args.predictions)
     source.update(data.describe)

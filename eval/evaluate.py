@@ -57,7 +57,7 @@ def evaluate_model(
         dataset: samples with a normalised ``image`` [3,H,W], ``mask`` [H,W] and ``path``
             (e.g. ``ClaraVidSegmentation(..., transforms=eval_transforms())``).
         num_classes: K, the palette's classes.
-        config: windows, stride, scale, batch size, AMP.
+        config: windows, stride, scale, batch size, precision.
         device: where images go and confusions are counted.
         indices: evaluate only these dataset indices (a rank's shard).
         num_workers: DataLoader workers decoding the next images while the model runs.

@@ -26,7 +26,7 @@ from tqdm.auto import tqdm
 from claravid import modalities
 from claravid.cli import UsageError, add_debug_flag, check_device, check_output_dir, run_cli
 from claravid.eval.predictions import MARKER, write_image, write_marker, write_prediction
-from claravid.eval.windows import WindowConfig, predict_labels
+from claravid.eval.windows import WindowConfig, flag_precision, predict_labels
 from claravid.palettes import Palette, load_palette
 from claravid.transforms import eval_transforms
 
@@ -123,6 +123,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scale", type=float, default=1.0, help="resize images first")
     p.add_argument("--batch-size", type=int, default=4, help="windows per forward pass")
     p.add_argument("--device", help="cpu or cuda (default: cuda when available)")
+    p.add_argument(
+        "--precision", help="PyTorch model: fp32 or bf16 (default: fp32 on CPU, bf16/fp16 on CUDA)"
+    )
     p.add_argument("--workers", type=int, default=0, help="image decoding processes")
     p.add_argument("--no-overlays", action="store_true", help="label maps only")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -137,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
 
     if (args.checkpoint is None) == (args.onnx is None):
         raise UsageError("give exactly one of --checkpoint and --onnx")
+    precision = flag_precision(args.precision, pytorch=args.checkpoint is not None)
     out = check_output_dir(args.output, marker=MARKER, overwrite=args.overwrite)
     paths, keys = list_images(args.images)
     check_device(args.device)  # one line, not CUDA's traceback
@@ -150,6 +154,7 @@ def run(args: argparse.Namespace) -> int:
         stride=None if args.stride is None else (args.stride, args.stride),
         scale=args.scale,
         batch_size=args.batch_size,
+        precision=precision,
     )
     if source.patch_size:
         config.check_patch(source.patch_size)

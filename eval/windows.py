@@ -8,6 +8,11 @@ smaller than a window is padded at the bottom/right with zeros (the mean colour 
 normalisation) and the padding is cut off the logits. With ``scale != 1`` the logits are resized
 back (bilinear) to the input size, so scores are always against the native-resolution labels.
 
+Precision (``WindowConfig.precision``): ``auto`` runs float32 on a CPU and autocast on CUDA
+(bf16 where the GPU supports it, else fp16), as before; ``fp32`` never autocasts; ``bf16`` and
+``fp16`` autocast to that type on any device (bf16 is fast on CPUs with AVX512-BF16 or AMX).
+The logits are float32 whatever the precision.
+
 Any model works: a ``torch.nn.Module`` or a callable returning numpy
 (``claravid.models.OnnxSegmenter``).
 """
@@ -16,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -25,6 +31,62 @@ import torch
 import torch.nn.functional as F
 
 Model = Callable[[torch.Tensor], Any]
+
+#: The values of ``WindowConfig.precision``.
+PRECISIONS = ("auto", "fp32", "bf16", "fp16")
+
+
+def autocast_dtype(precision: str, device: torch.device | str) -> torch.dtype | None:
+    """The autocast type a precision setting means on ``device`` (None: float32, no autocast).
+
+    ``auto``: bf16 on a GPU that supports it, fp16 on an older GPU, float32 on a CPU.
+
+    Raises:
+        ValueError: ``precision`` is not one of `PRECISIONS`.
+    """
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    device = torch.device(device)
+    if precision == "auto":
+        if device.type != "cuda":
+            return None
+        return torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
+    return {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}[precision]
+
+
+def precision_name(dtype: torch.dtype | None) -> str:
+    """``fp32``, ``bf16`` or ``fp16``: what `autocast_dtype` resolved to, for reports and logs."""
+    return {None: "fp32", torch.bfloat16: "bf16", torch.float16: "fp16"}[dtype]
+
+
+#: What ``--precision`` of ``claravid-eval`` / ``claravid-predict`` takes (unset: ``auto``).
+FLAG_PRECISIONS = ("fp32", "bf16")
+
+
+def flag_precision(precision: str | None, no_amp: bool = False, *, pytorch: bool = True) -> str:
+    """``--precision`` (or the deprecated ``--no-amp``) as a `WindowConfig` precision.
+
+    Raises:
+        ValueError: an unknown value, a contradiction with ``--no-amp``, or bf16 for a model
+            that is not PyTorch (an ONNX file runs at the precision it was exported in).
+    """
+    if precision is not None and precision not in FLAG_PRECISIONS:
+        raise ValueError(f"--precision must be fp32 or bf16, got {precision!r}")
+    if no_amp:
+        if precision not in (None, "fp32"):
+            raise ValueError("--no-amp means --precision fp32: drop --no-amp or --precision")
+        warnings.warn("--no-amp is deprecated: use --precision fp32", UserWarning, stacklevel=2)
+        precision = "fp32"
+    if precision == "bf16" and not pytorch:
+        raise ValueError("--precision bf16 applies to a PyTorch model (--checkpoint) only")
+    return precision or "auto"
+
+
+def autocast(dtype: torch.dtype | None, device: torch.device | str) -> Any:
+    """An autocast context to ``dtype`` on ``device``'s type (a no-op context for None)."""
+    if dtype is None:
+        return contextlib.nullcontext()
+    return torch.autocast(torch.device(device).type, dtype=dtype)
 
 
 @dataclass(frozen=True)
@@ -36,16 +98,23 @@ class WindowConfig:
         stride: step between windows; default two thirds of the window (overlap 1/3).
         scale: resize factor applied to the image first (the paper reports at 0.5).
         batch_size: windows per forward pass.
-        amp: autocast on CUDA (bf16 where supported, else fp16); ignored on CPU.
+        precision: ``auto``, ``fp32``, ``bf16`` or ``fp16`` (see the module docstring). The
+            former boolean ``amp`` reads as ``True`` → ``auto``, ``False`` → ``fp32``.
     """
 
     size: tuple[int, int] = (630, 630)
     stride: tuple[int, int] | None = None
     scale: float = 1.0
     batch_size: int = 4
-    amp: bool = True
+    precision: str = "auto"
 
     def __post_init__(self) -> None:
+        if isinstance(self.precision, bool):  # the former `amp: bool` in this position
+            object.__setattr__(self, "precision", "auto" if self.precision else "fp32")
+        if self.precision not in PRECISIONS:
+            raise ValueError(
+                f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}"
+            )
         size = _pair(self.size, "window size")
         stride = _pair(self.stride, "stride") if self.stride is not None else None
         object.__setattr__(self, "size", size)
@@ -86,15 +155,10 @@ def window_starts(length: int, window: int, stride: int) -> list[int]:
     return starts
 
 
-def _autocast(device: torch.device, enabled: bool) -> contextlib.AbstractContextManager:
-    if not enabled or device.type != "cuda":
-        return contextlib.nullcontext()
-    dtype = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
-    return torch.autocast("cuda", dtype=dtype)
-
-
 def _forward(model: Model, batch: torch.Tensor, config: WindowConfig) -> torch.Tensor:
-    with torch.inference_mode(), _autocast(batch.device, config.amp):
+    # (An ONNX Runtime session runs at its file's precision: autocast does not reach it.)
+    dtype = autocast_dtype(config.precision, batch.device)
+    with torch.inference_mode(), autocast(dtype, batch.device):
         out = model(batch)
     if not isinstance(out, torch.Tensor):
         out = torch.from_numpy(np.asarray(out))
@@ -109,7 +173,7 @@ def sliding_window_logits(
     Args:
         model: maps [B,3,h,w] float to [B,K,h,w] logits (tensor or numpy).
         image: the normalised image, on the device the model runs on.
-        config: window size, stride, scale, batch size, AMP.
+        config: window size, stride, scale, batch size, precision.
     """
     config = config or WindowConfig()
     if image.ndim != 3 or image.shape[0] != 3 or not image.is_floating_point():

@@ -29,6 +29,10 @@ CLASS_WEIGHTS = ("none", "inverse", "median_frequency", "log_inverse")
 SCHEDULES = ("poly", "cosine")
 DATASETS = ("claravid", "uavid")
 SAMPLERS = ("uniform", "complexity_balanced")
+AMP_MODES = ("auto", "bf16", "fp16", "off")
+#: ``train.amp`` was a boolean before it named a precision: true meant what ``auto`` means
+#: (autocast on a GPU, bf16 or fp16, float32 on a CPU), false meant float32 everywhere.
+LEGACY_AMP = {"true": "auto", "false": "off"}
 
 
 class ConfigError(ValueError):
@@ -98,7 +102,9 @@ class TrainConfig:
     poly_power: float = 0.9
     min_lr_ratio: float = 0.0  # the decay ends at lr × min_lr_ratio
     grad_clip: float = 1.0  # max global gradient norm (0: off)
-    amp: bool = True  # bf16 where the GPU supports it, else fp16 + GradScaler; fp32 on CPU
+    # auto: bf16 on GPUs that support it, else fp16 + GradScaler, float32 on CPU;
+    # bf16 | fp16 (+ GradScaler) on any device; off: float32 (old configs: true=auto, false=off)
+    amp: str = "auto"
     compile: bool = False  # torch.compile the trained module
     device: str | None = None  # null: cuda when available, else cpu
     threads: int | None = None  # intra-op CPU threads of each process (null: PyTorch's default)
@@ -211,13 +217,17 @@ def _check_loaded(loaded: Any, source: str) -> None:
 
 def _merge(base: DictConfig, other: Any, source: str) -> DictConfig:
     try:
-        return OmegaConf.merge(base, other)
+        merged = OmegaConf.merge(base, other)
     except ConfigKeyError as exc:
         raise _unknown_key(str(exc.full_key)) from None
     except OmegaConfBaseException as exc:
         key = getattr(exc, "full_key", None)
         msg = str(exc).splitlines()[0]
         raise ConfigError(f"bad value for {key} ({source}): {msg}") from None
+    # A boolean amp (older configs and checkpoints) arrives here as the string "True"/"False".
+    amp = str(merged.train.amp).lower()
+    merged.train.amp = LEGACY_AMP.get(amp, merged.train.amp)
+    return merged  # type: ignore[return-value]
 
 
 def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] | str = ()) -> DictConfig:
@@ -316,6 +326,7 @@ def check_config(cfg: DictConfig) -> None:
         list(t.betas),
         "two numbers in [0, 1)",
     )
+    _require(t.amp in AMP_MODES, "train.amp", t.amp, f"one of {', '.join(AMP_MODES)}")
     _require(t.warmup_steps >= 0, "train.warmup_steps", t.warmup_steps, ">= 0")
     _require(0 <= t.min_lr_ratio <= 1, "train.min_lr_ratio", t.min_lr_ratio, "in [0, 1]")
     _require(t.grad_clip >= 0, "train.grad_clip", t.grad_clip, ">= 0 (0: off)")

@@ -9,8 +9,11 @@
 One optimiser step takes ``train.batch_size`` crops over all ranks and ``train.grad_accum``
 micro-batches; its loss is the mean of the micro-batches' losses (each the pixel mean of
 weighted cross-entropy over non-ignored pixels), so W ranks × A micro-batches compute the same
-gradient as one process with W·A micro-batches. AMP: bf16 where the GPU supports it, else fp16
-with a GradScaler; fp32 on CPU. A NaN/inf loss stops the run before the step is applied.
+gradient as one process with W·A micro-batches. Precision (``train.amp``): ``auto`` is bf16
+autocast where the GPU supports it, else fp16 with a GradScaler, float32 on CPU; ``bf16`` and
+``fp16`` (with a GradScaler) autocast on any device, CPU included; ``off`` is float32.
+Validation runs at the training precision. A NaN/inf loss stops the run before the step is
+applied.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from claravid.cli import check_device
 from claravid.eval import WindowConfig
 from claravid.eval.data import check_palette_fit
 from claravid.eval.distributed import DistInfo, barrier, init_distributed
+from claravid.eval.windows import autocast_dtype, precision_name
 from claravid.palettes import load_palette
 from claravid.train import config as C
 from claravid.train.checkpoint import (
@@ -102,13 +106,9 @@ class EndToEnd(nn.Module):
         return m.head(feats, h // m.patch_size, w // m.patch_size, (h, w))
 
 
-def _autocast(device: torch.device, enabled: bool) -> tuple[Any, bool]:
-    """(a factory of autocast contexts, whether fp16 needs a GradScaler) for this device."""
-    if not enabled or device.type != "cuda":
-        return contextlib.nullcontext, False
-    bf16 = torch.cuda.is_bf16_supported()
-    dtype = torch.bfloat16 if bf16 else torch.float16
-    return (lambda: torch.autocast("cuda", dtype=dtype)), not bf16
+def amp_dtype(amp: str, device: torch.device) -> torch.dtype | None:
+    """The autocast type ``train.amp`` means on ``device`` (None: float32, no autocast)."""
+    return autocast_dtype("fp32" if amp == "off" else amp, device)
 
 
 def _seed_everything(seed: int) -> None:
@@ -193,13 +193,16 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
         use_cls=m.use_cls,
         backbone_kwargs=dict(m.backbone_kwargs),
     )
-    window = _val_window(cfg, model.patch_size)  # before the first step, not at validation
+    dtype = amp_dtype(cfg.train.amp, device)
+    # Checked before the first step, not at the first validation.
+    window = _val_window(cfg, model.patch_size, precision_name(dtype))
     trained: nn.Module = model if m.freeze_backbone else EndToEnd(model)
     model.to(device)
     optimizer = build_optimizer(model, cfg)
     scheduler = build_scheduler(optimizer, cfg, total)
-    autocast, fp16 = _autocast(device, cfg.train.amp)
-    scaler = torch.amp.GradScaler(device.type, enabled=fp16)
+    # fp16 overflows without loss scaling; bf16 has float32's range and needs none.
+    scaler = torch.amp.GradScaler(device.type, enabled=dtype == torch.float16)
+    say(f"precision: {precision_name(dtype)} (train.amp={cfg.train.amp}, {device.type})")
 
     weights = None
     if cfg.data.class_weights != "none":  # counting decodes every label file of the split
@@ -269,7 +272,7 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
                 # Gradients are all-reduced once per step, on the last micro-batch.
                 last = micro == accum - 1
                 with contextlib.nullcontext() if ddp is None or last else ddp.no_sync():
-                    with autocast():
+                    with torch.autocast(device.type, dtype=dtype, enabled=dtype is not None):
                         logits = module(x)
                     loss = F.cross_entropy(
                         logits.float(), y, weight=weights, ignore_index=IGNORE_INDEX
@@ -338,7 +341,7 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     return RunResult(out, total, total, best_miou, best_step, last_val)
 
 
-def _val_window(cfg: DictConfig, patch_size: int) -> WindowConfig:
+def _val_window(cfg: DictConfig, patch_size: int, precision: str) -> WindowConfig:
     """The validation windows, checked against the model before training starts.
 
     Raises:
@@ -346,7 +349,7 @@ def _val_window(cfg: DictConfig, patch_size: int) -> WindowConfig:
     """
     v = cfg.val
     try:
-        window = WindowConfig(v.window, v.stride, v.scale, v.batch_size, cfg.train.amp)
+        window = WindowConfig(v.window, v.stride, v.scale, v.batch_size, precision)
         window.check_patch(patch_size)
     except ValueError as exc:
         raise ValueError(

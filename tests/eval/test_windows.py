@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 import torch
 
-from claravid.eval.windows import WindowConfig, predict_labels, sliding_window_logits, window_starts
+from claravid.eval.windows import (
+    WindowConfig,
+    flag_precision,
+    predict_labels,
+    sliding_window_logits,
+    window_starts,
+)
 
 
 def test_window_starts_cover_the_axis_with_the_last_flush():
@@ -121,3 +127,101 @@ def test_window_not_a_patch_multiple_names_the_fix():
 def test_bad_image():
     with pytest.raises(ValueError, match=r"\[3,H,W\]"):
         sliding_window_logits(lambda x: x, torch.zeros(3, 8, 8, dtype=torch.uint8))
+
+
+def _reference_at_scale(model, image, scale):
+    """The spec restated: resize the image (bilinear, antialiased), run the model on all of it,
+    resize the logits back to the input size (bilinear)."""
+    h, w = image.shape[-2:]
+    small = torch.nn.functional.interpolate(
+        image[None], size=(round(h * scale), round(w * scale)), mode="bilinear",
+        align_corners=False, antialias=True,
+    )  # fmt: skip
+    logits = model(small)
+    return torch.nn.functional.interpolate(logits, size=(h, w), mode="bilinear")[0]
+
+
+@pytest.mark.parametrize("scale", [0.5, 0.7, 1.6])
+def test_scale_resizes_logits_back_bilinearly(scale):
+    """Non-constant logits (a pointwise model on a random image, so windows equal the whole
+    image's forward): nearest-neighbour resizing back would be off by the logits' gradients."""
+    torch.manual_seed(1)
+    weight = torch.randn(4, 3)
+    image = torch.randn(3, 40, 60)
+    config = WindowConfig(size=(14, 14), stride=(9, 9), scale=scale, batch_size=5)
+    out = sliding_window_logits(_pointwise(weight), image, config)
+    expected = _reference_at_scale(_pointwise(weight), image, scale)
+    assert out.shape == (4, 40, 60)
+    np.testing.assert_allclose(out, expected, atol=1e-5)
+    # The check has teeth: these logits vary enough for nearest to be far off.
+    nearest = torch.nn.functional.interpolate(
+        _pointwise(weight)(
+            torch.nn.functional.interpolate(image[None], scale_factor=scale, mode="bilinear")
+        ),
+        size=(40, 60),
+        mode="nearest",
+    )[0]
+    assert (nearest - expected).abs().max() > 0.1
+
+
+def _tiny_segmenter(num_classes=5):
+    from claravid import models
+
+    torch.manual_seed(0)
+    return models.build_model(
+        "dinov2_vits14", num_classes=num_classes, layers=[0, 1, 2, 3], features=8,
+        out_channels=[8, 8, 8, 8], backbone_kwargs={"embed_dim": 32, "depth": 4, "num_heads": 2},
+    ).eval()  # fmt: skip
+
+
+def _smooth_image(h, w, seed=0):
+    """A normalised image of smooth blobs (a real-looking input, not white noise)."""
+    g = torch.Generator().manual_seed(seed)
+    coarse = torch.randn(1, 3, h // 8 + 1, w // 8 + 1, generator=g) * 1.5
+    return torch.nn.functional.interpolate(coarse, size=(h, w), mode="bicubic")[0]
+
+
+def test_bf16_windows_agree_with_float32_on_the_cpu():
+    model = _tiny_segmenter()
+    image = _smooth_image(42, 56)
+    with torch.no_grad():  # the float32 reference: the model's own forward, no windows
+        ref = model(image[None])[0]
+    assert WindowConfig().precision == "auto"
+    auto = sliding_window_logits(model, image, WindowConfig(size=(42, 56)))
+    np.testing.assert_allclose(auto, ref, atol=1e-5)  # auto is float32 on a CPU
+    low = sliding_window_logits(model, image, WindowConfig(size=(42, 56), precision="bf16"))
+    assert low.dtype == torch.float32 and not torch.equal(low, ref)  # autocast did run
+    agreement = (low.argmax(0) == ref.argmax(0)).float().mean().item()
+    assert agreement >= 0.97, agreement
+
+
+def test_precision_settings_and_the_old_boolean():
+    assert WindowConfig((14, 14), None, 1.0, 4, True).precision == "auto"  # former amp=True
+    assert WindowConfig((14, 14), None, 1.0, 4, False).precision == "fp32"
+    with pytest.raises(ValueError, match="precision must be one of auto, fp32, bf16, fp16"):
+        WindowConfig(precision="fp8")
+    assert flag_precision(None) == "auto" and flag_precision("bf16") == "bf16"
+    with pytest.warns(UserWarning, match="--precision fp32"):
+        assert flag_precision(None, no_amp=True) == "fp32"
+    for args, message in [(("half",), "must be fp32 or bf16, got 'half'"),
+                          (("bf16", True), "--no-amp means --precision fp32"),
+                          (("fp16",), "must be fp32 or bf16")]:  # fmt: skip
+        with pytest.raises(ValueError, match=message):
+            flag_precision(*args)
+    with pytest.raises(ValueError, match="PyTorch model"):
+        flag_precision("bf16", pytorch=False)
+
+
+def test_onnx_windows_equal_pytorch_windows(model_files):
+    """The fast ONNX-vs-PyTorch numeric check of the default run (the export tests are slow):
+    the session fixture's dynamic export, through the same windows as its checkpoint."""
+    from claravid.models import OnnxSegmenter, load_checkpoint
+
+    model = load_checkpoint(model_files["checkpoint"]).eval()
+    runner = OnnxSegmenter(model_files["onnx"])
+    image = _smooth_image(48, 64, seed=3)
+    config = WindowConfig(size=(28, 42), stride=(14, 14))
+    torch_logits = sliding_window_logits(model, image, config)
+    onnx_logits = sliding_window_logits(runner, image, config)
+    assert torch_logits.std() > 0
+    np.testing.assert_allclose(onnx_logits, torch_logits, atol=1e-4)

@@ -161,3 +161,18 @@ def test_input_checks_are_skipped_while_tracing(monkeypatch):
     monkeypatch.setattr(torch.jit, "is_tracing", lambda: True)
     with torch.no_grad():  # while tracing the check would specialise shapes: it is skipped
         assert model(odd).shape == (1, 5, 40, 50)
+
+
+@pytest.mark.parametrize(("h", "w"), [(28, 70), (56, 42)])
+def test_forward_is_backbone_then_head_on_non_square_input(h, w):
+    """The token grid is (rows, columns) = (H/14, W/14): composed here by hand from the
+    backbone's tapped layers and the head, on inputs wider and taller than square."""
+    model = _model().eval()
+    x = torch.randn(1, 3, h, w)
+    with torch.no_grad():
+        feats = model.backbone.get_intermediate_layers(x, [0, 1, 2, 3], return_class_token=True)
+        assert feats[0][0].shape[1] == (h // 14) * (w // 14)
+        expected = model.head(feats, h // 14, w // 14, (h, w))
+        got = model(x)
+    assert got.shape == (1, 5, h, w)
+    torch.testing.assert_close(got, expected, atol=1e-6, rtol=0)

@@ -208,13 +208,20 @@ def test_every_shipped_config_trains_two_steps(name, claravid_root, uavid_root, 
     )
 
 
-def test_class_weighted_training_on_uavid(uavid_root, tmp_path):
-    args = tiny(uavid_root, tmp_path / "w", "data.dataset=uavid", "data.val_dataset=uavid",
-                "data.train_split=train", "data.val_split=val", "train.steps=1",
-                "data.class_weights=median_frequency", "train.batch_size=2",
-                "val.every=0")  # fmt: skip
-    result = train(load_config("demo", args))
-    assert result.step == 1 and result.best_miou is not None
+def test_class_weights_reach_the_loss(uavid_root, tmp_path):
+    """Same seed, weights and first batch: only the class weights differ, so the first step's
+    loss must differ (it would not if the weights were computed but never given to the loss)."""
+    first = {}
+    for weights in ("none", "median_frequency"):
+        out = tmp_path / weights
+        args = tiny(uavid_root, out, "data.dataset=uavid", "data.val_dataset=uavid",
+                    "data.train_split=train", "data.val_split=val", "train.steps=1",
+                    f"data.class_weights={weights}", "train.batch_size=2", "train.log_every=1",
+                    "val.every=0")  # fmt: skip
+        result = train(load_config("demo", args))
+        assert result.step == 1 and result.best_miou is not None
+        first[weights] = rows(out)[0]["loss"]
+    assert abs(first["median_frequency"] - first["none"]) > 1e-3 * first["none"], first
 
 
 @pytest.mark.slow

@@ -1,5 +1,6 @@
 """Resume after ``kill -9`` ends bit for bit where the uninterrupted run ends (CPU, fixed seed)."""
 
+import math
 import os
 import signal
 import subprocess
@@ -10,7 +11,7 @@ import pytest
 import torch
 
 from claravid.models.checkpoint import read_checkpoint
-from claravid.train import load_config, train
+from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.logs import read_metrics
 from tests.train.conftest import tiny
 
@@ -90,3 +91,40 @@ def test_resume_after_sigkill_is_bit_for_bit(claravid_root, tmp_path):
     assert_same_state(read_checkpoint(out / "best.pt"), read_checkpoint(reference / "best.pt"))
     # metrics.jsonl reads as one run: no row twice, same losses and validation scores.
     assert training_rows(out) == training_rows(reference)
+
+
+FAST = ("train.steps=8", "train.checkpoint_every=4", "val.every=0", "train.log_every=1",
+        "train.lr=3e-3")  # fmt: skip
+
+
+@pytest.mark.parametrize("amp", ["off", "bf16"])
+def test_resume_after_a_stop_is_bit_for_bit(claravid_root, tmp_path, monkeypatch, amp):
+    """The fast check of the default run (the SIGKILL test above is slow): a run stopped at
+    step 5 (an injected inf loss; last.pt holds step 4) and resumed ends where the
+    uninterrupted run ends, in float32 and in bf16 autocast on the CPU alike."""
+    import claravid.train.loop as loop
+
+    reference = tmp_path / "reference"
+    train(load_config("demo", tiny(claravid_root, reference, *FAST, f"train.amp={amp}")))
+
+    out = tmp_path / "stopped"
+    cfg = load_config("demo", tiny(claravid_root, out, *FAST, f"train.amp={amp}"))
+    real, calls = loop.F.cross_entropy, []
+
+    def poisoned(*args, **kwargs):  # torch's loss, made infinite at the 5th step
+        calls.append(1)
+        loss = real(*args, **kwargs)
+        return loss * float("inf") if len(calls) == 5 else loss
+
+    with monkeypatch.context() as patch:
+        patch.setattr(loop.F, "cross_entropy", poisoned)
+        with pytest.raises(TrainingDiverged, match="at step 5"):
+            train(cfg)
+    assert read_checkpoint(out / "last.pt")["step"] == 4
+    result = train(load_config("demo", tiny(claravid_root, out, *FAST, f"train.amp={amp}")),
+                   resume=True)  # fmt: skip
+    assert result.step == 8
+    assert_same_state(read_checkpoint(out / "last.pt"), read_checkpoint(reference / "last.pt"))
+    assert training_rows(out) == training_rows(reference)
+    losses = [r["loss"] for r in training_rows(reference) if "loss" in r]
+    assert len(losses) == 8 and all(math.isfinite(x) for x in losses)
