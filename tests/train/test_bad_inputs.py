@@ -15,8 +15,10 @@ from tests.train.conftest import tiny
 
 
 def _one_line(capsys, *words):
-    err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1, err
+    # The tiny tree's split is off its targets: that warning is not the error under test.
+    lines = capsys.readouterr().err.strip().splitlines()
+    err = "\n".join(line for line in lines if "warning: " not in line)
+    assert len(err.splitlines()) == 1, lines
     assert "Traceback" not in err
     for word in words:
         assert word in err, err
