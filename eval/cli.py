@@ -33,6 +33,7 @@ from claravid.eval.complexity import parse_measures
 from claravid.eval.data import DATASETS, GROUP_BY
 from claravid.eval.predictions import MARKER, write_marker
 from claravid.eval.report import REPORT
+from claravid.models.onnx_runtime import PROVIDERS
 
 PROG = "claravid-eval"
 SOURCES = ("checkpoint", "onnx", "predictions", "merge", "compare")
@@ -83,6 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     infer.add_argument("--batch-size", type=int, help="windows per forward pass (default 4)")
     infer.add_argument("--device", help="cpu or cuda (default: cuda when available)")
     infer.add_argument("--no-amp", action="store_true", help="no autocast on CUDA")
+    infer.add_argument("--provider", choices=PROVIDERS, help="ONNX Runtime provider (--onnx)")
     rep = p.add_argument_group("report")
     rep.add_argument("--output", "-o", type=Path, help="report folder")
     rep.add_argument("--bins", type=int, help="quantile bins of delentropy (default 3)")
@@ -200,8 +202,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     from claravid.eval.data import open_data
     from claravid.eval.report import build_report
     from claravid.eval.run import collect, hardest_items, write_outputs
-    from claravid.eval.sources import load_source
-    from claravid.eval.windows import WindowConfig
+    from claravid.eval.sources import load_source, resolve_settings
 
     info = distributed.init_distributed(args.device)
     main_rank = info.is_main
@@ -220,10 +221,17 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     model = None
     if source_kind in ("checkpoint", "onnx"):
         threads = torch.get_num_threads() if info.device.type == "cpu" else None
-        model = load_source(args.checkpoint, args.onnx, device=info.device, threads=threads)
+        model = load_source(
+            args.checkpoint, args.onnx, device=info.device, threads=threads, provider=args.provider
+        )
+        settings = resolve_settings(
+            model, window=args.window, stride=args.stride, scale=args.scale,
+            batch_size=args.batch_size, palette=args.palette, amp=not args.no_amp,
+        )  # fmt: skip
     spec = _resolve_data(args, model.defaults if model else {})
     data = open_data(
         spec["root"],
+        normalisation=settings.transforms_config if model is not None else None,
         dataset=spec["dataset"],
         split=spec["split"],
         palette=spec["palette"],
@@ -242,29 +250,14 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     window = None
     source: dict[str, Any] = {"kind": source_kind}
     if model is not None:
-        fixed = getattr(model.model, "input_size", None)
-        given = model.defaults
-        size = args.window or fixed or given.get("window") or (630, 630)
-        if fixed is not None and tuple(size) != tuple(fixed):
-            raise UsageError(
-                f"the ONNX model takes {fixed[0]}x{fixed[1]} inputs only: use --window "
-                f"{fixed[0]}x{fixed[1]} or re-export with --dynamic"
-            )
-        window = WindowConfig(
-            size=size,
-            stride=args.stride or (given.get("stride") if args.window is None else None),
-            scale=_first(args.scale, given.get("scale"), 1.0),
-            batch_size=_first(args.batch_size, given.get("batch_size"), 4),
-            amp=not args.no_amp,
-        )
-        if model.patch_size:
-            window.check_patch(model.patch_size)
+        window = settings.window
         source["path"] = str(model.path)
         source["window"] = {
             "size": list(window.size),
             "stride": list(window.stride),
             "scale": window.scale,
         }
+        source["settings"] = settings.describe()
     else:
         source["predictions"] = str(args.predictions)
     source.update(data.describe)
