@@ -15,7 +15,6 @@ script (``claravid.eval.export``) passes a resolver into :func:`main`.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import os
@@ -263,7 +262,9 @@ def _write_metadata(path: Path, document: dict[str, Any]) -> None:
     onnx.save(proto, str(path))
 
 
-def smooth_images(shape: tuple[int, ...], normalisation: dict[str, Any], seed: int = 0) -> np.ndarray:
+def smooth_images(
+    shape: tuple[int, ...], normalisation: dict[str, Any], seed: int = 0
+) -> np.ndarray:
     """Normalised images that look more like photos than noise: smooth colour fields + grain.
 
     Random coarse colour grids (a few cells per side) upsampled bicubically, plus a little
@@ -410,7 +411,8 @@ def _run(
     step = ckpt.get("step") if isinstance(ckpt.get("step"), int) else None
     del ckpt
     palette = None
-    name = config.get("data", {}).get("palette") if config and isinstance(config.get("data"), dict) else None
+    data = config.get("data") if config else None
+    name = data.get("palette") if isinstance(data, dict) else None
     if isinstance(name, str) and resolve_palette is not None:
         palette = resolve_palette(name)
     calibration = None

@@ -55,14 +55,18 @@ def convert_to_fp16(src: str, dst: str, keep_ops: frozenset[str] = KEEP_FP32) ->
                     types[node.output[0]] = a.t.data_type
 
     # The final resize (the one that makes the graph output) also stays float32.
+    # Nodes are named by their index: protobuf's Python wrappers are not stable objects.
+    nodes = list(graph.node)
     outputs = {o.name for o in graph.output}
-    keep_nodes = {id(n) for n in graph.node if n.op_type in keep_ops}
-    keep_nodes |= {id(n) for n in graph.node if n.op_type == "Resize" and outputs & set(n.output)}
+    keep_nodes = {k for k, n in enumerate(nodes) if n.op_type in keep_ops}
+    keep_nodes |= {
+        k for k, n in enumerate(nodes) if n.op_type == "Resize" and outputs & set(n.output)
+    }
 
     active = {i.name for i in graph.input if types.get(i.name) == FLOAT}
     half: set[str] = set()  # values that are float16 after conversion
-    converted: list[Any] = []  # nodes computing in float16
-    for node in graph.node:
+    converted: set[int] = set()  # nodes computing in float16
+    for k, node in enumerate(nodes):
         fixed = FIXED_INPUTS.get(node.op_type, set())
         data_in = [n for i, n in enumerate(node.input) if n and i not in fixed]
         if not any(n in active for n in data_in):
@@ -71,19 +75,18 @@ def convert_to_fp16(src: str, dst: str, keep_ops: frozenset[str] = KEEP_FP32) ->
         active.update(floats_out)
         if node.op_type == "Cast" and not floats_out:
             continue  # activation -> int: reads whatever float type it gets
-        if id(node) in keep_nodes:
+        if k in keep_nodes:
             continue
-        converted.append(node)
+        converted.add(k)
         half.update(floats_out)
 
-    consumers: dict[str, list[tuple[Any, int]]] = {}
-    for node in graph.node:
+    consumers: dict[str, list[tuple[int, int]]] = {}
+    for k, node in enumerate(nodes):
         for i, name in enumerate(node.input):
-            consumers.setdefault(name, []).append((node, i))
-    converted_ids = {id(n) for n in converted}
+            consumers.setdefault(name, []).append((k, i))
 
-    def wants_half(node: Any, index: int) -> bool:
-        return id(node) in converted_ids and index not in FIXED_INPUTS.get(node.op_type, set())
+    def wants_half(k: int, index: int) -> bool:
+        return k in converted and index not in FIXED_INPUTS.get(nodes[k].op_type, set())
 
     # Weights and constants read only where float16 is wanted: store them in float16.
     for name, uses in consumers.items():
@@ -93,7 +96,7 @@ def convert_to_fp16(src: str, dst: str, keep_ops: frozenset[str] = KEEP_FP32) ->
             t = inits[name]
             t.CopyFrom(numpy_helper.from_array(numpy_helper.to_array(t).astype("float16"), name))
             half.add(name)
-    for node in graph.node:
+    for node in nodes:
         if node.op_type != "Constant" or types.get(node.output[0]) != FLOAT:
             continue
         uses = consumers.get(node.output[0], [])
@@ -114,11 +117,10 @@ def convert_to_fp16(src: str, dst: str, keep_ops: frozenset[str] = KEEP_FP32) ->
             new_nodes.append(helper.make_node("Cast", [name], [casts[key]], to=to))
         return casts[key]
 
-    nodes = list(graph.node)
-    del graph.node[:]
-    for node in nodes:
+    rewritten: list[Any] = []
+    for k, node in enumerate(nodes):
         fixed = FIXED_INPUTS.get(node.op_type, set())
-        is_half = id(node) in converted_ids
+        is_half = k in converted
         for i, name in enumerate(node.input):
             if not name or i in fixed or types.get(name) not in (FLOAT, HALF):
                 continue
@@ -132,9 +134,11 @@ def convert_to_fp16(src: str, dst: str, keep_ops: frozenset[str] = KEEP_FP32) ->
                     a.i = HALF
             if node.op_type == "Attention":
                 node.attribute.append(helper.make_attribute("softmax_precision", FLOAT))
-        graph.node.extend(new_nodes)
+        rewritten.extend(new_nodes)
         new_nodes.clear()
-        graph.node.append(node)
+        rewritten.append(node)
+    del graph.node[:]
+    graph.node.extend(rewritten)
     for out in graph.output:  # the graph's outputs stay float32
         if out.name in half:
             inner = out.name + "__fp16"

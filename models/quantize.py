@@ -38,7 +38,7 @@ def _preprocess(src: Path, folder: Path) -> tuple[Path, bool]:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             quant_pre_process(str(src), str(target), skip_symbolic_shape=True)
-    except Exception:  # noqa: BLE001 - an optimisation only: quantise the plain graph then
+    except Exception:  # an optimisation only: quantise the plain graph then
         return src, False
     return target, True
 
