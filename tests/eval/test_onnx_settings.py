@@ -61,7 +61,8 @@ def test_metadata_round_trip(files):
     assert runner.normalisation["std"] == list(IMAGENET_STD)
     assert runner.normalisation["channels"] == "RGB" and runner.precision == "fp32"
     text = json.dumps(files["config"], sort_keys=True, separators=(",", ":"))
-    assert runner.training == {"step": 7, "config_sha256": hashlib.sha256(text.encode()).hexdigest()}
+    digest = hashlib.sha256(text.encode()).hexdigest()
+    assert runner.training == {"step": 7, "config_sha256": digest}
     assert runner.metadata["model_args"]["backbone"] == "dinov2_vits14"
     foreign = models.OnnxSegmenter(files["foreign"])
     assert foreign.metadata is None and foreign.palette is None and foreign.window is None
@@ -82,8 +83,9 @@ def test_eval_onnx_without_flags_equals_checkpoint_and_predict_equals_eval(
     _eval.split = files["split"]
     rep_ckpt, conf_ckpt = _eval(tmp_path / "c", "--checkpoint", str(files["ckpt"]),
                                 "--save-predictions", str(tmp_path / "pc"))  # fmt: skip
-    rep_onnx, conf_onnx = _eval(tmp_path / "o", "--onnx", str(files["onnx"]), "--data",
-                                str(claravid_root), "--save-predictions", str(tmp_path / "po"))  # fmt: skip
+    rep_onnx, conf_onnx = _eval(tmp_path / "o", "--onnx", str(files["onnx"]),
+                                "--data", str(claravid_root),
+                                "--save-predictions", str(tmp_path / "po"))  # fmt: skip
     np.testing.assert_array_equal(conf_onnx, conf_ckpt)  # per image
     for report, kind in ((rep_ckpt, "checkpoint"), (rep_onnx, "onnx")):
         settings = report["source"]["settings"]

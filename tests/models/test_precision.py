@@ -33,7 +33,7 @@ def _agreement(a, b):
 
 
 def test_fp16_keeps_layernorm_and_the_final_resize_in_fp32(exported, tmp_path):
-    model, path, x, expected = exported
+    _, path, x, expected = exported
     counts = convert_to_fp16(str(path), str(tmp_path / "h.onnx"))
     assert counts["fp16_nodes"] > 0
     proto = onnx.load(str(tmp_path / "h.onnx"))
