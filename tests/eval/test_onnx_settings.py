@@ -31,7 +31,9 @@ def files(claravid_root, tmp_path_factory):
         "data": {"root": str(claravid_root), "palette": "uavid", "split": {"seed": 0}},
         "val": {"window": 14, "scale": 0.5, "batch_size": 2},
     }
-    ckpt = models.save_checkpoint(tiny_model(), folder / "best.pt", config=config, step=7)
+    # Seed 1: a model whose maps hold two classes and change with the scale (seed 0's are flat).
+    model = tiny_model(seed=1)
+    ckpt = models.save_checkpoint(model, folder / "best.pt", config=config, step=7)
     onnx_path = folder / "m.onnx"
     # A fixed-size export of the recorded window (a dynamic one costs 3x the export time).
     assert export_main([str(ckpt), "-o", str(onnx_path), "--height", "14", "--width", "14"]) == 0
@@ -102,6 +104,7 @@ def test_eval_onnx_without_flags_equals_checkpoint_and_predict_equals_eval(
         for frame, image in zip(FRAMES, files["images"], strict=True):
             expected = read_label(tmp_path / saved / f"{frame}.png")
             got = read_label(out / f"{image.stem}.png")
+            assert len(np.unique(expected)) > 1  # a flat map would hide a wrong scale
             np.testing.assert_array_equal(got, expected)
         marker = json.loads((out / "predictions.json").read_text())
         assert marker["source"]["settings"]["scale"] == 0.5 and marker["palette"] == "uavid"
