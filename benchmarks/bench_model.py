@@ -2,6 +2,16 @@
 
     PYTHONPATH=. python benchmarks/bench_model.py              # CPU part, then GPU if present
     PYTHONPATH=. python benchmarks/bench_model.py --skip-cpu --batch 16
+    PYTHONPATH=. python benchmarks/bench_model.py --precisions --skip-gpu    # fp16/int8 exports
+    PYTHONPATH=. python benchmarks/bench_model.py --precisions --skip-gpu --demo \
+        runs/demo/train/best.pt --demo-data runs/demo/data      # + agreement of a trained model
+
+Precisions (``--precisions``): dinov2_vits14 + DPT at 630x630, batch 1, onnxruntime CPU: the
+fp32 export against its fp16 and int8 versions (dynamic MatMul/Gemm, the same per channel,
+static QDQ calibrated on smooth random images), timed alternately in one run; ratio of speed
+against ORT fp32 (target int8 >= 1.5x) and argmax agreement with PyTorch. On random weights the
+agreement says little about accuracy; ``--demo`` adds the agreement of the exports of a trained
+checkpoint on real validation frames.
 
 CPU: dinov2_vits14 + DPT head at 630x630, batch 1, PyTorch eager fp32 vs onnxruntime (fixed-size
 export), in the same run; target ratio ort/eager speed >= 1.
@@ -64,6 +74,97 @@ def bench_cpu(size: int, reps: int) -> None:
     print(f"ratio ort speed / eager speed: {e / o:.2f}x (target >= 1)")
 
 
+def _variants(plain: Path, folder: Path, size: int) -> dict[str, Path]:
+    """fp32 -> fp16 and int8 versions of the same export (timing printed)."""
+    from claravid.models.export import smooth_images
+    from claravid.models.onnx_fp16 import convert_to_fp16
+    from claravid.models.onnx_metadata import normalisation_from_config
+    from claravid.models.quantize import quantize_int8
+
+    out = {"ORT fp32": plain}
+    norm = normalisation_from_config(None)
+    calib = [smooth_images((1, 3, size, size), norm, seed=s) for s in range(8)]
+    jobs = {
+        "ORT fp16": lambda p: convert_to_fp16(str(plain), str(p)),
+        "ORT int8 dynamic": lambda p: quantize_int8(plain, p),
+        "ORT int8 dynamic per-channel": lambda p: quantize_int8(plain, p, per_channel=True),
+        "ORT int8 static QDQ": lambda p: quantize_int8(plain, p, calibration=calib),
+    }
+    for i, (name, job) in enumerate(jobs.items()):
+        t = time.perf_counter()
+        job(folder / f"v{i}.onnx")
+        print(f"{name:30s} written in {time.perf_counter() - t:5.1f} s")
+        out[name] = folder / f"v{i}.onnx"
+    return out
+
+
+def _agreement(a, b) -> float:
+    return float((a.argmax(1) == b.argmax(1)).mean())
+
+
+def bench_precisions(size: int, reps: int) -> None:
+    """ORT fp32 vs fp16 / int8 variants: speed ratio and argmax agreement with PyTorch."""
+    from claravid.models.export import smooth_images
+    from claravid.models.onnx_metadata import normalisation_from_config
+
+    threads = torch.get_num_threads()
+    print(f"== precisions: dinov2_vits14 + DPT, {size}x{size}, batch 1, {threads} threads")
+    torch.manual_seed(0)
+    model = build_model("dinov2_vits14", num_classes=8).eval()
+    x = smooth_images((1, 3, size, size), normalisation_from_config(None), seed=1)
+    with torch.inference_mode():
+        expected = model(torch.from_numpy(x)).numpy()
+    with tempfile.TemporaryDirectory() as tmp:
+        plain = Path(tmp) / "fp32.onnx"
+        export_onnx(model, plain, size, size, check=False)
+        runners = {
+            name: OnnxSegmenter(path, providers="cpu", threads=threads)
+            for name, path in _variants(plain, Path(tmp), size).items()
+        }
+        times: dict[str, list[float]] = {name: [] for name in runners}
+        outs = {name: run(x) for name, run in runners.items()}  # warm-up
+        for _ in range(reps):  # alternate, so that load from other processes hits all alike
+            for name, run in runners.items():
+                times[name].append(_time(lambda run=run: run(x), warmup=0, reps=1))
+    base = statistics.median(times["ORT fp32"])
+    for name in runners:
+        t = statistics.median(times[name])
+        diff = float(abs(outs[name] - expected).max())
+        print(
+            f"{name:30s} {t * 1000:8.1f} ms/image  {base / t:5.2f}x ORT fp32  "
+            f"agreement {100 * _agreement(outs[name], expected):6.2f} %  max|dlogit| {diff:.3g}"
+        )
+    print("target: ORT int8 >= 1.5x ORT fp32 (random weights: agreement is not accuracy)")
+
+
+def bench_demo(checkpoint: Path, data: Path, frames: int) -> None:
+    """Argmax agreement of the fp16 / int8 exports of a trained checkpoint on val frames."""
+    from claravid.eval.data import open_data
+    from claravid.eval.sources import load_source, resolve_settings
+    from claravid.eval.windows import predict_labels
+
+    source = load_source(checkpoint)
+    settings = resolve_settings(source)
+    data_ = open_data(data, split="val", palette=settings.palette)
+    h, w = settings.window.size
+    print(f"== trained {checkpoint}: {frames} val frames, windows {h}x{w}")
+    with tempfile.TemporaryDirectory() as tmp:
+        plain = Path(tmp) / "fp32.onnx"
+        export_onnx(source.model, plain, h, w, check=False)
+        variants = _variants(plain, Path(tmp), h)
+        runners = {n: OnnxSegmenter(p, providers="cpu") for n, p in variants.items()}
+        agree = {name: [] for name in runners}
+        for i in range(min(frames, len(data_))):
+            image = data_.dataset[i]["image"]
+            with torch.inference_mode():
+                ref = predict_labels(source.model, image, settings.window)
+            for name, run in runners.items():
+                pred = predict_labels(run, image, settings.window)
+                agree[name].append(float((pred == ref).float().mean()))
+    for name, values in agree.items():
+        print(f"{name:30s} argmax agreement with PyTorch {100 * statistics.mean(values):6.2f} %")
+
+
 def bench_gpu(batch: int, size: int, reps: int) -> None:
     if not torch.cuda.is_available():
         print("== GPU: skipped (CUDA not available)")
@@ -108,11 +209,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--reps", type=int, default=5, help="timed repetitions (CPU)")
     parser.add_argument("--batch", type=int, default=16, help="GPU batch (8-32)")
     parser.add_argument("--gpu-reps", type=int, default=10)
-    parser.add_argument("--skip-cpu", action="store_true")
+    parser.add_argument("--skip-cpu", action="store_true", help="no eager-vs-ORT part")
+    parser.add_argument("--skip-gpu", action="store_true")
+    parser.add_argument("--precisions", action="store_true", help="ORT fp32 vs fp16/int8")
+    parser.add_argument("--demo", type=Path, help="trained checkpoint: agreement of its exports")
+    parser.add_argument("--demo-data", type=Path, default=Path("runs/demo/data"))
+    parser.add_argument("--demo-frames", type=int, default=8)
     args = parser.parse_args(argv)
     if not args.skip_cpu:
         bench_cpu(args.size, args.reps)
-    bench_gpu(args.batch, args.size, args.gpu_reps)
+    if args.precisions:
+        bench_precisions(args.size, args.reps)
+    if args.demo is not None:
+        bench_demo(args.demo, args.demo_data, args.demo_frames)
+    if not args.skip_gpu:
+        bench_gpu(args.batch, args.size, args.gpu_reps)
     return 0
 
 

@@ -38,6 +38,7 @@ from claravid.eval.complexity import parse_measures
 from claravid.eval.data import DATASETS, GROUP_BY
 from claravid.eval.predictions import MARKER, predictions_defaults, write_marker
 from claravid.eval.report import REPORT
+from claravid.models.onnx_runtime import PROVIDERS
 
 PROG = "claravid-eval"
 SOURCES = ("checkpoint", "onnx", "predictions", "merge", "compare")
@@ -94,6 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="PyTorch model: fp32 or bf16 autocast (default: fp32 on CPU, bf16/fp16 on CUDA)",
     )
     infer.add_argument("--no-amp", action="store_true", help="deprecated: --precision fp32")
+    infer.add_argument("--provider", choices=PROVIDERS, help="ONNX Runtime provider (--onnx)")
     rep = p.add_argument_group("report")
     rep.add_argument("--output", "-o", type=Path, help="report folder")
     rep.add_argument("--bins", type=positive_int, help="quantile bins of delentropy (default 3)")
@@ -243,11 +245,6 @@ def _check_bins(args: argparse.Namespace, n: int) -> None:
         raise UsageError(f"{args.bins or 3} bins for {n} images: use --bins {n} or fewer")
 
 
-def _first(*values: Any) -> Any:
-    """The first value that is not None (the command line, then the checkpoint, then ours)."""
-    return next(v for v in values if v is not None)
-
-
 def _resolve_data(args: argparse.Namespace, defaults: dict[str, Any]) -> dict[str, Any]:
     """Command line first, then what the checkpoint recorded, then the defaults."""
     root = args.data or defaults.get("data")
@@ -282,8 +279,8 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     from claravid.eval.data import open_data
     from claravid.eval.report import build_report
     from claravid.eval.run import collect, hardest_items, write_outputs
-    from claravid.eval.sources import load_source
-    from claravid.eval.windows import WindowConfig, autocast_dtype, precision_name
+    from claravid.eval.sources import load_source, resolve_settings
+    from claravid.eval.windows import autocast_dtype, precision_name
 
     check_device(args.device)  # one line, not CUDA's traceback
     info = distributed.init_distributed(args.device)
@@ -303,13 +300,20 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     model = None
     if source_kind in ("checkpoint", "onnx"):
         threads = torch.get_num_threads() if info.device.type == "cpu" else None
-        model = load_source(args.checkpoint, args.onnx, device=info.device, threads=threads)
+        model = load_source(
+            args.checkpoint, args.onnx, device=info.device, threads=threads, provider=args.provider
+        )
+        settings = resolve_settings(
+            model, window=args.window, stride=args.stride, scale=args.scale,
+            batch_size=args.batch_size, palette=args.palette, precision=args.precision,
+        )  # fmt: skip
     if model is None:  # saved label maps: the palette their predictions.json names
         defaults = predictions_defaults(args.predictions, args.palette)
     spec = _resolve_data(args, model.defaults if model else defaults)
     try:
         data = open_data(
             spec["root"],
+            normalisation=settings.transforms_config if model is not None else None,
             dataset=spec["dataset"],
             split=spec["split"],
             palette=spec["palette"],
@@ -335,23 +339,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     window = None
     source: dict[str, Any] = {"kind": source_kind}
     if model is not None:
-        fixed = getattr(model.model, "input_size", None)
-        given = model.defaults
-        size = args.window or fixed or given.get("window") or (630, 630)
-        if fixed is not None and tuple(size) != tuple(fixed):
-            raise UsageError(
-                f"the ONNX model takes {fixed[0]}x{fixed[1]} inputs only: use --window "
-                f"{fixed[0]}x{fixed[1]} or re-export with --dynamic"
-            )
-        window = WindowConfig(
-            size=size,
-            stride=args.stride or (given.get("stride") if args.window is None else None),
-            scale=_first(args.scale, given.get("scale"), 1.0),
-            batch_size=_first(args.batch_size, given.get("batch_size"), 4),
-            precision=args.precision,
-        )
-        if model.patch_size:
-            window.check_patch(model.patch_size)
+        window = settings.window
         source["path"] = str(model.path)
         source["window"] = {
             "size": list(window.size),
@@ -359,6 +347,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
             "scale": window.scale,
         }
         source["precision"] = precision_name(autocast_dtype(window.precision, info.device))
+        source["settings"] = settings.describe()
     else:
         source["predictions"] = str(args.predictions)
     source.update(data.describe)

@@ -169,7 +169,9 @@ def _with_transforms(dataset: Any, transforms: Any) -> Any:
     return view
 
 
-def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -> _Opened:
+def _claravid(
+    root: Path, split: str, pal: Palette, selection: dict[str, Any], norm: Any = None
+) -> _Opened:
     raw = ClaraVidSegmentation(root, split=split, palette=pal, **selection)
     attributes = {
         "mission": [f.mission for f in raw.frames],
@@ -177,7 +179,7 @@ def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -
     }
     return _Opened(
         raw,
-        _with_transforms(raw, eval_transforms()),
+        _with_transforms(raw, eval_transforms(norm)),
         [str(f.paths["rgb"]) for f in raw.frames],
         [f.key for f in raw.frames],
         raw.read_mask,
@@ -185,21 +187,23 @@ def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -
     )
 
 
-def _uavid(root: Path, split: str, pal: Palette) -> _Opened:
+def _uavid(root: Path, split: str, pal: Palette, norm: Any = None) -> _Opened:
     raw = targets.UAVidSegmentation(root, split=split, palette=pal)
     if not raw.has_labels:
         raise ValueError(f"UAVid {split} has no labels to evaluate against; use val or train")
     check_palette_fit([raw.label_path(p) for p in raw.images], pal)
     return _Opened(
         raw,
-        _with_transforms(raw, eval_transforms()),
+        _with_transforms(raw, eval_transforms(norm)),
         [str(p) for p in raw.images],
         [_relative_key(p, root) for p in raw.images],  # as the samples' "key"
         lambda i: read_label_mask(raw.label_path(raw.images[i]), pal),
     )
 
 
-def _folder(root: Path, masks: Path | None, palette: Any, pal: Palette) -> _Opened:
+def _folder(
+    root: Path, masks: Path | None, palette: Any, pal: Palette, norm: Any = None
+) -> _Opened:
     if masks is None:
         raise ValueError("--dataset folder needs --masks: the folder of label images")
     if palette is None:
@@ -209,7 +213,7 @@ def _folder(root: Path, masks: Path | None, palette: Any, pal: Palette) -> _Open
     check_palette_fit(list(raw.masks or []), pal)
     return _Opened(
         raw,
-        _with_transforms(raw, eval_transforms()),
+        _with_transforms(raw, eval_transforms(norm)),
         [str(p) for p in raw.images],
         list(raw.keys),
         lambda i: read_label_mask(raw.masks[i], pal),
@@ -224,6 +228,7 @@ def open_data(
     palette: str | Path | None = None,
     masks: str | Path | None = None,
     selection: dict[str, Any] | None = None,
+    normalisation: dict[str, Any] | None = None,
 ) -> EvalData:
     """Open the images to evaluate.
 
@@ -237,6 +242,7 @@ def open_data(
         masks: the folder of label images mirroring ``root`` (``folder`` only).
         selection: ClaraVid ``missions``, ``altitude``, ``direction`` and ``split_config``
             (e.g. what a training checkpoint used).
+        normalisation: ``{"mean", "std"}`` of the model's input (default ImageNet's).
 
     Raises:
         ValueError: an unknown dataset kind, or a combination that cannot work.
@@ -247,11 +253,12 @@ def open_data(
     pal = load_palette(palette or ("claravid" if dataset == "claravid" else "uavid"))
     describe: dict[str, Any] = {"dataset": dataset, "data": str(root), "split": str(split)}
     if dataset == "claravid":
-        opened = _claravid(root, split, pal, selection or {})
+        opened = _claravid(root, split, pal, selection or {}, normalisation)
     elif dataset == "uavid":
-        opened = _uavid(root, split, pal)
+        opened = _uavid(root, split, pal, normalisation)
     else:
-        opened = _folder(root, None if masks is None else Path(masks).absolute(), palette, pal)
+        masks = None if masks is None else Path(masks).absolute()
+        opened = _folder(root, masks, palette, pal, normalisation)
         describe.update(split=None, masks=str(Path(masks).absolute()))
     if not opened.paths:
         raise ValueError(f"no images to evaluate in {root} (split {split})")

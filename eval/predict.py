@@ -5,6 +5,11 @@
     claravid-predict --checkpoint best.pt flight/ --output flight-pred
     claravid-predict --onnx model.onnx a.jpg b.jpg --output pred --palette uavid --scale 0.5
 
+Window, stride, scale, batch size, palette and normalisation are decided as in
+``claravid-eval`` (`claravid.eval.sources.resolve_settings`): the flag, else what the
+checkpoint's training config or the ONNX file's metadata records, else the default; so the
+label maps equal the ones ``claravid-eval --save-predictions`` writes for the same model.
+
 Writes ``OUT/<name>.png`` (single-channel uint8 train ids: the ``--predictions`` format of
 ``claravid-eval``) and ``OUT/overlays/<name>.jpg`` (the image blended with palette colours),
 where ``<name>`` is the image's path relative to the input folder without its extension (or
@@ -15,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import cv2
@@ -24,9 +30,19 @@ from torch.utils.data import DataLoader, Dataset
 from tqdm.auto import tqdm
 
 from claravid import modalities
-from claravid.cli import UsageError, add_debug_flag, check_device, check_output_dir, run_cli
+from claravid.cli import (
+    UsageError,
+    add_debug_flag,
+    check_device,
+    check_output_dir,
+    positive_int,
+    run_cli,
+)
+from claravid.eval.cli import _size
 from claravid.eval.predictions import MARKER, write_image, write_marker, write_prediction
-from claravid.eval.windows import WindowConfig, flag_precision, predict_labels
+from claravid.eval.sources import RunSettings
+from claravid.eval.windows import flag_precision, predict_labels
+from claravid.models.onnx_runtime import PROVIDERS
 from claravid.palettes import Palette, load_palette
 from claravid.transforms import eval_transforms
 
@@ -86,22 +102,31 @@ def overlay(image: np.ndarray, ids: np.ndarray, colors: np.ndarray) -> np.ndarra
 
 
 def _palette_for(
-    args: argparse.Namespace, defaults: dict[str, Any], num_classes: int | None
-) -> Palette | None:
-    """The palette from ``--palette`` or the checkpoint's config; None when neither says.
+    settings: RunSettings, no_overlays: bool, num_classes: int | None
+) -> Palette | SimpleNamespace | None:
+    """The palette of the resolved settings: a name or YAML, or the one an ONNX file carries
+    (names and colours, no reduction needed to colour overlays); None when nothing says.
 
     Never guessed from the class count: several palettes share one (UAVid has 8 classes, a
     custom reduction may too), and a guess would colour the overlays with the wrong classes.
     """
-    name = args.palette or defaults.get("palette")
-    if name is None:
-        if not args.no_overlays:
+    info = settings.palette_info
+    if settings.palette is None and info is None:
+        if not no_overlays:
             raise UsageError(
-                "the model does not record its palette (an ONNX file or a plain checkpoint): "
-                "pass --palette for the overlays, or --no-overlays for label maps only"
+                "the model does not record its palette (a foreign ONNX file or a plain "
+                "checkpoint): pass --palette for the overlays, or --no-overlays for label maps only"
             )
         return None
-    palette = load_palette(name)
+    if info is not None:  # the ONNX file's own record: no palette file needed
+        palette: Any = SimpleNamespace(
+            name=info["name"],
+            names=tuple(info["names"]),
+            colors=np.asarray(info["colors"], dtype=np.uint8).reshape(-1, 3),
+            num_classes=len(info["names"]),
+        )
+    else:
+        palette = load_palette(settings.palette)  # type: ignore[arg-type]
     if num_classes is not None and palette.num_classes != num_classes:
         raise UsageError(
             f"the model predicts {num_classes} classes but palette {palette.name} has "
@@ -118,14 +143,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--onnx", type=Path, help="ONNX model")
     p.add_argument("--output", "-o", type=Path, required=True, help="output folder")
     p.add_argument("--palette", help="palette for the colours (default: the checkpoint's)")
-    p.add_argument("--window", type=int, default=None, help="window size (default 630)")
-    p.add_argument("--stride", type=int, default=None, help="window step (default 2/3 window)")
-    p.add_argument("--scale", type=float, default=1.0, help="resize images first")
-    p.add_argument("--batch-size", type=int, default=4, help="windows per forward pass")
+    p.add_argument("--window", type=_size, help="window N or HxW (default: the model's, or 630)")
+    p.add_argument("--stride", type=_size, help="window step (default: the model's, or 2/3 window)")
+    p.add_argument("--scale", type=float, help="resize images first (default: the model's, or 1)")
+    p.add_argument("--batch-size", type=positive_int, help="windows per forward pass (default 4)")
     p.add_argument("--device", help="cpu or cuda (default: cuda when available)")
     p.add_argument(
         "--precision", help="PyTorch model: fp32 or bf16 (default: fp32 on CPU, bf16/fp16 on CUDA)"
     )
+    p.add_argument("--provider", choices=PROVIDERS, help="ONNX Runtime provider (--onnx)")
     p.add_argument("--workers", type=int, default=0, help="image decoding processes")
     p.add_argument("--no-overlays", action="store_true", help="label maps only")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -136,7 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Predict every image and write its label map and overlay."""
-    from claravid.eval.sources import load_source
+    from claravid.eval.sources import load_source, resolve_settings
 
     if (args.checkpoint is None) == (args.onnx is None):
         raise UsageError("give exactly one of --checkpoint and --onnx")
@@ -145,21 +171,17 @@ def run(args: argparse.Namespace) -> int:
     paths, keys = list_images(args.images)
     check_device(args.device)  # one line, not CUDA's traceback
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
-    source = load_source(args.checkpoint, args.onnx, device=device)
-    palette = _palette_for(args, source.defaults, source.num_classes)
-    fixed = getattr(source.model, "input_size", None)
-    size = (args.window, args.window) if args.window else (fixed or (630, 630))
-    config = WindowConfig(
-        size=size,
-        stride=None if args.stride is None else (args.stride, args.stride),
-        scale=args.scale,
-        batch_size=args.batch_size,
-        precision=precision,
-    )
-    if source.patch_size:
-        config.check_patch(source.patch_size)
+    source = load_source(args.checkpoint, args.onnx, device=device, provider=args.provider)
+    # The same decision as claravid-eval's: flags, else the model file's record, else defaults.
+    settings = resolve_settings(
+        source, window=args.window, stride=args.stride, scale=args.scale,
+        batch_size=args.batch_size, palette=args.palette, precision=precision,
+    )  # fmt: skip
+    palette = _palette_for(settings, args.no_overlays, source.num_classes)
+    config = settings.window
+    transforms = eval_transforms(settings.transforms_config)
     loader = DataLoader(
-        ImageList(paths, keys, eval_transforms()), batch_size=None, num_workers=args.workers
+        ImageList(paths, keys, transforms), batch_size=None, num_workers=args.workers
     )
     bar = tqdm(loader, total=len(paths), desc="predict", unit="img", disable=args.no_progress)
     for sample in bar:
@@ -171,7 +193,8 @@ def run(args: argparse.Namespace) -> int:
             blend = cv2.cvtColor(overlay(rgb, ids, palette.colors), cv2.COLOR_RGB2BGR)  # type: ignore[union-attr]
             target = out / "overlays" / f"{sample['key']}.jpg"
             write_image(target, blend, [cv2.IMWRITE_JPEG_QUALITY, 90])
-    write_marker(out, palette, {"kind": source.kind, "path": source.path}, images=len(paths))
+    described = {"kind": source.kind, "path": source.path, "settings": settings.describe()}
+    write_marker(out, palette, described, images=len(paths))  # type: ignore[arg-type]
     print(f"{len(paths)} label maps: {out}/<name>.png" + ("" if args.no_overlays else
           f"; overlays: {out / 'overlays'}"))  # fmt: skip
     return 0

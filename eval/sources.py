@@ -1,4 +1,10 @@
-"""Where predictions come from: a PyTorch checkpoint or an ONNX file (or saved label maps).
+"""Where predictions come from (a PyTorch checkpoint or an ONNX file), and how they are run.
+
+:func:`resolve_settings` is the one place that decides how a model is run, for
+``claravid-eval`` and ``claravid-predict`` alike: window, stride, scale, batch size, palette
+and input normalisation, each from the command line, else from what the model file records (a
+checkpoint's training config, or an ONNX file's ``claravid`` metadata), else the default; the
+report records each value and where it came from.
 
 A training checkpoint (``claravid.models.save_checkpoint`` with the resolved training ``config``
 as an extra entry) also says which data and palette it was trained for; :func:`checkpoint_defaults`
@@ -15,7 +21,13 @@ from typing import Any
 
 import torch
 
-from claravid.eval.windows import Model
+from claravid.cli import UsageError
+from claravid.eval.windows import Model, WindowConfig
+from claravid.models.onnx_metadata import normalisation_from_config, window_from_config
+
+DEFAULT_WINDOW = (630, 630)
+DEFAULT_SCALE = 1.0
+DEFAULT_BATCH = 4
 
 
 @dataclass
@@ -73,14 +85,148 @@ def checkpoint_defaults(checkpoint: Mapping[str, Any]) -> dict[str, Any]:
         value = _get(config, "data", name)
         if isinstance(value, list | tuple | str):
             out[name] = value
-    for name in ("window", "stride", "batch_size"):
-        value = _get(config, "val", name)
-        if isinstance(value, int) and not isinstance(value, bool) and value > 0:
-            out[name] = value
-    scale = _get(config, "val", "scale")
-    if isinstance(scale, int | float) and not isinstance(scale, bool) and scale > 0:
-        out["scale"] = float(scale)
+    window = window_from_config(config)  # the same reading as the ONNX metadata's
+    for name, key in (("window", "size"), ("stride", "stride")):
+        if key in window:
+            h, w = window[key]
+            out[name] = h if h == w else (h, w)
+    for name in ("scale", "batch_size"):
+        if name in window:
+            out[name] = window[name]
+    augment = _get(config, "data", "augment")
+    if isinstance(augment, Mapping) and ("mean" in augment or "std" in augment):
+        out["normalisation"] = normalisation_from_config(config)
     return out
+
+
+def onnx_defaults(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
+    """What an ONNX file's ``claravid`` metadata says about running it (as
+    :func:`checkpoint_defaults` for a checkpoint); empty for a file exported elsewhere."""
+    if not metadata:
+        return {}
+    out: dict[str, Any] = {}
+    window = metadata.get("window") or {}
+    for name, key in (("window", "size"), ("stride", "stride")):
+        if key in window:
+            out[name] = tuple(window[key])
+    for name in ("scale", "batch_size"):
+        if name in window:
+            out[name] = window[name]
+    palette = metadata.get("palette")
+    if palette:
+        out["palette"] = palette.get("name") or None
+        out["palette_info"] = palette
+    if metadata.get("normalisation"):
+        out["normalisation"] = metadata["normalisation"]
+    return {k: v for k, v in out.items() if v is not None}
+
+
+@dataclass
+class RunSettings:
+    """How a model is run, each value with where it came from.
+
+    Attributes:
+        window: the sliding windows (size, stride, scale, batch size).
+        palette: a palette name or YAML path (None: the data's default, or none at all).
+        palette_info: the palette recorded in an ONNX file (names, colours), when any.
+        normalisation: ``{"mean", "std", ...}`` of the input.
+        origins: ``{setting: "flag" | "checkpoint" | "onnx" | "default"}``.
+    """
+
+    window: WindowConfig
+    palette: str | None
+    palette_info: dict[str, Any] | None
+    normalisation: dict[str, Any]
+    origins: dict[str, str]
+
+    @property
+    def transforms_config(self) -> dict[str, Any]:
+        """The ``eval_transforms`` overrides that apply this normalisation."""
+        return {"mean": list(self.normalisation["mean"]), "std": list(self.normalisation["std"])}
+
+    def describe(self) -> dict[str, Any]:
+        """The report's ``source["settings"]``: every value used and where it came from."""
+        w = self.window
+        return {
+            "window": list(w.size),
+            "stride": list(w.stride),  # type: ignore[arg-type]
+            "scale": w.scale,
+            "batch_size": w.batch_size,
+            "palette": self.palette,
+            "normalisation": {k: self.normalisation[k] for k in ("mean", "std")},
+            "from": dict(self.origins),
+        }
+
+
+def _pair(value: Any) -> tuple[int, int] | None:
+    if value is None:
+        return None
+    return (value, value) if isinstance(value, int) else (int(value[0]), int(value[-1]))
+
+
+def resolve_settings(
+    source: ModelSource,
+    *,
+    window: int | tuple[int, int] | None = None,
+    stride: int | tuple[int, int] | None = None,
+    scale: float | None = None,
+    batch_size: int | None = None,
+    palette: str | None = None,
+    precision: str = "auto",
+) -> RunSettings:
+    """Window, stride, scale, batch size, palette and normalisation: flag, else the model
+    file's record, else the default. A ``--stride`` recorded for another window is dropped
+    when ``--window`` is given (the default stride follows the window).
+
+    Raises:
+        UsageError: a window other than a fixed-size ONNX file's input size; an ONNX file
+            without claravid metadata and no ``--palette``/``--window`` (the message names what
+            is missing); a window that is not a multiple of the patch size.
+    """
+    recorded = source.defaults
+    kind = source.kind
+    fixed = getattr(source.model, "input_size", None)
+    if kind == "onnx" and getattr(source.model, "metadata", None) is None:
+        missing = [f"--{n}" for n, v in (("palette", palette), ("window", window or fixed))
+                   if v is None]  # fmt: skip
+        if missing:
+            raise UsageError(
+                f"{source.path} carries no claravid metadata (exported elsewhere): pass "
+                f"{' and '.join(missing)} to say how to run it"
+            )
+    origins: dict[str, str] = {}
+
+    def pick(name: str, flag: Any, record: Any, default: Any) -> Any:
+        for value, origin in ((flag, "flag"), (record, kind), (default, "default")):
+            if value is not None:
+                origins[name] = origin
+                return value
+        origins[name] = "default"
+        return None
+
+    size = pick("window", _pair(window), fixed or _pair(recorded.get("window")), DEFAULT_WINDOW)
+    if fixed is not None and tuple(size) != tuple(fixed):
+        raise UsageError(
+            f"the ONNX model takes {fixed[0]}x{fixed[1]} inputs only: use --window "
+            f"{fixed[0]}x{fixed[1]} or re-export with --dynamic"
+        )
+    # A recorded stride belongs to the recorded window: with --window the default follows it.
+    record_stride = None if window is not None else _pair(recorded.get("stride"))
+    step = pick("stride", _pair(stride), record_stride, None)
+    config = WindowConfig(
+        size=size,
+        stride=step,
+        scale=pick("scale", scale, recorded.get("scale"), DEFAULT_SCALE),
+        batch_size=pick("batch_size", batch_size, recorded.get("batch_size"), DEFAULT_BATCH),
+        precision=precision,
+    )
+    if source.patch_size:
+        config.check_patch(source.patch_size)
+    name = pick("palette", palette, recorded.get("palette"), None)
+    info = recorded.get("palette_info") if palette is None else None
+    default_norm = normalisation_from_config(None)
+    normalisation = pick("normalisation", None, recorded.get("normalisation"), default_norm)
+    return RunSettings(config, name, info, normalisation, origins)
 
 
 def load_source(
@@ -89,8 +235,17 @@ def load_source(
     *,
     device: torch.device | str = "cpu",
     threads: int | None = None,
+    provider: str | None = None,
 ) -> ModelSource:
     """Load exactly one of ``checkpoint`` / ``onnx``.
+
+    Args:
+        checkpoint: A PyTorch checkpoint.
+        onnx: An ONNX file.
+        device: Where a checkpoint runs (and, for ONNX without ``provider``, CUDA or CPU).
+        threads: ONNX Runtime intra-op threads.
+        provider: ONNX Runtime provider: ``cpu``, ``cuda`` or ``tensorrt`` (default: CUDA
+            when ``device`` is CUDA and onnxruntime has it, else CPU).
 
     Raises:
         FileNotFoundError: the file does not exist.
@@ -108,11 +263,14 @@ def load_source(
         return ModelSource(
             model, "checkpoint", str(checkpoint), model.num_classes, model.patch_size, defaults
         )
-    from claravid.models.onnx_runtime import OnnxSegmenter
+    from claravid.models.onnx_runtime import OnnxSegmenter, resolve_providers
 
     device = torch.device(device)
-    providers = None if device.type == "cuda" else ["CPUExecutionProvider"]
+    if provider is None and device.type != "cuda":
+        provider = "cpu"
+    providers = resolve_providers(provider)  # one line naming what is missing, before loading
     segmenter = OnnxSegmenter(onnx, providers=providers, threads=threads)  # type: ignore[arg-type]
+    defaults = onnx_defaults(segmenter.metadata)
     return ModelSource(
-        segmenter, "onnx", str(onnx), segmenter.num_classes, segmenter.patch_size, {}
+        segmenter, "onnx", str(onnx), segmenter.num_classes, segmenter.patch_size, defaults
     )

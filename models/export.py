@@ -5,12 +5,16 @@ through onnxscript): it handles SDPA, bicubic and symbolic H/W. The batch is alw
 example batch is 2 because a batch of 1 lets the exporter freeze that dimension.
 
     claravid-export runs/exp/best.pt --output model.onnx --height 630 --width 630
+    claravid-export runs/exp/best.pt --output model-int8.onnx --precision int8
+
+The file carries what it takes to run the model as evaluated (`claravid.models.onnx_metadata`).
+The palette's colours come from the data layer, which ``models/`` never imports: the console
+script (``claravid.eval.export``) passes a resolver into :func:`main`.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import os
@@ -18,12 +22,14 @@ import shutil
 import sys
 import tempfile
 import warnings
+from collections.abc import Callable, Iterable
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from claravid.cli import (
     EXIT_FAILED,
@@ -34,12 +40,23 @@ from claravid.cli import (
     positive_int,
     run_cli,
 )
-from claravid.models.onnx_runtime import META_PREFIX, OnnxSegmenter
+from claravid.models.onnx_metadata import (
+    KEY,
+    PRECISIONS,
+    PREFIX,
+    build_metadata,
+    metadata_props,
+    normalisation_from_config,
+)
+from claravid.models.onnx_runtime import OnnxSegmenter
 from claravid.models.segmenter import Segmenter
 
 # Opset 23 has a fused Attention op (SDPA maps to it; onnxruntime runs it without materialising
 # the N x N score matrix in memory-bound MatMul/Softmax pairs).
 OPSET = 23
+#: Largest max-abs logit difference accepted by default (int8 is judged by its agreement).
+DEFAULT_TOLERANCE: dict[str, float | None] = {"fp32": 1e-3, "fp16": 5e-2, "int8": None}
+DEFAULT_MIN_AGREEMENT = 0.97  # int8: fraction of pixels whose argmax equals PyTorch's
 
 
 class ExportCheckError(RuntimeError):
@@ -75,9 +92,20 @@ def export_onnx(
     width: int = 630,
     dynamic: bool = False,
     check: bool = True,
-    tolerance: float = 1e-3,
+    tolerance: float | None = None,
+    *,
+    precision: str = "fp32",
+    min_agreement: float | None = None,
+    config: dict[str, Any] | None = None,
+    step: int | None = None,
+    palette: dict[str, Any] | None = None,
+    calibration: Iterable[np.ndarray] | None = None,
+    per_channel: bool = False,
 ) -> dict[str, Any]:
     """Export ``model`` to ONNX, then check it with ``onnx.checker`` and ONNX Runtime.
+
+    The file carries the ``claravid`` metadata document (`claravid.models.onnx_metadata`):
+    what it takes to run the model as it was evaluated.
 
     Args:
         model: A `Segmenter`.
@@ -87,18 +115,41 @@ def export_onnx(
         width: Example input width.
         dynamic: Also make H and W dynamic (multiples of the patch size).
         check: Run the checks below after export.
-        tolerance: Largest allowed max-abs difference of logits between ORT and PyTorch.
+        tolerance: Largest allowed max-abs difference of logits between ORT and PyTorch
+            (default 1e-3 for fp32, 0.05 for fp16; int8 is judged by ``min_agreement``).
+        precision: ``fp32``, ``fp16`` (float16 graph, float32 input and output) or ``int8``
+            (`claravid.models.quantize`).
+        min_agreement: Smallest allowed fraction of pixels whose argmax equals PyTorch's
+            (default 0.97 for int8, not checked otherwise).
+        config: The checkpoint's resolved training config (windows, normalisation, hash).
+        step: The training step of the checkpoint.
+        palette: ``{"name", "names", "colors", "ignore_index"}`` as plain lists.
+        calibration: int8 only: batches of normalised images for static QDQ quantisation.
+        per_channel: int8 only: one weight scale per output channel.
 
     Returns:
-        ``{"path", "max_abs_diff", "check_shape"}`` (diff and shape None when not checked).
+        ``{"path", "max_abs_diff", "agreement", "check_shape", "precision", ...}`` (the
+        check's entries None when not checked).
 
     Raises:
-        ValueError: the size is not a positive multiple of the patch size, or the tolerance is
-            not a finite number > 0.
-        ExportCheckError: ORT's logits differ from PyTorch's by more than ``tolerance`` (nothing
-            is written then).
+        ValueError: a size that is not a positive multiple of the patch size, or a tolerance,
+            agreement or precision out of range.
+        ExportCheckError: ORT's logits differ from PyTorch's beyond ``tolerance`` or
+            ``min_agreement`` (nothing is written then).
     """
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if tolerance is None:
+        tolerance = DEFAULT_TOLERANCE[precision]
+    if min_agreement is None and precision == "int8":
+        min_agreement = DEFAULT_MIN_AGREEMENT
     _check_settings(model, height, width, tolerance)
+    if min_agreement is not None and not (
+        isinstance(min_agreement, (int, float)) and 0 <= min_agreement <= 1
+    ):
+        raise ValueError(f"min_agreement must be a fraction in [0, 1], got {min_agreement!r}")
+    if precision != "int8" and (calibration is not None or per_channel):
+        raise ValueError("calibration and per_channel apply to int8 exports only")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     # Written in a temp folder beside the target and moved into place once written (and checked):
@@ -107,11 +158,45 @@ def export_onnx(
     staging = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
     try:
         staged = staging / path.name
-        _export(model, staged, height, width, dynamic)
-        result: dict[str, Any] = {"path": path, "max_abs_diff": None, "check_shape": None}
+        result: dict[str, Any] = {"path": path, "precision": precision}
+        if precision == "fp32":
+            _export(model, staged, height, width, dynamic)
+        else:
+            (staging / "fp32").mkdir()
+            plain = staging / "fp32" / path.name
+            _export(model, plain, height, width, dynamic)
+            if precision == "fp16":
+                from claravid.models.onnx_fp16 import convert_to_fp16
+
+                result["conversion"] = convert_to_fp16(str(plain), str(staged))
+            else:
+                from claravid.models.quantize import quantize_int8
+
+                result["conversion"] = quantize_int8(
+                    plain, staged, calibration=calibration, per_channel=per_channel
+                )
+            shutil.rmtree(staging / "fp32")
+        size = None if dynamic else (height, width)
+        document = build_metadata(
+            model.model_args,
+            patch_size=model.patch_size,
+            num_classes=model.num_classes,
+            input_size=size,
+            precision=precision,
+            config=config,
+            step=step,
+            palette=palette,
+        )
+        _write_metadata(staged, document)
+        result.update(max_abs_diff=None, agreement=None, check_shape=None)
         if check:
             try:
-                result.update(check_export(model, staged, height, width, dynamic, tolerance))
+                result.update(
+                    check_export(
+                        model, staged, height, width, dynamic, tolerance, min_agreement,
+                        document["normalisation"],
+                    )
+                )  # fmt: skip
             except ExportCheckError as exc:  # name the file the user asked for, not the temp one
                 raise ExportCheckError(str(exc).replace(str(staged), str(path))) from None
         for item in sorted(staging.iterdir(), key=lambda f: f == staged):  # the .onnx last
@@ -130,7 +215,7 @@ def _check_settings(model: Segmenter, height: object, width: object, tolerance: 
                 f"got {value!r}"
             )
     model.backbone.check_input_size(int(height), int(width))  # type: ignore[arg-type]
-    if (
+    if tolerance is not None and (
         not isinstance(tolerance, (int, float))
         or isinstance(tolerance, bool)
         or not math.isfinite(tolerance)
@@ -166,24 +251,39 @@ def _export(model: Segmenter, path: Path, height: int, width: int, dynamic: bool
             opset_version=OPSET,
             verbose=False,
         )
-    _write_metadata(path, model, None if dynamic else (height, width))
 
 
-def _write_metadata(path: Path, model: Segmenter, size: tuple[int, int] | None) -> None:
+def _write_metadata(path: Path, document: dict[str, Any]) -> None:
     import onnx
 
     proto = onnx.load(str(path), load_external_data=False)
-    meta = {
-        "patch_size": str(model.patch_size),
-        "num_classes": str(model.num_classes),
-        "model_args": json.dumps(model.model_args),
-    }
-    if size is not None:
-        meta["input_size"] = f"{size[0]}x{size[1]}"
-    for key, value in meta.items():
+    del proto.metadata_props[:]
+    for key, value in metadata_props(document).items():
         entry = proto.metadata_props.add()
-        entry.key, entry.value = META_PREFIX + key, value
+        entry.key, entry.value = key, value
     onnx.save(proto, str(path))
+
+
+def smooth_images(
+    shape: tuple[int, ...], normalisation: dict[str, Any], seed: int = 0
+) -> np.ndarray:
+    """Normalised images that look more like photos than noise: smooth colour fields + grain.
+
+    Random coarse colour grids (a few cells per side) upsampled bicubically, plus a little
+    pixel noise, in [0, 255], then normalised as the model expects. Uniform noise is a poor
+    test of a quantised model: its activations have ranges no real image produces.
+    """
+    b, c, h, w = shape
+    g = torch.Generator().manual_seed(seed)
+    coarse = torch.rand(b, c, max(2, h // 32), max(2, w // 32), generator=g)
+    fine = torch.rand(b, c, max(2, h // 8), max(2, w // 8), generator=g)
+    image = 0.8 * F.interpolate(coarse, size=(h, w), mode="bicubic", align_corners=False)
+    image += 0.2 * F.interpolate(fine, size=(h, w), mode="bilinear", align_corners=False)
+    image += 0.02 * torch.randn(b, c, h, w, generator=g)
+    pixels = (image.clamp(0, 1) * 255).round()
+    mean = torch.tensor(normalisation["mean"]).view(1, 3, 1, 1)
+    std = torch.tensor(normalisation["std"]).view(1, 3, 1, 1)
+    return ((pixels / 255 - mean) / std).float().numpy()
 
 
 def check_export(
@@ -192,30 +292,59 @@ def check_export(
     height: int,
     width: int,
     dynamic: bool,
-    tolerance: float = 1e-3,
+    tolerance: float | None = 1e-3,
+    min_agreement: float | None = None,
+    normalisation: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """``onnx.checker``, then ORT vs PyTorch on batch 3 (and another size when dynamic)."""
+    """``onnx.checker``, then ORT vs PyTorch on 3 smooth random images (another size too when
+    dynamic): the max abs difference of logits and the fraction of pixels with the same argmax.
+
+    Raises:
+        ExportCheckError: the difference is above ``tolerance`` (None: not checked) or the
+            agreement below ``min_agreement`` (None: not checked).
+    """
     import onnx
 
     onnx.checker.check_model(str(path))
     p = model.patch_size
     shape = (3, 3, height + p, width + 2 * p) if dynamic else (3, 3, height, width)
+    x = smooth_images(shape, normalisation or normalisation_from_config(None))
     param = next(model.parameters())
-    x = torch.randn(*shape, generator=torch.Generator().manual_seed(0))
     was_training = model.training
     model.eval()
     with torch.no_grad():
-        expected = model(x.to(param.device)).float().cpu().numpy()
+        expected = model(torch.from_numpy(x).to(param.device)).float().cpu().numpy()
     model.train(was_training)
-    got = OnnxSegmenter(path, providers=["CPUExecutionProvider"])(x.numpy())
+    got = OnnxSegmenter(path, providers=["CPUExecutionProvider"])(x)
     diff = float(np.abs(got - expected).max())
-    print(f"onnxruntime vs PyTorch on input {list(shape)}: max abs diff of logits {diff:.3g}")
-    if not diff <= tolerance:
+    agreement = float((got.argmax(1) == expected.argmax(1)).mean())
+    print(
+        f"onnxruntime vs PyTorch on input {list(shape)}: max abs diff of logits {diff:.3g}, "
+        f"argmax agreement {100 * agreement:.2f} %"
+    )
+    if tolerance is not None and not diff <= tolerance:
         raise ExportCheckError(
             f"exported model {path} differs from PyTorch by {diff:.3g} (> {tolerance}) on input "
             f"{list(shape)}; export in float32 on CPU, or report the model arguments"
         )
-    return {"max_abs_diff": diff, "check_shape": shape}
+    if min_agreement is not None and not agreement >= min_agreement:
+        raise ExportCheckError(
+            f"exported model {path} agrees with PyTorch on {100 * agreement:.2f} % of pixels "
+            f"(< --min-agreement {100 * min_agreement:g} %); try --per-channel, --calibration "
+            f"DATA or a higher precision"
+        )
+    return {"max_abs_diff": diff, "agreement": agreement, "check_shape": shape}
+
+
+def fraction(text: str) -> float:
+    """argparse type: a number in [0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1], got {text!r}")
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -223,8 +352,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="claravid-export",
         description="Export a claravid segmenter checkpoint to ONNX, checked with ONNX Runtime.",
-        epilog="Exit status: 0 ok; 1 the export differs from PyTorch beyond --tolerance (nothing "
-        "written); 2 a bad argument, an unreadable checkpoint or an unusable --output.",
+        epilog="Exit status: 0 ok; 1 the export differs from PyTorch beyond --tolerance or "
+        "--min-agreement (nothing written); 2 a bad argument, an unreadable checkpoint or an "
+        "unusable --output.",
     )
     parser.add_argument("checkpoint", help="checkpoint written by models.save_checkpoint")
     parser.add_argument("--output", "-o", required=True, help="output .onnx file")
@@ -233,9 +363,22 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--width", type=positive_int, default=630,
                         help="input width, a patch multiple (default 630)")  # fmt: skip
     parser.add_argument("--dynamic", action="store_true", help="dynamic height and width")
+    parser.add_argument("--precision", choices=PRECISIONS, default="fp32",
+                        help="fp32 (default), fp16 (GPUs) or int8 (CPUs)")  # fmt: skip
     parser.add_argument("--no-check", action="store_true", help="skip the ONNX Runtime check")
-    parser.add_argument("--tolerance", type=positive_float, default=1e-3,
-                        help="max allowed abs difference of logits (default 1e-3)")  # fmt: skip
+    parser.add_argument("--tolerance", type=positive_float, default=None,
+                        help="max allowed abs difference of logits (default 1e-3 for fp32, "
+                        "0.05 for fp16, not checked for int8)")  # fmt: skip
+    parser.add_argument("--min-agreement", type=fraction, default=None,
+                        help="min fraction of pixels with PyTorch's argmax (default 0.97 for "
+                        "int8, not checked otherwise)")  # fmt: skip
+    parser.add_argument("--calibration", metavar="DATA",
+                        help="int8: static QDQ quantisation calibrated on crops of these images "
+                        "(a dataset root or an image folder); default dynamic")  # fmt: skip
+    parser.add_argument("--calibration-images", type=positive_int, default=64, metavar="N",
+                        help="int8: number of calibration crops (default 64)")  # fmt: skip
+    parser.add_argument("--per-channel", action="store_true",
+                        help="int8: one weight scale per output channel")  # fmt: skip
     parser.add_argument(
         "--overwrite", action="store_true", help="replace an --output claravid-export did not write"
     )
@@ -253,11 +396,21 @@ def _exported(path: str | os.PathLike) -> bool:
         proto = onnx.load(str(path), load_external_data=False)
     except Exception:  # not ONNX at all: someone else's file
         return False
-    return any(p.key.startswith(META_PREFIX) for p in proto.metadata_props)
+    return any(p.key == KEY or p.key.startswith(PREFIX) for p in proto.metadata_props)
 
 
-def _run(args: argparse.Namespace) -> int:
-    from claravid.models.checkpoint import load_checkpoint
+#: ``(palette name or path) -> {"name", "names", "colors", "ignore_index"}``.
+PaletteResolver = Callable[[str], dict[str, Any]]
+#: ``(folder, count, (height, width), normalisation) -> batches of normalised images``.
+CalibrationReader = Callable[[str, int, tuple[int, int], dict[str, Any]], Iterable[np.ndarray]]
+
+
+def _run(
+    args: argparse.Namespace,
+    resolve_palette: PaletteResolver | None = None,
+    read_calibration: CalibrationReader | None = None,
+) -> int:
+    from claravid.models.checkpoint import model_from_checkpoint, read_checkpoint
 
     output = check_output_file(args.output, what="--output")
     if output.suffix.lower() != ".onnx":
@@ -265,10 +418,32 @@ def _run(args: argparse.Namespace) -> int:
         raise UsageError(f"--output {output} must end in .onnx")
     # Our own earlier export may be replaced; anyone else's file only with --overwrite.
     check_output_file(output, overwrite=args.overwrite or _exported(output), what="--output")
+    if args.precision != "int8" and (args.calibration is not None or args.per_channel):
+        raise UsageError("--calibration and --per-channel apply to --precision int8 only")
+    if args.calibration is not None and not Path(args.calibration).is_dir():
+        raise UsageError(f"--calibration {args.calibration} is not a folder of images")
     checkpoint = Path(args.checkpoint)
     if output.exists() and checkpoint.exists() and output.samefile(checkpoint):
         raise UsageError(f"--output {output} is the checkpoint itself; choose another file")
-    model = load_checkpoint(checkpoint)
+    ckpt = read_checkpoint(checkpoint)
+    model = model_from_checkpoint(ckpt, checkpoint)
+    config = ckpt.get("config") if isinstance(ckpt.get("config"), dict) else None
+    step = ckpt.get("step") if isinstance(ckpt.get("step"), int) else None
+    del ckpt
+    palette = None
+    data = config.get("data") if config else None
+    name = data.get("palette") if isinstance(data, dict) else None
+    if isinstance(name, str) and resolve_palette is not None:
+        palette = resolve_palette(name)
+    calibration = None
+    if args.calibration is not None:
+        if read_calibration is None:
+            raise UsageError("--calibration needs the claravid-export console script")
+        normalisation = normalisation_from_config(config)
+        size = (args.height, args.width)
+        calibration = read_calibration(
+            args.calibration, args.calibration_images, size, normalisation
+        )
     try:
         result = export_onnx(
             model,
@@ -278,17 +453,40 @@ def _run(args: argparse.Namespace) -> int:
             dynamic=args.dynamic,
             check=not args.no_check,
             tolerance=args.tolerance,
+            precision=args.precision,
+            min_agreement=args.min_agreement,
+            config=config,
+            step=step,
+            palette=palette,
+            calibration=calibration,
+            per_channel=args.per_channel,
         )
     except ExportCheckError as exc:
         print(f"claravid-export: error: {exc}; nothing was written", file=sys.stderr)
         return EXIT_FAILED
-    print(f"wrote {result['path']}")
+    print(f"wrote {result['path']} ({args.precision})")
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``claravid-export CHECKPOINT --output model.onnx [--height --width --dynamic]``."""
-    return run_cli("claravid-export", _run, build_parser(), argv)
+def main(
+    argv: list[str] | None = None,
+    *,
+    resolve_palette: PaletteResolver | None = None,
+    read_calibration: CalibrationReader | None = None,
+) -> int:
+    """``claravid-export CHECKPOINT --output model.onnx [--height --width --dynamic]``.
+
+    Args:
+        argv: The arguments (default ``sys.argv[1:]``).
+        resolve_palette: Turns the checkpoint's palette name into plain data for the
+            metadata (without it the file records no palette).
+        read_calibration: Reads ``--calibration`` images as normalised batches.
+    """
+
+    def run(args: argparse.Namespace) -> int:
+        return _run(args, resolve_palette, read_calibration)
+
+    return run_cli("claravid-export", run, build_parser(), argv)
 
 
 if __name__ == "__main__":

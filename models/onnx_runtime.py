@@ -9,8 +9,43 @@ from typing import Any
 import numpy as np
 
 from claravid.models.inputs import check_image_batch
+from claravid.models.onnx_metadata import read_metadata
 
 META_PREFIX = "claravid."
+
+#: ``--provider`` names -> the ONNX Runtime providers tried in order (CPU last, as a fallback
+#: for the ops a GPU provider does not implement).
+PROVIDERS = {
+    "cpu": ["CPUExecutionProvider"],
+    "cuda": ["CUDAExecutionProvider", "CPUExecutionProvider"],
+    "tensorrt": ["TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider"],
+}
+
+
+def resolve_providers(provider: str | None = None) -> list[str]:
+    """The ONNX Runtime providers for ``provider`` (``cpu``, ``cuda``, ``tensorrt``).
+
+    None picks the best available of CUDA and CPU. TensorRT is used only when asked: it builds
+    an engine per input shape (minutes) before the first window runs.
+
+    Raises:
+        ValueError: an unknown name, or a provider this onnxruntime build lacks.
+    """
+    import onnxruntime as ort
+
+    available = ort.get_available_providers()
+    if provider is None:
+        provider = "cuda" if "CUDAExecutionProvider" in available else "cpu"
+    if provider not in PROVIDERS:
+        raise ValueError(f"unknown provider {provider!r}; use one of {', '.join(PROVIDERS)}")
+    wanted = PROVIDERS[provider][0]
+    if wanted not in available:
+        have = ", ".join(k for k, v in PROVIDERS.items() if v[0] in available)
+        raise ValueError(
+            f"ONNX Runtime provider {provider} is not available here (available: {have}); "
+            f"install the onnxruntime build with it (e.g. onnxruntime-gpu) or use --provider cpu"
+        )
+    return [p for p in PROVIDERS[provider] if p in available]
 
 
 def check_onnx_file(path: str | os.PathLike) -> None:
@@ -48,7 +83,8 @@ class OnnxSegmenter:
 
     Args:
         path: The ``.onnx`` file written by `claravid.models.export_onnx`.
-        providers: ONNX Runtime execution providers (default: CUDA when available, then CPU).
+        providers: ONNX Runtime execution providers, or a ``--provider`` name (``cpu``,
+            ``cuda``, ``tensorrt``); default: CUDA when available, then CPU.
         threads: Intra-op threads (default: ONNX Runtime's choice).
 
     Attributes:
@@ -56,12 +92,14 @@ class OnnxSegmenter:
         num_classes: K.
         input_size: (H, W) of a fixed-size export, or None when H/W are dynamic.
         model_args: The ``build_model`` arguments of the exported model.
+        metadata: The ``claravid`` document (`claravid.models.onnx_metadata`), or None for a
+            file exported elsewhere. The properties below read it (None when absent).
     """
 
     def __init__(
         self,
         path: str | os.PathLike,
-        providers: list[str] | None = None,
+        providers: list[str] | str | None = None,
         threads: int | None = None,
     ) -> None:
         import onnxruntime as ort
@@ -70,11 +108,8 @@ class OnnxSegmenter:
         options = ort.SessionOptions()
         if threads:
             options.intra_op_num_threads = threads
-        if providers is None:
-            available = ort.get_available_providers()
-            providers = [
-                p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in available
-            ]
+        if providers is None or isinstance(providers, str):
+            providers = resolve_providers(providers)
         try:
             self.session = ort.InferenceSession(str(path), options, providers=providers)
         except Exception as exc:  # a truncated or damaged file: ORT's message, one line
@@ -85,6 +120,7 @@ class OnnxSegmenter:
             ) from None
         self.input_name = self.session.get_inputs()[0].name
         meta = self.session.get_modelmeta().custom_metadata_map
+        self.metadata: dict[str, Any] | None = read_metadata(meta)
         self.patch_size = int(meta.get(META_PREFIX + "patch_size", 14))
         self.num_classes = int(meta.get(META_PREFIX + "num_classes", 0)) or None
         self.model_args: dict[str, Any] = json.loads(meta.get(META_PREFIX + "model_args", "{}"))
@@ -92,6 +128,59 @@ class OnnxSegmenter:
         self.input_size: tuple[int, int] | None = (
             tuple(int(v) for v in fixed.split("x")) if fixed else None  # type: ignore[assignment]
         )
+        if self.num_classes is None:  # a foreign file: K from the output shape when static
+            dim = self.session.get_outputs()[0].shape[1]
+            self.num_classes = dim if isinstance(dim, int) and dim > 0 else None
+
+    def _meta(self, *keys: str) -> Any:
+        value: Any = self.metadata
+        for key in keys:
+            if not isinstance(value, dict):
+                return None
+            value = value.get(key)
+        return value
+
+    @property
+    def precision(self) -> str | None:
+        """``fp32``, ``fp16`` or ``int8``."""
+        return self._meta("precision")
+
+    @property
+    def palette(self) -> dict[str, Any] | None:
+        """``{"name", "names", "colors", "ignore_index"}`` of the classes the ids refer to."""
+        return self._meta("palette")
+
+    @property
+    def normalisation(self) -> dict[str, Any] | None:
+        """``{"mean", "std", "channels", "value_range", "formula"}`` the input expects."""
+        return self._meta("normalisation")
+
+    @property
+    def window(self) -> tuple[int, int] | None:
+        """The validation window (H, W) of the training config."""
+        size = self._meta("window", "size")
+        return tuple(size) if size else None  # type: ignore[return-value]
+
+    @property
+    def stride(self) -> tuple[int, int] | None:
+        """The validation window step (H, W) of the training config."""
+        stride = self._meta("window", "stride")
+        return tuple(stride) if stride else None  # type: ignore[return-value]
+
+    @property
+    def scale(self) -> float | None:
+        """The resize factor applied to images before the windows."""
+        return self._meta("window", "scale")
+
+    @property
+    def batch_size(self) -> int | None:
+        """Windows per forward pass in the training config's validation."""
+        return self._meta("window", "batch_size")
+
+    @property
+    def training(self) -> dict[str, Any] | None:
+        """``{"step", "config_sha256"}`` of the checkpoint exported."""
+        return self._meta("training")
 
     def check_input(self, images: np.ndarray) -> None:
         """Raise ``TypeError``/``ValueError`` when ``images`` cannot go through this model."""

@@ -152,6 +152,7 @@ def test_failed_check_writes_nothing_and_keeps_the_old_file(tmp_path, capsys, mo
         raise ExportCheckError(f"exported model {path} differs from PyTorch by 1")
 
     monkeypatch.setattr(export, "_export", fake_export)
+    monkeypatch.setattr(export, "_write_metadata", lambda path, document: None)
     monkeypatch.setattr(export, "check_export", failing_check)
     ckpt = save_checkpoint(_model("dinov2_vits14"), tmp_path / "m.pt")
     out = tmp_path / "x.onnx"

@@ -1,0 +1,152 @@
+"""A self-describing ONNX file, and one way to decide how a model is run (issue 13 §1, §2).
+
+A training-style checkpoint records val.window=14, val.scale=0.5 and the uavid palette; its
+export carries them; eval and predict, from either file, with no flags, run the same windows.
+"""
+
+import hashlib
+import json
+
+import numpy as np
+import onnx
+import pytest
+
+from claravid import models
+from claravid.eval.cli import main as eval_main
+from claravid.eval.export import main as export_main
+from claravid.eval.predict import main as predict_main
+from claravid.modalities import read_dynamic_mask as read_label  # any 8-bit grey PNG
+from claravid.palettes import load_palette
+from claravid.transforms import IMAGENET_MEAN, IMAGENET_STD
+from tests.eval.conftest import tiny_model
+
+FRAMES = ["001_rural_1/45deg_low_h/000000", "001_rural_1/45deg_low_v/000001",
+          "003_urban_1/90deg_high_v/000002"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def files(claravid_root, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("settings")
+    config = {
+        "data": {"root": str(claravid_root), "palette": "uavid", "split": {"seed": 0}},
+        "val": {"window": 14, "scale": 0.5, "batch_size": 2},
+    }
+    # Seed 1: a model whose maps hold two classes and change with the scale (seed 0's are flat).
+    model = tiny_model(seed=1)
+    ckpt = models.save_checkpoint(model, folder / "best.pt", config=config, step=7)
+    onnx_path = folder / "m.onnx"
+    # A fixed-size export of the recorded window (a dynamic one costs 3x the export time).
+    assert export_main([str(ckpt), "-o", str(onnx_path), "--height", "14", "--width", "14"]) == 0
+    split = folder / "split.txt"
+    split.write_text("\n".join(FRAMES) + "\n")
+    foreign = folder / "foreign.onnx"
+    proto = onnx.load(str(onnx_path))
+    del proto.metadata_props[:]
+    onnx.save(proto, str(foreign))
+    images = [claravid_root / f.replace("/", "/left_rgb/", 1) for f in FRAMES]
+    return {"ckpt": ckpt, "onnx": onnx_path, "foreign": foreign, "split": split,
+            "config": config, "images": [p.with_suffix(".jpg") for p in images]}  # fmt: skip
+
+
+def test_metadata_round_trip(files):
+    runner = models.OnnxSegmenter(files["onnx"])
+    uavid = load_palette("uavid")
+    assert runner.palette == {
+        "name": "uavid",
+        "names": list(uavid.names),
+        "colors": uavid.colors.tolist(),
+        "ignore_index": 255,
+    }
+    assert (runner.window, runner.stride, runner.scale, runner.batch_size) == ((14, 14), None,
+                                                                               0.5, 2)  # fmt: skip
+    assert runner.normalisation["mean"] == list(IMAGENET_MEAN)
+    assert runner.normalisation["std"] == list(IMAGENET_STD)
+    assert runner.normalisation["channels"] == "RGB" and runner.precision == "fp32"
+    text = json.dumps(files["config"], sort_keys=True, separators=(",", ":"))
+    digest = hashlib.sha256(text.encode()).hexdigest()
+    assert runner.training == {"step": 7, "config_sha256": digest}
+    assert runner.metadata["model_args"]["backbone"] == "dinov2_vits14"
+    foreign = models.OnnxSegmenter(files["foreign"])
+    assert foreign.metadata is None and foreign.palette is None and foreign.window is None
+
+
+def _eval(out, *argv):
+    code = eval_main([*argv, "--split", str(_eval.split), "--output", str(out), "--bins", "1",
+                      "--hardest", "0", "--no-progress"])  # fmt: skip
+    assert code == 0
+    report = json.loads((out / "report.json").read_text())
+    with np.load(out / "confusions.npz") as saved:
+        return report, saved["confusions"]
+
+
+def test_eval_onnx_without_flags_equals_checkpoint_and_predict_equals_eval(
+    files, claravid_root, tmp_path
+):
+    _eval.split = files["split"]
+    rep_ckpt, conf_ckpt = _eval(tmp_path / "c", "--checkpoint", str(files["ckpt"]),
+                                "--save-predictions", str(tmp_path / "pc"))  # fmt: skip
+    rep_onnx, conf_onnx = _eval(tmp_path / "o", "--onnx", str(files["onnx"]),
+                                "--data", str(claravid_root),
+                                "--save-predictions", str(tmp_path / "po"))  # fmt: skip
+    np.testing.assert_array_equal(conf_onnx, conf_ckpt)  # per image
+    for report, kind in ((rep_ckpt, "checkpoint"), (rep_onnx, "onnx")):
+        settings = report["source"]["settings"]
+        assert settings["window"] == [14, 14] and settings["scale"] == 0.5
+        assert settings["batch_size"] == 2 and settings["palette"] == "uavid"
+        assert settings["from"]["window"] == kind and settings["from"]["scale"] == kind
+        assert settings["from"]["stride"] == "default"  # 2/3 of the recorded window
+        assert report["palette"] == "uavid"
+    for model, saved in (("--checkpoint", "pc"), ("--onnx", "po")):
+        out = tmp_path / f"predict{saved}"
+        file = files["ckpt"] if model == "--checkpoint" else files["onnx"]
+        assert predict_main([model, str(file), *map(str, files["images"]), "--output", str(out),
+                             "--no-progress"]) == 0  # fmt: skip
+        for frame, image in zip(FRAMES, files["images"], strict=True):
+            expected = read_label(tmp_path / saved / f"{frame}.png")
+            got = read_label(out / f"{image.stem}.png")
+            assert len(np.unique(expected)) > 1  # a flat map would hide a wrong scale
+            np.testing.assert_array_equal(got, expected)
+        marker = json.loads((out / "predictions.json").read_text())
+        assert marker["source"]["settings"]["scale"] == 0.5 and marker["palette"] == "uavid"
+
+
+def _one_line(capsys, prog, *needles):
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith(f"{prog}: error:")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert all(n in lines[0] for n in needles), lines[0]
+
+
+def test_foreign_onnx_runs_with_flags_and_says_what_is_missing(
+    files, claravid_root, tmp_path, capsys
+):
+    _eval.split = files["split"]
+    argv = ["--onnx", str(files["foreign"]), "--data", str(claravid_root)]
+    assert eval_main([*argv, "--output", str(tmp_path / "x")]) == 2
+    _one_line(capsys, "claravid-eval", "no claravid metadata", "--palette and --window")
+    assert eval_main([*argv, "--palette", "uavid", "--output", str(tmp_path / "y")]) == 2
+    _one_line(capsys, "claravid-eval", "pass --window")
+    _, foreign = _eval(tmp_path / "f", *argv, "--palette", "uavid", "--window", "14",
+                       "--scale", "0.5")  # fmt: skip
+    _, ckpt = _eval(tmp_path / "c", "--checkpoint", str(files["ckpt"]))
+    np.testing.assert_array_equal(foreign, ckpt)
+    image = str(files["images"][0])
+    assert predict_main(["--onnx", str(files["foreign"]), image, "-o", str(tmp_path / "p")]) == 2
+    _one_line(capsys, "claravid-predict", "--palette and --window")
+
+
+def test_provider_flag(files, tmp_path, capsys):
+    import onnxruntime as ort
+
+    image = str(files["images"][0])
+    with pytest.raises(SystemExit) as info:
+        predict_main(["--onnx", str(files["onnx"]), image, "-o", str(tmp_path / "p"),
+                      "--provider", "gpu"])  # fmt: skip
+    assert info.value.code == 2 and "invalid choice: 'gpu'" in capsys.readouterr().err
+    if "TensorrtExecutionProvider" in ort.get_available_providers():
+        pytest.skip("this onnxruntime has TensorRT")
+    argv = ["--onnx", str(files["onnx"]), image, "-o", str(tmp_path / "p"), "--provider",
+            "tensorrt"]  # fmt: skip
+    assert predict_main(argv) == 2
+    _one_line(capsys, "claravid-predict", "provider tensorrt is not available here")
+    assert predict_main([*argv[:-1], "cpu", "--no-progress"]) == 0
