@@ -33,6 +33,8 @@ CLUSTER_UNITS = ("image", "viewpoint", "mission", "block", "sequence", "folder")
 METHOD = "cluster percentile bootstrap"
 #: Resamples per matrix product: bounds the memory of the float64 draw-count block.
 _CHUNK = 256
+#: Cells counted per bincount in :func:`draw_counts` (~L2-sized).
+_CACHE_CELLS = 32768
 
 
 @dataclass(frozen=True)
@@ -102,17 +104,22 @@ def draw_counts(num_clusters: int, resamples: int, rng: np.random.Generator) -> 
     """Draw ``num_clusters`` clusters with replacement, ``resamples`` times.
 
     Returns:
-        int64 [R, C]: ``counts[r, c]`` = how many times resample r drew cluster c; every row
+        int32 [R, C]: ``counts[r, c]`` = how many times resample r drew cluster c; every row
         sums to C.
     """
     c, r = int(num_clusters), int(resamples)
+    counts = np.zeros((r, c), dtype=np.int32)
     if c == 0 or r == 0:
-        return np.zeros((r, c), dtype=np.int64)
-    dtype = np.int32 if r * c < 2**31 else np.int64
-    draws = rng.integers(0, c, size=(r, c), dtype=dtype)
-    # One bincount over (row, cluster) pairs instead of R bincounts.
-    draws += (np.arange(r, dtype=dtype) * c)[:, None]
-    return np.bincount(draws.ravel(), minlength=r * c).reshape(r, c).astype(np.int64)
+        return counts
+    # One bincount over the (row, cluster) pairs of a few rows at a time: the counted block
+    # stays in cache (one bincount over all R×C cells scatters into ~R·C·8 bytes, 3× slower).
+    rows = max(1, _CACHE_CELLS // c)
+    for start in range(0, r, rows):
+        m = min(rows, r - start)
+        draws = rng.integers(0, c, size=(m, c), dtype=np.int64)
+        draws += (np.arange(m, dtype=np.int64) * c)[:, None]
+        counts[start : start + m] = np.bincount(draws.ravel(), minlength=m * c).reshape(m, c)
+    return counts
 
 
 def _local_clusters(clusters: np.ndarray, members: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
@@ -142,17 +149,25 @@ def _resampled(counts: np.ndarray, per_cluster: np.ndarray) -> np.ndarray:
     return out
 
 
-def _miou_acc(flat: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """mIoU (NaN-mean over classes with union > 0) and pixel accuracy of R flat confusions."""
-    conf = flat.reshape(-1, k, k)
+def _features(confusions: np.ndarray) -> np.ndarray:
+    """What mIoU and pixel accuracy need of each confusion [M,K,K]: float64 [M, 3K] =
+    (true positives, ground-truth totals, predicted totals). Resampling these sums instead of
+    the K×K cells is K/3 times less work and gives the same numbers."""
+    conf = np.asarray(confusions)
     tp = np.diagonal(conf, axis1=1, axis2=2)
-    union = conf.sum(axis=1) + conf.sum(axis=2) - tp
+    return np.concatenate([tp, conf.sum(axis=2), conf.sum(axis=1)], axis=1).astype(np.float64)
+
+
+def _miou_acc(features: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """mIoU (NaN-mean over classes with union > 0) and pixel accuracy from summed features."""
+    tp, truth, predicted = features[:, :k], features[:, k : 2 * k], features[:, 2 * k : 3 * k]
+    union = truth + predicted - tp
     present = union > 0
     iou = np.where(present, tp / np.where(present, union, 1.0), 0.0)
     count = present.sum(axis=1)
+    total = truth.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         miou = np.where(count > 0, iou.sum(axis=1) / np.maximum(count, 1), np.nan)
-        total = conf.sum(axis=(1, 2))
         acc = np.where(total > 0, tp.sum(axis=1) / np.where(total > 0, total, 1.0), np.nan)
     return miou, acc
 
@@ -221,7 +236,7 @@ def confusion_interval(
     if note is not None:
         return {"miou_ci": None, "pixel_acc_ci": None, "ci_note": note}
     k = confusions.shape[-1]
-    per_cluster = _per_cluster(confusions[members].reshape(len(members), k * k), local, num)
+    per_cluster = _per_cluster(_features(confusions[members]), local, num)
     draws = _counts_for(num, settings, counts, stream)
     miou, acc = _miou_acc(_resampled(draws, per_cluster), k)
     return {
@@ -367,11 +382,12 @@ def p_value(resampled_gaps: np.ndarray, gap: float) -> float | None:
     return float(min(1.0, 2.0 * other.mean()))
 
 
-def _gap_point(conf_a: np.ndarray, conf_b: np.ndarray, members: np.ndarray) -> float:
-    k = conf_a.shape[-1]
-    ma, _ = _miou_acc(conf_a[members].sum(axis=0).reshape(1, k * k).astype(np.float64), k)
-    mb, _ = _miou_acc(conf_b[members].sum(axis=0).reshape(1, k * k).astype(np.float64), k)
-    return float(mb[0] - ma[0])
+def _point_miou(conf: np.ndarray, members: np.ndarray) -> float:
+    """mIoU of the summed confusion of ``members`` (NaN when empty)."""
+    if members.size == 0:
+        return float("nan")
+    summed = np.asarray(conf)[members].sum(axis=0, keepdims=True)
+    return float(_miou_acc(_features(summed), summed.shape[-1])[0][0])
 
 
 def paired_gap(
@@ -394,7 +410,7 @@ def paired_gap(
     if conf_a.shape != conf_b.shape:
         raise ValueError(f"paired confusions differ in shape: {conf_a.shape} vs {conf_b.shape}")
     members, local = _local_clusters(clusters, members)
-    gap = _gap_point(conf_a, conf_b, members) if members.size else float("nan")
+    gap = _point_miou(conf_b, members) - _point_miou(conf_a, members)
     out: dict[str, Any] = {
         "gap": gap if np.isfinite(gap) else None,
         "gap_ci": None,
@@ -407,12 +423,10 @@ def paired_gap(
         return {**out, "ci_note": note}
     k = conf_a.shape[-1]
     draws = _counts_for(num, settings, counts, stream)
-    flat = np.concatenate(
-        [conf_a[members].reshape(-1, k * k), conf_b[members].reshape(-1, k * k)], axis=1
-    )
+    flat = np.concatenate([_features(conf_a[members]), _features(conf_b[members])], axis=1)
     both = _resampled(draws, _per_cluster(flat, local, num))
-    miou_a, _ = _miou_acc(both[:, : k * k], k)
-    miou_b, _ = _miou_acc(both[:, k * k :], k)
+    miou_a, _ = _miou_acc(both[:, : 3 * k], k)
+    miou_b, _ = _miou_acc(both[:, 3 * k :], k)
     gaps = miou_b - miou_a
     return {
         **out,
@@ -446,18 +460,14 @@ def unpaired_gap(
     ):
         members, local = _local_clusters(clusters, members)
         k = conf.shape[-1]
-        if members.size:
-            summed = conf[members].sum(axis=0).reshape(1, k * k).astype(np.float64)
-            point.append(float(_miou_acc(summed, k)[0][0]))
-        else:
-            point.append(float("nan"))
+        point.append(_point_miou(conf, members))
         num = int(local.max()) + 1 if local.size else 0
         note = _note(settings, num)
         if note is not None:
             notes.append(note)
             continue
         draws = draw_counts(num, settings.resamples, settings.rng(f"{stream}:{tag}"))
-        per_cluster = _per_cluster(conf[members].reshape(-1, k * k), local, num)
+        per_cluster = _per_cluster(_features(conf[members]), local, num)
         values.append(_miou_acc(_resampled(draws, per_cluster), k)[0])
     gap = point[1] - point[0]
     out: dict[str, Any] = {
