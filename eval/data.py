@@ -3,8 +3,9 @@
 An evaluation needs, per dataset index, more than a sample: the RGB file (for delentropy), the
 name its prediction is saved under (``key``: ``<mission folder>/<viewpoint>/<stem>`` for
 ClaraVid, the image's path relative to the data root without extension otherwise), the labels
-alone (the ``--predictions`` path never decodes the image) and, for ClaraVid, the mission and
-viewpoint to group by. :class:`EvalData` gathers these behind one interface.
+alone (the ``--predictions`` path never decodes the image) and the units images are grouped and
+clustered by (:data:`UNITS`): ClaraVid mission, viewpoint and spatial block, UAVid sequence, and
+every image's parent folder. :class:`EvalData` gathers these behind one interface.
 """
 
 from __future__ import annotations
@@ -22,11 +23,21 @@ from torch.utils.data import Dataset
 from claravid import targets
 from claravid.masks import read_mask as read_label_mask
 from claravid.palettes import Palette, load_palette
-from claravid.segmentation import ClaraVidSegmentation
+from claravid.segmentation import ClaraVidSegmentation, camera_positions
 from claravid.transforms import eval_transforms
 
 DATASETS = ("claravid", "uavid", "folder")
-GROUP_BY = ("mission", "viewpoint")
+GROUP_BY = ("mission", "viewpoint", "sequence", "folder")
+#: Per-image units an image belongs to, by dataset (``block`` only where extrinsics exist);
+#: every image is also its own unit, ``image``. Groups (``--group-by``) and bootstrap clusters
+#: (``--cluster``) are drawn from these.
+UNITS = {
+    "claravid": ("mission", "viewpoint", "block", "folder"),
+    "uavid": ("sequence", "folder"),
+    "folder": ("folder",),
+}
+#: The default bootstrap cluster per dataset (FORMAT.md §8): dependent images resampled together.
+DEFAULT_CLUSTER = {"claravid": "block", "uavid": "sequence", "folder": "folder"}
 
 
 class KeyedDataset(Dataset):
@@ -57,7 +68,8 @@ class EvalData:
         raw: the same samples without transforms (uint8 image), for overlays.
         paths: the RGB file of each index.
         keys: the prediction name of each index.
-        attributes: per-index ``mission`` / ``viewpoint`` (ClaraVid only).
+        attributes: per-index unit labels (:data:`UNITS`): ``mission`` / ``viewpoint`` /
+            ``block`` (ClaraVid), ``sequence`` (UAVid), ``folder`` (all).
         describe: root, split and dataset kind, for the report's ``source``.
     """
 
@@ -83,16 +95,44 @@ class EvalData:
         return mask if mask.dtype == np.uint8 else mask.astype(np.uint8)
 
     def groups(self, by: str) -> dict[str, list[int]]:
-        """Indices per mission or viewpoint, in first-seen order (ClaraVid only)."""
+        """Indices per unit (mission, viewpoint, sequence, folder), in first-seen order."""
         if by not in self.attributes:
-            raise ValueError(
-                f"--group-by {by} needs ClaraVid data (missions and viewpoints); "
-                f"the {self.name} dataset has none"
-            )
+            raise ValueError(unit_missing(by, self.name, "--group-by"))
         out: dict[str, list[int]] = {}
         for index, value in enumerate(self.attributes[by]):
             out.setdefault(value, []).append(index)
         return out
+
+
+def unit_missing(unit: str, dataset: str, flag: str) -> str:
+    """The one-line error for a unit the images do not have."""
+    where = {"mission": "ClaraVid", "viewpoint": "ClaraVid", "block": "ClaraVid with extrinsics",
+             "sequence": "UAVid"}.get(unit, "")  # fmt: skip
+    has = ", ".join(("image", *UNITS.get(dataset, ()))) if dataset in UNITS else "image, folder"
+    return (
+        f"{flag} {unit} needs {where or 'images with that unit'} data; these {dataset} images "
+        f"have: {has}"
+    )
+
+
+def block_labels(root: Path, frames: list[Any], block_size: float) -> list[str] | None:
+    """The spatial block of each ClaraVid frame (the split's unit), as ``<mission>/<bx>_<by>``.
+
+    The block is ``floor(camera xy / block_size)`` per mission, as in
+    :func:`claravid.splits.assign_blocks`. None when a frame has no extrinsics file.
+    """
+    # TODO(merge): switch to claravid.splits.block_ids once it lands.
+    try:
+        positions = camera_positions(root, frames)
+    except (OSError, ValueError):
+        return None
+    blocks = np.floor(positions / float(block_size)).astype(np.int64)
+    return [f"{f.mission}/{bx}_{by}" for f, (bx, by) in zip(frames, blocks, strict=True)]
+
+
+def folder_labels(paths: list[str], root: Path) -> list[str]:
+    """Each image's parent folder, relative to the data root (``.`` for the root itself)."""
+    return [Path(_relative_key(Path(p), root)).parent.as_posix() or "." for p in paths]
 
 
 def _relative_key(path: Path, root: Path) -> str:
@@ -130,6 +170,9 @@ def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -
         "mission": [f.mission for f in raw.frames],
         "viewpoint": [f.viewpoint for f in raw.frames],
     }
+    blocks = block_labels(raw.root, raw.frames, raw.split_config.block_size)
+    if blocks is not None:
+        attributes["block"] = blocks
     return _Opened(
         raw,
         _with_transforms(raw, eval_transforms()),
@@ -140,9 +183,9 @@ def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -
     )
 
 
-def _uavid(root: Path, split: str, pal: Palette) -> _Opened:
+def _uavid(root: Path, split: str, pal: Palette, labels: bool = True) -> _Opened:
     raw = targets.UAVidSegmentation(root, split=split, palette=pal)
-    if not raw.has_labels:
+    if labels and not raw.has_labels:
         raise ValueError(f"UAVid {split} has no labels to evaluate against; use val or train")
     return _Opened(
         raw,
@@ -150,16 +193,19 @@ def _uavid(root: Path, split: str, pal: Palette) -> _Opened:
         [str(p) for p in raw.images],
         [_relative_key(p, root) for p in raw.images],  # as the samples' "key"
         lambda i: read_label_mask(raw.label_path(raw.images[i]), pal),
+        {"sequence": [p.parent.parent.name for p in raw.images]},  # seqN/Images/<name>
     )
 
 
-def _folder(root: Path, masks: Path | None, palette: Any, pal: Palette) -> _Opened:
-    if masks is None:
+def _folder(
+    root: Path, masks: Path | None, palette: Any, pal: Palette, labels: bool = True
+) -> _Opened:
+    if labels and masks is None:
         raise ValueError("--dataset folder needs --masks: the folder of label images")
-    if palette is None:
+    if labels and palette is None:
         raise ValueError("--dataset folder needs --palette: the palette its masks are written in")
 
-    raw = targets.FolderSegmentation(root, masks, palette=pal)
+    raw = targets.FolderSegmentation(root, masks, palette=pal if masks is not None else None)
     return _Opened(
         raw,
         _with_transforms(raw, eval_transforms()),
@@ -177,6 +223,7 @@ def open_data(
     palette: str | Path | None = None,
     masks: str | Path | None = None,
     selection: dict[str, Any] | None = None,
+    labels: bool = True,
 ) -> EvalData:
     """Open the images to evaluate.
 
@@ -190,6 +237,7 @@ def open_data(
         masks: the folder of label images mirroring ``root`` (``folder`` only).
         selection: ClaraVid ``missions``, ``altitude``, ``direction`` and ``split_config``
             (e.g. what a training checkpoint used).
+        labels: False opens the images alone (``--scores``: no labels, no masks needed).
 
     Raises:
         ValueError: an unknown dataset kind, or a combination that cannot work.
@@ -202,12 +250,14 @@ def open_data(
     if dataset == "claravid":
         opened = _claravid(root, split, pal, selection or {})
     elif dataset == "uavid":
-        opened = _uavid(root, split, pal)
+        opened = _uavid(root, split, pal, labels)
     else:
-        opened = _folder(root, None if masks is None else Path(masks).absolute(), palette, pal)
-        describe.update(split=None, masks=str(Path(masks).absolute()))
+        mask_root = None if masks is None else Path(masks).absolute()
+        opened = _folder(root, mask_root, palette, pal, labels)
+        describe.update(split=None, masks=None if mask_root is None else str(mask_root))
     if not opened.paths:
         raise ValueError(f"no images to evaluate in {root} (split {split})")
+    opened.attributes["folder"] = folder_labels(opened.paths, root)
     return EvalData(
         name=dataset,
         palette=pal,
