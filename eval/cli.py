@@ -7,7 +7,9 @@
     claravid-eval --predictions preds/ --data /data/claravid --palette uavid --output rep
     claravid-eval --merge part0/ part1/ --output all/            # job-array parts -> one report
     claravid-eval --merge rep/ --edges 4,4.5,5,5.5 --output rep-fixed   # re-bin, no model
-    claravid-eval --compare a/report.json b/report.json --output cmp/
+    claravid-eval --compare a/report.json b/report.json --output cmp/   # gaps with intervals
+    claravid-eval --scores psnr.csv --data /data/uavid --dataset uavid --split test \
+        --group-by sequence --measures delent,glcment,pixent --output psnr-rep   # any metric
     torchrun --nproc_per_node=8 -m claravid.eval --checkpoint best.pt --output rep   # many GPUs
 
 Exit 0 on success, 1 when some images were skipped (``--allow-missing``; listed), 2 for a
@@ -29,13 +31,14 @@ from claravid.cli import (
     run_cli,
 )
 from claravid.eval.bins import parse_edges
+from claravid.eval.bootstrap import CLUSTER_UNITS, Bootstrap
 from claravid.eval.complexity import parse_measures
 from claravid.eval.data import DATASETS, GROUP_BY
 from claravid.eval.predictions import MARKER, write_marker
 from claravid.eval.report import REPORT
 
 PROG = "claravid-eval"
-SOURCES = ("checkpoint", "onnx", "predictions", "merge", "compare")
+SOURCES = ("checkpoint", "onnx", "predictions", "merge", "compare", "scores")
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -70,6 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument(
         "--compare", nargs="+", type=Path, metavar="REPORT", help="reports to show side by side"
     )
+    src.add_argument(
+        "--scores", type=Path, metavar="CSV", help="per-image metrics (path + numeric columns)"
+    )
     data = p.add_argument_group("data")
     data.add_argument("--data", type=Path, help="dataset root (default: the checkpoint's)")
     data.add_argument("--dataset", choices=DATASETS, help="kind of data (default claravid)")
@@ -95,8 +101,50 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--workers", type=int, default=0, help="processes (complexity, decoding)")
     rep.add_argument("--overwrite", action="store_true", help="replace a foreign output folder")
     rep.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_uncertainty(p)
     add_debug_flag(p)
     return p
+
+
+def _add_uncertainty(p: argparse.ArgumentParser) -> None:
+    unc = p.add_argument_group("uncertainty (cluster percentile bootstrap)")
+    unc.add_argument("--bootstrap", type=int, default=1000, help="resamples (default 1000; 0 off)")
+    unc.add_argument(
+        "--cluster",
+        help=f"resampled unit: {', '.join(CLUSTER_UNITS)} (default block for ClaraVid, "
+        "sequence for UAVid, folder for folder data)",
+    )
+    unc.add_argument("--ci-level", type=float, default=0.95, help="interval level (default 0.95)")
+    unc.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
+
+
+def _check_uncertainty(args: argparse.Namespace) -> None:
+    """Fail on bad interval settings before any work (exit 2, one line)."""
+    if args.bootstrap < 0:
+        raise UsageError(
+            f"--bootstrap must be >= 0 (0 switches intervals off), got {args.bootstrap}"
+        )
+    if not 0 < args.ci_level < 1:
+        raise UsageError(f"--ci-level must be between 0 and 1 (e.g. 0.95), got {args.ci_level}")
+    if args.cluster is not None and args.cluster not in CLUSTER_UNITS:
+        raise UsageError(
+            f"unknown --cluster {args.cluster!r}; use one of {', '.join(CLUSTER_UNITS)}"
+        )
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+
+
+def bootstrap_settings(args: argparse.Namespace, units: list[str], default: str) -> Bootstrap:
+    """The interval settings of the command line, its ``--cluster`` checked against ``units``
+    (the cluster units the images carry); ``default`` when ``--cluster`` is not given."""
+    cluster = args.cluster or default
+    if cluster not in units:
+        extra = " (block needs ClaraVid extrinsics)" if cluster == "block" else ""
+        raise UsageError(
+            f"--cluster {cluster} is not available for these images{extra}; they have: "
+            f"{', '.join(units)}"
+        )
+    return Bootstrap(resamples=args.bootstrap, level=args.ci_level, seed=args.seed, cluster=cluster)
 
 
 def _check_args(args: argparse.Namespace) -> str:
@@ -104,8 +152,8 @@ def _check_args(args: argparse.Namespace) -> str:
     if len(given) != 1:
         which = " and ".join(f"--{g}" for g in given) if given else "none"
         raise UsageError(
-            f"give exactly one of --checkpoint, --onnx, --predictions, --merge, --compare "
-            f"(got {which})"
+            f"give exactly one of --checkpoint, --onnx, --predictions, --merge, --compare, "
+            f"--scores (got {which})"
         )
     if args.bins is not None and args.edges is not None:
         raise UsageError("give --bins or --edges, not both")
@@ -116,6 +164,7 @@ def _check_args(args: argparse.Namespace) -> str:
     if args.workers < 0 or args.hardest < 0 or (args.batch_size or 1) < 1:
         raise UsageError("--workers and --hardest must be >= 0 and --batch-size >= 1")
     args.measures = parse_measures(args.measures)
+    _check_uncertainty(args)
     source = given[0]
     if source != "compare" and args.output is None:
         raise UsageError("--output is required: the folder the report is written to")
@@ -126,6 +175,8 @@ def _print_done(out: Path, report: dict[str, Any]) -> None:
     from claravid.eval.markdown import bin_table
 
     print(bin_table(report))
+    for message in (report.get("uncertainty") or {}).get("warnings", []):
+        print(f"{PROG}: warning: {message}", file=sys.stderr)
     print(f"\nreport: {out / 'report.md'} ({out / 'report.json'}, plots and confusions beside)")
 
 
@@ -134,7 +185,8 @@ def _run_compare(args: argparse.Namespace) -> int:
 
     if args.output is not None:
         check_output_dir(args.output, marker="compare.md", overwrite=args.overwrite)
-    text, warnings = compare_reports(args.compare, args.output)
+    settings = Bootstrap(resamples=args.bootstrap, level=args.ci_level, seed=args.seed)
+    text, warnings = compare_reports(args.compare, args.output, settings, args.cluster)
     import warnings as py_warnings
 
     for message in warnings:
@@ -152,10 +204,23 @@ def _run_merge(args: argparse.Namespace) -> int:
     check_output_dir(args.output, marker=REPORT, overwrite=args.overwrite)
     result = merge_results([load_result(p) for p in args.merge], [str(p) for p in args.merge])
     _check_bins(args, len(result.paths))
-    report = build_report(result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by)
+    settings = bootstrap_settings(args, result.units(), result.default_cluster())
+    report = build_report(
+        result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by, bootstrap=settings
+    )
     write_outputs(args.output, report, result)
     _print_done(args.output, report)
     return 0
+
+
+def _default_cluster(data: Any) -> str:
+    """The dataset's default cluster unit; ``viewpoint`` for ClaraVid without extrinsics."""
+    from claravid.eval.data import DEFAULT_CLUSTER
+
+    wanted = DEFAULT_CLUSTER.get(data.name, "image")
+    if wanted in data.attributes:
+        return wanted
+    return "viewpoint" if "viewpoint" in data.attributes else "folder"
 
 
 def _check_bins(args: argparse.Namespace, n: int) -> None:
@@ -239,6 +304,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     if args.group_by is not None:
         data.groups(args.group_by)  # fails now, not after the inference
     _check_bins(args, len(data))
+    settings = bootstrap_settings(args, ["image", *data.attributes], _default_cluster(data))
     window = None
     source: dict[str, Any] = {"kind": source_kind}
     if model is not None:
@@ -290,7 +356,13 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     try:
         result = collected.result
         _check_bins(args, len(result.paths))
-        report = build_report(result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by)
+        report = build_report(
+            result,
+            bins=args.bins or 3,
+            edges=args.edges,
+            group_by=args.group_by,
+            bootstrap=settings,
+        )
         dirs = [d for d in (args.predictions, args.save_predictions) if d is not None]
         items = hardest_items(result, data, args.hardest, collected.hardest, dirs)
         write_outputs(args.output, report, result, items, data.palette.colors)
@@ -315,6 +387,10 @@ def run(args: argparse.Namespace) -> int:
     source = _check_args(args)
     if source == "compare":
         return _run_compare(args)
+    if source == "scores":
+        from claravid.eval.scores import run_scores
+
+        return run_scores(args)
     if source == "merge":
         return _run_merge(args)
     return _run_evaluation(args, source)
