@@ -147,6 +147,14 @@ def bootstrap_settings(args: argparse.Namespace, units: list[str], default: str)
     return Bootstrap(resamples=args.bootstrap, level=args.ci_level, seed=args.seed, cluster=cluster)
 
 
+def data_bootstrap(args: argparse.Namespace, data: Any) -> Bootstrap:
+    """:func:`bootstrap_settings` for opened data (:class:`claravid.eval.data.EvalData`)."""
+    from claravid.eval.report import available_units, default_cluster
+
+    units = available_units(data.attributes)
+    return bootstrap_settings(args, units, default_cluster(data.name, data.attributes))
+
+
 def _check_args(args: argparse.Namespace) -> str:
     given = [name for name in SOURCES if getattr(args, name) is not None]
     if len(given) != 1:
@@ -211,16 +219,6 @@ def _run_merge(args: argparse.Namespace) -> int:
     write_outputs(args.output, report, result)
     _print_done(args.output, report)
     return 0
-
-
-def _default_cluster(data: Any) -> str:
-    """The dataset's default cluster unit; ``viewpoint`` for ClaraVid without extrinsics."""
-    from claravid.eval.data import DEFAULT_CLUSTER
-
-    wanted = DEFAULT_CLUSTER.get(data.name, "image")
-    if wanted in data.attributes:
-        return wanted
-    return "viewpoint" if "viewpoint" in data.attributes else "folder"
 
 
 def _check_bins(args: argparse.Namespace, n: int) -> None:
@@ -304,7 +302,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     if args.group_by is not None:
         data.groups(args.group_by)  # fails now, not after the inference
     _check_bins(args, len(data))
-    settings = bootstrap_settings(args, ["image", *data.attributes], _default_cluster(data))
+    settings = data_bootstrap(args, data)
     window = None
     source: dict[str, Any] = {"kind": source_kind}
     if model is not None:

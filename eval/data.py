@@ -36,8 +36,6 @@ UNITS = {
     "uavid": ("sequence", "folder"),
     "folder": ("folder",),
 }
-#: The default bootstrap cluster per dataset (FORMAT.md §8): dependent images resampled together.
-DEFAULT_CLUSTER = {"claravid": "block", "uavid": "sequence", "folder": "folder"}
 
 
 class KeyedDataset(Dataset):

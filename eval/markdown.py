@@ -221,3 +221,57 @@ def _gap_tables(analysis: dict[str, Any]) -> list[str]:
         rows.append(["**overall**", *_gap_cell(comp["overall"], r)])
         lines += _table(["bin", "gap [interval]", "p-value", "interval excludes 0"], rows)
     return lines
+
+
+def scores_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
+    """``report.md`` of a ``--scores`` report: bins, groups (paper Table 5 layout: DSP μ, σ,
+    α, β next to the metric means, rows sorted by μ), correlations (Fig. 6), plots."""
+    source, metrics = report["source"], report["metrics"]
+    binning = source.get("binning", {})
+    lines = ["# Complexity vs per-image metrics", ""]
+    lines.append(f"- scores: `{source.get('scores')}` ({', '.join(metrics)})")
+    lines.append(f"- data: {source.get('dataset')} `{source.get('data')}`, split "
+                 f"{source.get('split')}")  # fmt: skip
+    line = uncertainty_line(report.get("uncertainty"))
+    if line:
+        lines.append(line)
+    if binning.get("method") == "fixed":
+        lines.append(f"- bins: fixed delentropy edges {binning.get('edges')}")
+    elif binning.get("method"):
+        lines.append(f"- bins: {binning.get('bins')} quantile bins of delentropy")
+    lines += ["", f"**Conventions.** {report['convention']}", ""]
+
+    def cells(row: dict[str, Any]) -> list[str]:
+        return [with_ci(row["scores"][m]["mean"], row["scores"][m]["ci"]) for m in metrics]
+
+    lines += ["## Mean per complexity bin", ""]
+    rows = [[r["name"], _range(r), str(r["num_images"]), *cells(r)] for r in report["bins"]]
+    rows.append(["**overall**", "", str(report["overall"]["num_images"]),
+                 *cells(report["overall"])])  # fmt: skip
+    lines += _table(["bin", "delentropy", "images", *metrics], rows)
+    warnings = (report.get("uncertainty") or {}).get("warnings", [])
+    lines += [f"**Warning:** {m}." for m in warnings] + ([""] if warnings else [])
+
+    if report["groups"]:
+        lines += [f"## Per {binning.get('group_by') or 'group'} (sorted by DSP μ)", ""]
+        groups = sorted(report["groups"],
+                        key=lambda g: ((g.get("profile") or {}).get("mu") is None,
+                                       (g.get("profile") or {}).get("mu") or 0.0))  # fmt: skip
+        rows = []
+        for g in groups:
+            p = g.get("profile") or {}
+            rows.append([g["name"], str(g["num_images"]), _f(p.get("mu")), _f(p.get("sigma")),
+                         _f(p.get("alpha")), _f(p.get("beta")), *cells(g)])  # fmt: skip
+        lines += _table(["group", "images", "DSP μ", "σ", "α", "β", *metrics], rows)
+
+    lines += ["## Correlations", ""]
+    rows = []
+    for measure, by_metric in report["correlation"].items():
+        for metric, c in by_metric.items():
+            rows.append([measure, metric, with_ci(c["pearson"], c.get("pearson_ci")),
+                         with_ci(c["spearman"], c.get("spearman_ci")), str(c["n"])])  # fmt: skip
+    lines += _table(["measure", "metric", "Pearson r", "Spearman ρ", "n"], rows)
+    if plots:
+        lines += ["## Plots", ""]
+        lines += [f"![{name}]({file})" for name, file in plots.items()] + [""]
+    return "\n".join(lines)

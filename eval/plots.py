@@ -192,7 +192,7 @@ def _plot_gaps(ax: Any, analysis: dict[str, Any], labels: Sequence[str]) -> None
         xs = np.arange(len(rows)) + (k - (len(comps) - 1) / 2) * width
         err = error_bars(values, scaled, "ci")
         kind = "paired" if comp["paired"] else "unpaired"
-        ax.bar(xs, values, width, yerr=err, capsize=4,
+        ax.bar(xs, values, width, yerr=err, capsize=4, color=f"C{k + 1}",
                label=f"{comp['report']} − {analysis['baseline']} ({kind})")  # fmt: skip
     ax.axhline(0, color="k", lw=1)
     ax.set_xticks(range(len(labels)), labels)
@@ -200,3 +200,49 @@ def _plot_gaps(ax: Any, analysis: dict[str, Any], labels: Sequence[str]) -> None
     ax.set_ylabel("mIoU gap (points)")
     ax.set_title(f"gap to {analysis['baseline']} per bin, {level:.0%} intervals")
     ax.legend()
+
+
+def plot_metric_bins(report: dict[str, Any], metric: str, path: str | Path) -> Path:
+    """A ``--scores`` metric's mean per complexity bin, with interval bars."""
+    rows = report["bins"]
+    entries = [r["scores"][metric] for r in rows]
+    values = [np.nan if e["mean"] is None else e["mean"] for e in entries]
+    fig = Figure(figsize=(max(5, 1.6 * len(rows) + 2), 4), layout="constrained")
+    ax = fig.subplots()
+    bars = ax.bar(range(len(rows)), values, color="tab:green",
+                  yerr=error_bars(values, entries, "ci"), capsize=6)  # fmt: skip
+    ax.bar_label(bars, labels=[_fmt(e["mean"], 3) for e in entries], padding=2)
+    ax.set_xticks(range(len(rows)), [bin_label(r) for r in rows])
+    overall = report["overall"]["scores"][metric]["mean"]
+    if overall is not None:
+        ax.axhline(overall, color="k", ls="--", lw=1, label=f"overall {overall:.3f}")
+        ax.legend(loc="best")
+    ax.set_ylabel(f"mean {metric}")
+    ax.set_xlabel("delentropy bin")
+    ax.set_title(f"{metric} per complexity bin")
+    return _save(fig, path)
+
+
+def plot_metric_scatter(
+    report: dict[str, Any], metric: str, path: str | Path, measure: str = "delent"
+) -> Path:
+    """A ``--scores`` metric per image against ``measure``, with the least-squares line."""
+    x = np.array([r.get(measure, np.nan) for r in report["images"]], dtype=np.float64)
+    y = np.array([r.get(metric, np.nan) for r in report["images"]], dtype=np.float64)
+    keep = np.isfinite(x) & np.isfinite(y)
+    fig = Figure(figsize=(6, 4.5), layout="constrained")
+    ax = fig.subplots()
+    ax.scatter(x[keep], y[keep], s=14, alpha=0.7)
+    if keep.sum() >= 2 and np.ptp(x[keep]) > 0:
+        slope, intercept = np.polyfit(x[keep], y[keep], 1)
+        xs = np.linspace(x[keep].min(), x[keep].max(), 50)
+        ax.plot(xs, slope * xs + intercept, color="tab:red", label=f"fit: {slope:+.3g} per bit")
+        ax.legend(loc="best")
+    corr = report["correlation"].get(measure, {}).get(metric, {})
+    ax.set_title(
+        f"{metric} vs {measure}: Pearson {_fmt(corr.get('pearson'))}, "
+        f"Spearman {_fmt(corr.get('spearman'))}, n={corr.get('n', int(keep.sum()))}"
+    )
+    ax.set_xlabel(f"{measure} (bits)")
+    ax.set_ylabel(metric)
+    return _save(fig, path)

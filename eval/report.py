@@ -89,37 +89,52 @@ class EvalResult:
 
     def units(self) -> list[str]:
         """The cluster units these images carry (``image`` always)."""
-        return ["image", *(a for a in self.attributes if any(self.attributes[a]))]
+        return available_units(self.attributes)
 
     def cluster_labels(self, unit: str) -> list[str]:
-        """The bootstrap cluster of each image for ``unit``.
-
-        ``viewpoint`` is the mission and viewpoint folder together (the same viewpoint of two
-        missions is two clusters); ``image`` makes every image its own cluster.
-
-        Raises:
-            UsageError: these images have no such unit (e.g. ``block`` without extrinsics).
-        """
-        if unit == "image":
-            return list(self.paths)
-        have = self.attributes
-        if unit == "viewpoint" and "mission" in have and "viewpoint" in have:
-            return [f"{m}/{v}" for m, v in zip(have["mission"], have["viewpoint"], strict=True)]
-        if unit != "viewpoint" and unit in have and any(have[unit]):
-            return list(have[unit])
-        raise UsageError(
-            f"--cluster {unit} is not available for these images (they have: "
-            f"{', '.join(self.units())}); pick one of those"
-            + (" (block needs ClaraVid extrinsics)" if unit == "block" else "")
-        )
+        """The bootstrap cluster of each image for ``unit`` (:func:`unit_labels`)."""
+        return unit_labels(self.paths, self.attributes, unit)
 
     def default_cluster(self) -> str:
         """The dataset's default cluster unit, or the first fallback these images carry."""
-        wanted = DEFAULT_CLUSTER.get(str(self.source.get("dataset")))
-        units = self.units()
-        if wanted in units:
-            return wanted
-        return next(u for u in _FALLBACK_CLUSTERS if u in units)
+        return default_cluster(str(self.source.get("dataset")), self.attributes)
+
+
+def available_units(attributes: dict[str, list[str]]) -> list[str]:
+    """The cluster units images with these ``attributes`` carry (``image`` always)."""
+    return ["image", *(a for a in attributes if any(attributes[a]))]
+
+
+def unit_labels(paths: Sequence[str], attributes: dict[str, list[str]], unit: str) -> list[str]:
+    """The cluster label of each image for ``unit``.
+
+    ``viewpoint`` is the mission and viewpoint folder together (the same viewpoint of two
+    missions is two clusters); ``image`` makes every image its own cluster.
+
+    Raises:
+        UsageError: these images have no such unit (e.g. ``block`` without extrinsics).
+    """
+    if unit == "image":
+        return [str(p) for p in paths]
+    if unit == "viewpoint" and "mission" in attributes and "viewpoint" in attributes:
+        pairs = zip(attributes["mission"], attributes["viewpoint"], strict=True)
+        return [f"{m}/{v}" for m, v in pairs]
+    if unit != "viewpoint" and unit in attributes and any(attributes[unit]):
+        return list(attributes[unit])
+    raise UsageError(
+        f"--cluster {unit} is not available for these images"
+        + (" (block needs ClaraVid extrinsics)" if unit == "block" else "")
+        + f"; they have: {', '.join(available_units(attributes))}"
+    )
+
+
+def default_cluster(dataset: str, attributes: dict[str, list[str]]) -> str:
+    """The dataset's default cluster unit, or the first fallback the images carry."""
+    units = available_units(attributes)
+    wanted = DEFAULT_CLUSTER.get(dataset)
+    if wanted in units:
+        return wanted
+    return next(u for u in _FALLBACK_CLUSTERS if u in units)
 
 
 def build_report(

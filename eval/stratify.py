@@ -70,7 +70,7 @@ def correlation(x: Sequence[float], y: Sequence[float]) -> dict[str, Any]:
     return out
 
 
-def _profile(values: np.ndarray) -> dict[str, Any]:
+def group_profile(values: np.ndarray) -> dict[str, Any]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateProfileWarning)
         profile = fit_profile(values.tolist())
@@ -151,7 +151,7 @@ def stratify(
     for name, members in (groups or {}).items():
         row = _group_row(name, members, confusions, classes, values)
         if values is not None and len(members):
-            row["profile"] = _profile(values[list(members)])
+            row["profile"] = group_profile(values[list(members)])
         report["groups"].append(row)
 
     per_image_miou = np.array([mean_iou(c) for c in confusions])
