@@ -105,9 +105,9 @@ def read_scores(path: str | Path, root: str | Path) -> tuple[list[str], dict[str
                 bad.append(f"row {row} {name}={cell!r}")
             metrics[name][i] = value
     if extra:
-        raise UsageError(f"{path}: {_rows(extra)} have more cells than the header has columns")
+        raise UsageError(f"{path}: more cells than header columns in {_rows(extra)}")
     if empty:
-        raise UsageError(f"{path}: {_rows(empty)} have an empty '{PATH_COLUMN}'")
+        raise UsageError(f"{path}: empty '{PATH_COLUMN}' in {_rows(empty)}")
     if bad:
         more = f" and {len(bad) - _SHOWN} more" if len(bad) > _SHOWN else ""
         raise UsageError(
