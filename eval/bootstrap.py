@@ -116,8 +116,9 @@ def draw_counts(num_clusters: int, resamples: int, rng: np.random.Generator) -> 
     rows = max(1, _CACHE_CELLS // c)
     for start in range(0, r, rows):
         m = min(rows, r - start)
-        draws = rng.integers(0, c, size=(m, c), dtype=np.int64)
-        draws += (np.arange(m, dtype=np.int64) * c)[:, None]
+        dtype = np.int32 if m * c < 2**31 else np.int64  # int32 draws are ~1.5x faster
+        draws = rng.integers(0, c, size=(m, c), dtype=dtype)
+        draws += (np.arange(m, dtype=dtype) * c)[:, None]
         counts[start : start + m] = np.bincount(draws.ravel(), minlength=m * c).reshape(m, c)
     return counts
 
@@ -149,10 +150,11 @@ def _resampled(counts: np.ndarray, per_cluster: np.ndarray) -> np.ndarray:
     return out
 
 
-def _features(confusions: np.ndarray) -> np.ndarray:
+def confusion_features(confusions: np.ndarray) -> np.ndarray:
     """What mIoU and pixel accuracy need of each confusion [M,K,K]: float64 [M, 3K] =
     (true positives, ground-truth totals, predicted totals). Resampling these sums instead of
-    the K×K cells is K/3 times less work and gives the same numbers."""
+    the K×K cells is K/3 times less work and gives the same numbers (integer sums stay exact
+    in float64 below 2^53 pixels)."""
     conf = np.asarray(confusions)
     tp = np.diagonal(conf, axis1=1, axis2=2)
     return np.concatenate([tp, conf.sum(axis=2), conf.sum(axis=1)], axis=1).astype(np.float64)
@@ -214,6 +216,7 @@ def confusion_interval(
     counts: np.ndarray | None = None,
     *,
     stream: str = "",
+    features: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Intervals of the mIoU and pixel accuracy of the summed confusion of ``members``.
 
@@ -225,6 +228,8 @@ def confusion_interval(
         counts: optional [R, C] draw counts over the members' C distinct clusters in sorted
             cluster-id order (tests pass a fixed matrix); drawn from ``settings`` when None.
         stream: names the set's generator (e.g. ``"bin:low"``).
+        features: :func:`confusion_features` of all N confusions, computed once by a caller
+            that asks for many sets (then ``confusions`` only gives K).
 
     Returns:
         ``{"miou_ci": [lo, hi] | None, "pixel_acc_ci": [lo, hi] | None, "ci_note": str | None}``.
@@ -236,7 +241,8 @@ def confusion_interval(
     if note is not None:
         return {"miou_ci": None, "pixel_acc_ci": None, "ci_note": note}
     k = confusions.shape[-1]
-    per_cluster = _per_cluster(_features(confusions[members]), local, num)
+    rows = features[members] if features is not None else confusion_features(confusions[members])
+    per_cluster = _per_cluster(rows, local, num)
     draws = _counts_for(num, settings, counts, stream)
     miou, acc = _miou_acc(_resampled(draws, per_cluster), k)
     return {
@@ -387,7 +393,7 @@ def _point_miou(conf: np.ndarray, members: np.ndarray) -> float:
     if members.size == 0:
         return float("nan")
     summed = np.asarray(conf)[members].sum(axis=0, keepdims=True)
-    return float(_miou_acc(_features(summed), summed.shape[-1])[0][0])
+    return float(_miou_acc(confusion_features(summed), summed.shape[-1])[0][0])
 
 
 def paired_gap(
@@ -423,7 +429,9 @@ def paired_gap(
         return {**out, "ci_note": note}
     k = conf_a.shape[-1]
     draws = _counts_for(num, settings, counts, stream)
-    flat = np.concatenate([_features(conf_a[members]), _features(conf_b[members])], axis=1)
+    flat = np.concatenate(
+        [confusion_features(conf_a[members]), confusion_features(conf_b[members])], axis=1
+    )
     both = _resampled(draws, _per_cluster(flat, local, num))
     miou_a, _ = _miou_acc(both[:, : 3 * k], k)
     miou_b, _ = _miou_acc(both[:, 3 * k :], k)
@@ -467,7 +475,7 @@ def unpaired_gap(
             notes.append(note)
             continue
         draws = draw_counts(num, settings.resamples, settings.rng(f"{stream}:{tag}"))
-        per_cluster = _per_cluster(_features(conf[members]), local, num)
+        per_cluster = _per_cluster(confusion_features(conf[members]), local, num)
         values.append(_miou_acc(_resampled(draws, per_cluster), k)[0])
     gap = point[1] - point[0]
     out: dict[str, Any] = {

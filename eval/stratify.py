@@ -25,6 +25,7 @@ from claravid.eval.bins import Bin, fixed_bins, quantile_bins
 from claravid.eval.bootstrap import (
     Bootstrap,
     cluster_ids,
+    confusion_features,
     confusion_interval,
     correlation_interval,
 )
@@ -188,14 +189,17 @@ def add_intervals(
     if len(clusters) != len(confusions):
         raise ValueError(f"{len(clusters)} cluster labels for {len(confusions)} images")
     ids = cluster_ids(clusters)
-    everyone = np.arange(len(confusions))
-    report["overall"].update(
-        confusion_interval(confusions, ids, everyone, settings, stream="overall")
-    )
+    features = confusion_features(confusions)  # once, not once per bin and group
+
+    def interval(members: Sequence[int], stream: str) -> dict[str, Any]:
+        return confusion_interval(confusions, ids, members, settings, stream=stream,
+                                  features=features)  # fmt: skip
+
+    report["overall"].update(interval(np.arange(len(confusions)), "overall"))
     for b, row in zip(bin_list, report["bins"], strict=True):
-        row.update(confusion_interval(confusions, ids, b.indices, settings, stream=f"bin:{b.name}"))
+        row.update(interval(b.indices, f"bin:{b.name}"))
     for (name, members), row in zip(groups.items(), report["groups"], strict=True):
-        row.update(confusion_interval(confusions, ids, members, settings, stream=f"group:{name}"))
+        row.update(interval(members, f"group:{name}"))
     for measure, values in complexity.items():
         report["correlation"][measure].update(
             correlation_interval(
