@@ -203,12 +203,13 @@ def compare_reports(
             names,
             Bootstrap(resamples=base.resamples, level=base.level, seed=base.seed, cluster=unit),
         )
-    elif len(paths) >= 2:
-        warnings.append(
+    note = None
+    if missing and len(paths) >= 2:
+        note = (
             f"no {CONFUSIONS} beside {', '.join(missing)}: gaps are shown without intervals "
             "or p-values"
         )
-    text = compare_markdown(reports, names, warnings, analysis)
+    text = compare_markdown(reports, names, warnings, analysis, note)
     if output is not None:
         from claravid.cli import atomic_write_text
         from claravid.eval.report import write_json

@@ -151,13 +151,16 @@ def compare_markdown(
     names: Sequence[str],
     warnings: Sequence[str],
     analysis: dict[str, Any] | None = None,
+    note: str | None = None,
 ) -> str:
     """Bin tables side by side: one row per bin (matched by position), one column per report;
-    with ``analysis`` (``compare.json``), each report's gap to the baseline with intervals."""
+    with ``analysis`` (``compare.json``), each report's gap to the baseline with intervals;
+    ``note`` says why there is none."""
     lines = ["# Comparison", ""]
     lines += [f"- **{n}**: palette {r['palette']}, {r['overall']['num_images']} images"
               for n, r in zip(names, reports, strict=True)]  # fmt: skip
-    lines += [f"- warning: {w}" for w in warnings] + [""]
+    lines += [f"- warning: {w}" for w in warnings]
+    lines += ([f"- note: {note}"] if note else []) + [""]
     n_bins = max(len(r["bins"]) for r in reports)
     header = ["bin"] + [f"{n} {col}" for n in names for col in ("range", "n", "mIoU")]
     rows = []
