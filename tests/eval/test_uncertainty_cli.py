@@ -176,3 +176,24 @@ def test_block_without_extrinsics_is_refused(writable_root, tmp_path, capsys):
     # Without --cluster the default falls back to the viewpoint.
     assert main([*argv, "--bootstrap", "50"]) == 0
     assert _report(tmp_path / "x")["uncertainty"]["cluster"] == "viewpoint"
+
+
+def test_paired_compare_aligns_images_by_path():
+    """B lists the same images as A in another order: the pairs follow the paths."""
+    from claravid.eval.compare import gap_analysis
+    from claravid.eval.report import EvalResult
+
+    rng = np.random.default_rng(0)
+    conf = rng.integers(0, 50, size=(12, 3, 3)) + np.eye(3, dtype=np.int64) * 400
+    paths = [f"img{i:02d}.png" for i in range(12)]
+    attrs = {"folder": [f"f{i // 3}" for i in range(12)]}
+    a = EvalResult(paths, paths, conf, {}, attrs, ["x", "y", "z"], "p", {"dataset": "folder"})
+    order = rng.permutation(12)
+    b = EvalResult([paths[i] for i in order], [paths[i] for i in order], conf[order], {},
+                   {"folder": [attrs["folder"][i] for i in order]}, ["x", "y", "z"], "p",
+                   {"dataset": "folder"})  # fmt: skip
+    report = {"source": {"binning": {}}}
+    out = gap_analysis([a, b], [report, report], ["a", "b"], Bootstrap(resamples=100,
+                       cluster="folder"))["comparisons"][0]  # fmt: skip
+    assert out["paired"] and out["overall"]["gap_ci"] == [0.0, 0.0]
+    assert out["overall"]["p_value"] == 1.0
