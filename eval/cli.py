@@ -7,7 +7,9 @@
     claravid-eval --predictions preds/ --data /data/claravid --palette uavid --output rep
     claravid-eval --merge part0/ part1/ --output all/            # job-array parts -> one report
     claravid-eval --merge rep/ --edges 4,4.5,5,5.5 --output rep-fixed   # re-bin, no model
-    claravid-eval --compare a/report.json b/report.json --output cmp/
+    claravid-eval --compare a/report.json b/report.json --output cmp/   # gaps with intervals
+    claravid-eval --scores psnr.csv --data /data/uavid --dataset uavid --split test \
+        --group-by sequence --measures delent,glcment,pixent --output psnr-rep   # any metric
     torchrun --nproc_per_node=8 -m claravid.eval --checkpoint best.pt --output rep   # many GPUs
 
 Exit 0 on success, 1 when some images were skipped (``--allow-missing``; listed), 2 for a
@@ -34,6 +36,7 @@ from claravid.cli import (
     run_cli,
 )
 from claravid.eval.bins import parse_edges
+from claravid.eval.bootstrap import CLUSTER_UNITS, Bootstrap
 from claravid.eval.complexity import parse_measures
 from claravid.eval.data import DATASETS, GROUP_BY
 from claravid.eval.predictions import MARKER, predictions_defaults, write_marker
@@ -41,7 +44,7 @@ from claravid.eval.report import REPORT
 from claravid.models.onnx_runtime import PROVIDERS
 
 PROG = "claravid-eval"
-SOURCES = ("checkpoint", "onnx", "predictions", "merge", "compare")
+SOURCES = ("checkpoint", "onnx", "predictions", "merge", "compare", "scores")
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -75,6 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     src.add_argument(
         "--compare", nargs="+", type=Path, metavar="REPORT", help="reports to show side by side"
+    )
+    src.add_argument(
+        "--scores", type=Path, metavar="CSV", help="per-image metrics (path + numeric columns)"
     )
     data = p.add_argument_group("data")
     data.add_argument("--data", type=Path, help="dataset root (default: the checkpoint's)")
@@ -112,8 +118,58 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rep.add_argument("--overwrite", action="store_true", help="replace a foreign output folder")
     rep.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_uncertainty(p)
     add_debug_flag(p)
     return p
+
+
+def _add_uncertainty(p: argparse.ArgumentParser) -> None:
+    unc = p.add_argument_group("uncertainty (cluster percentile bootstrap)")
+    unc.add_argument("--bootstrap", type=int, default=1000, help="resamples (default 1000; 0 off)")
+    unc.add_argument(
+        "--cluster",
+        help=f"resampled unit: {', '.join(CLUSTER_UNITS)} (default block for ClaraVid, "
+        "sequence for UAVid, folder for folder data)",
+    )
+    unc.add_argument("--ci-level", type=float, default=0.95, help="interval level (default 0.95)")
+    unc.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
+
+
+def _check_uncertainty(args: argparse.Namespace) -> None:
+    """Fail on bad interval settings before any work (exit 2, one line)."""
+    if args.bootstrap < 0:
+        raise UsageError(
+            f"--bootstrap must be >= 0 (0 switches intervals off), got {args.bootstrap}"
+        )
+    if not 0 < args.ci_level < 1:
+        raise UsageError(f"--ci-level must be between 0 and 1 (e.g. 0.95), got {args.ci_level}")
+    if args.cluster is not None and args.cluster not in CLUSTER_UNITS:
+        raise UsageError(
+            f"unknown --cluster {args.cluster!r}; use one of {', '.join(CLUSTER_UNITS)}"
+        )
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+
+
+def bootstrap_settings(args: argparse.Namespace, units: list[str], default: str) -> Bootstrap:
+    """The interval settings of the command line, its ``--cluster`` checked against ``units``
+    (the cluster units the images carry); ``default`` when ``--cluster`` is not given."""
+    cluster = args.cluster or default
+    if cluster not in units:
+        extra = " (block needs ClaraVid extrinsics)" if cluster == "block" else ""
+        raise UsageError(
+            f"--cluster {cluster} is not available for these images{extra}; they have: "
+            f"{', '.join(units)}"
+        )
+    return Bootstrap(resamples=args.bootstrap, level=args.ci_level, seed=args.seed, cluster=cluster)
+
+
+def data_bootstrap(args: argparse.Namespace, data: Any) -> Bootstrap:
+    """:func:`bootstrap_settings` for opened data (:class:`claravid.eval.data.EvalData`)."""
+    from claravid.eval.report import available_units, default_cluster
+
+    units = available_units(data.attributes)
+    return bootstrap_settings(args, units, default_cluster(data.name, data.attributes))
 
 
 def _check_args(args: argparse.Namespace) -> str:
@@ -121,8 +177,8 @@ def _check_args(args: argparse.Namespace) -> str:
     if len(given) != 1:
         which = " and ".join(f"--{g}" for g in given) if given else "none"
         raise UsageError(
-            f"give exactly one of --checkpoint, --onnx, --predictions, --merge, --compare "
-            f"(got {which})"
+            f"give exactly one of --checkpoint, --onnx, --predictions, --merge, --compare, "
+            f"--scores (got {which})"
         )
     if args.bins is not None and args.edges is not None:
         raise UsageError("give --bins or --edges, not both")
@@ -130,6 +186,7 @@ def _check_args(args: argparse.Namespace) -> str:
         raise UsageError(f"--bins must be at least 1, got {args.bins}")
     if args.edges is not None:
         args.edges = parse_edges(args.edges)
+    _check_uncertainty(args)
     source = given[0]
     _refuse_idle_options(args, source)
     args.measures = parse_measures(args.measures or "delent")
@@ -156,6 +213,7 @@ _DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing")
 IDLE = {
     "compare": (*_MODEL_ONLY, *_DATA, "bins", "edges", "group_by", "measures"),
     "merge": (*_MODEL_ONLY, *_DATA, "measures"),
+    "scores": (*_MODEL_ONLY, "allow_missing"),
 }
 
 
@@ -188,6 +246,8 @@ def _print_done(out: Path, report: dict[str, Any]) -> None:
     from claravid.eval.markdown import bin_table
 
     print(bin_table(report))
+    for message in (report.get("uncertainty") or {}).get("warnings", []):
+        print(f"{PROG}: warning: {message}", file=sys.stderr)
     print(f"\nreport: {out / 'report.md'} ({out / 'report.json'}, plots and confusions beside)")
 
 
@@ -196,7 +256,8 @@ def _run_compare(args: argparse.Namespace) -> int:
 
     if args.output is not None:
         check_output_dir(args.output, marker="compare.md", overwrite=args.overwrite)
-    text, warnings = compare_reports(args.compare, args.output)
+    settings = Bootstrap(resamples=args.bootstrap, level=args.ci_level, seed=args.seed)
+    text, warnings = compare_reports(args.compare, args.output, settings, args.cluster)
     import warnings as py_warnings
 
     for message in warnings:
@@ -216,7 +277,10 @@ def _run_merge(args: argparse.Namespace) -> int:
     _warn_different_runs(parts, args.merge)
     result = merge_results(parts, [str(p) for p in args.merge])
     _check_bins(args, len(result.paths))
-    report = build_report(result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by)
+    intervals = bootstrap_settings(args, result.units(), result.default_cluster())
+    report = build_report(
+        result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by, bootstrap=intervals
+    )
     _warn_outside_edges(report, result)
     write_outputs(args.output, report, result)
     _print_done(args.output, report)
@@ -336,6 +400,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     if args.group_by is not None:
         data.groups(args.group_by)  # fails now, not after the inference
     _check_bins(args, len(data))
+    intervals = data_bootstrap(args, data)
     window = None
     source: dict[str, Any] = {"kind": source_kind}
     if model is not None:
@@ -373,7 +438,13 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     try:
         result = collected.result
         _check_bins(args, len(result.paths))
-        report = build_report(result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by)
+        report = build_report(
+            result,
+            bins=args.bins or 3,
+            edges=args.edges,
+            group_by=args.group_by,
+            bootstrap=intervals,
+        )
         _warn_outside_edges(report, result)
         dirs = [d for d in (args.predictions, args.save_predictions) if d is not None]
         items = hardest_items(result, data, args.hardest, collected.hardest, dirs)
@@ -399,6 +470,10 @@ def run(args: argparse.Namespace) -> int:
     source = _check_args(args)
     if source == "compare":
         return _run_compare(args)
+    if source == "scores":
+        from claravid.eval.scores import run_scores
+
+        return run_scores(args)
     if source == "merge":
         return _run_merge(args)
     return _run_evaluation(args, source)

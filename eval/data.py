@@ -3,12 +3,14 @@
 An evaluation needs, per dataset index, more than a sample: the RGB file (for delentropy), the
 name its prediction is saved under (``key``: ``<mission folder>/<viewpoint>/<stem>`` for
 ClaraVid, the image's path relative to the data root without extension otherwise), the labels
-alone (the ``--predictions`` path never decodes the image) and, for ClaraVid, the mission and
-viewpoint to group by. :class:`EvalData` gathers these behind one interface.
+alone (the ``--predictions`` path never decodes the image) and the units images are grouped and
+clustered by (:data:`UNITS`): ClaraVid mission, viewpoint and spatial block, UAVid sequence, and
+every image's parent folder. :class:`EvalData` gathers these behind one interface.
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,7 +29,15 @@ from claravid.segmentation import ClaraVidSegmentation
 from claravid.transforms import eval_transforms
 
 DATASETS = ("claravid", "uavid", "folder")
-GROUP_BY = ("mission", "viewpoint")
+GROUP_BY = ("mission", "viewpoint", "sequence", "folder")
+#: Per-image units an image belongs to, by dataset (``block`` only where extrinsics exist);
+#: every image is also its own unit, ``image``. Groups (``--group-by``) and bootstrap clusters
+#: (``--cluster``) are drawn from these.
+UNITS = {
+    "claravid": ("mission", "viewpoint", "block", "folder"),
+    "uavid": ("sequence", "folder"),
+    "folder": ("folder",),
+}
 FIT_FILES = 3  # label files sampled by check_palette_fit
 FIT_MAX_UNKNOWN = 0.5  # more label pixels than this outside the palette: the wrong palette
 
@@ -60,7 +70,8 @@ class EvalData:
         raw: the same samples without transforms (uint8 image), for overlays.
         paths: the RGB file of each index.
         keys: the prediction name of each index.
-        attributes: per-index ``mission`` / ``viewpoint`` (ClaraVid only).
+        attributes: per-index unit labels (:data:`UNITS`): ``mission`` / ``viewpoint`` /
+            ``block`` (ClaraVid), ``sequence`` (UAVid), ``folder`` (all).
         describe: root, split and dataset kind, for the report's ``source``.
     """
 
@@ -86,14 +97,9 @@ class EvalData:
         return mask if mask.dtype == np.uint8 else mask.astype(np.uint8)
 
     def groups(self, by: str) -> dict[str, list[int]]:
-        """Indices per mission or viewpoint, in first-seen order (ClaraVid only)."""
-        if by not in GROUP_BY:
-            raise ValueError(f"unknown group_by {by!r}; use one of {', '.join(GROUP_BY)}")
+        """Indices per unit (mission, viewpoint, sequence, folder), in first-seen order."""
         if by not in self.attributes:
-            raise ValueError(
-                f"--group-by {by} needs ClaraVid data (missions and viewpoints); "
-                f"the {self.name} dataset has none"
-            )
+            raise ValueError(unit_missing(by, self.name, "--group-by"))
         out: dict[str, list[int]] = {}
         for index, value in enumerate(self.attributes[by]):
             out.setdefault(value, []).append(index)
@@ -140,6 +146,22 @@ def check_palette_fit(label_files: list[Path], palette: Palette, flag: str = "--
     )
 
 
+def unit_missing(unit: str, dataset: str, flag: str) -> str:
+    """The one-line error for a unit the images do not have."""
+    where = {"mission": "ClaraVid", "viewpoint": "ClaraVid", "block": "ClaraVid with extrinsics",
+             "sequence": "UAVid"}.get(unit, "")  # fmt: skip
+    has = ", ".join(("image", *UNITS.get(dataset, ()))) if dataset in UNITS else "image, folder"
+    return (
+        f"{flag} {unit} needs {where or 'images with that unit'} data; these {dataset} images "
+        f"have: {has}"
+    )
+
+
+def folder_labels(paths: list[str], root: Path) -> list[str]:
+    """Each image's parent folder, relative to the data root (``.`` for the root itself)."""
+    return [Path(_relative_key(Path(p), root)).parent.as_posix() or "." for p in paths]
+
+
 def _relative_key(path: Path, root: Path) -> str:
     try:
         rel = path.resolve().relative_to(root.resolve())
@@ -177,6 +199,8 @@ def _claravid(
         "mission": [f.mission for f in raw.frames],
         "viewpoint": [f.viewpoint for f in raw.frames],
     }
+    with contextlib.suppress(OSError, ValueError):  # blocks need the frames' extrinsics
+        attributes["block"] = raw.block_ids()
     return _Opened(
         raw,
         _with_transforms(raw, eval_transforms(norm)),
@@ -187,30 +211,38 @@ def _claravid(
     )
 
 
-def _uavid(root: Path, split: str, pal: Palette, norm: Any = None) -> _Opened:
+def _uavid(root: Path, split: str, pal: Palette, norm: Any = None, labels: bool = True) -> _Opened:
     raw = targets.UAVidSegmentation(root, split=split, palette=pal)
-    if not raw.has_labels:
-        raise ValueError(f"UAVid {split} has no labels to evaluate against; use val or train")
-    check_palette_fit([raw.label_path(p) for p in raw.images], pal)
+    if labels:
+        if not raw.has_labels:
+            raise ValueError(f"UAVid {split} has no labels to evaluate against; use val or train")
+        check_palette_fit([raw.label_path(p) for p in raw.images], pal)
     return _Opened(
         raw,
         _with_transforms(raw, eval_transforms(norm)),
         [str(p) for p in raw.images],
         [_relative_key(p, root) for p in raw.images],  # as the samples' "key"
         lambda i: read_label_mask(raw.label_path(raw.images[i]), pal),
+        {"sequence": [p.parent.parent.name for p in raw.images]},  # seqN/Images/<name>
     )
 
 
 def _folder(
-    root: Path, masks: Path | None, palette: Any, pal: Palette, norm: Any = None
+    root: Path,
+    masks: Path | None,
+    palette: Any,
+    pal: Palette,
+    norm: Any = None,
+    labels: bool = True,
 ) -> _Opened:
-    if masks is None:
+    if labels and masks is None:
         raise ValueError("--dataset folder needs --masks: the folder of label images")
-    if palette is None:
+    if labels and palette is None:
         raise ValueError("--dataset folder needs --palette: the palette its masks are written in")
 
-    raw = targets.FolderSegmentation(root, masks, palette=pal)
-    check_palette_fit(list(raw.masks or []), pal)
+    raw = targets.FolderSegmentation(root, masks, palette=pal if masks is not None else None)
+    if masks is not None:
+        check_palette_fit(list(raw.masks or []), pal)
     return _Opened(
         raw,
         _with_transforms(raw, eval_transforms(norm)),
@@ -229,6 +261,7 @@ def open_data(
     masks: str | Path | None = None,
     selection: dict[str, Any] | None = None,
     normalisation: dict[str, Any] | None = None,
+    labels: bool = True,
 ) -> EvalData:
     """Open the images to evaluate.
 
@@ -243,6 +276,7 @@ def open_data(
         selection: ClaraVid ``missions``, ``altitude``, ``direction`` and ``split_config``
             (e.g. what a training checkpoint used).
         normalisation: ``{"mean", "std"}`` of the model's input (default ImageNet's).
+        labels: False opens the images alone (``--scores``: no labels, no masks needed).
 
     Raises:
         ValueError: an unknown dataset kind, or a combination that cannot work.
@@ -255,13 +289,14 @@ def open_data(
     if dataset == "claravid":
         opened = _claravid(root, split, pal, selection or {}, normalisation)
     elif dataset == "uavid":
-        opened = _uavid(root, split, pal, normalisation)
+        opened = _uavid(root, split, pal, normalisation, labels)
     else:
-        masks = None if masks is None else Path(masks).absolute()
-        opened = _folder(root, masks, palette, pal, normalisation)
-        describe.update(split=None, masks=str(Path(masks).absolute()))
+        mask_root = None if masks is None else Path(masks).absolute()
+        opened = _folder(root, mask_root, palette, pal, normalisation, labels)
+        describe.update(split=None, masks=None if mask_root is None else str(mask_root))
     if not opened.paths:
         raise ValueError(f"no images to evaluate in {root} (split {split})")
+    opened.attributes["folder"] = folder_labels(opened.paths, root)
     return EvalData(
         name=dataset,
         palette=pal,

@@ -1,10 +1,14 @@
 """The report's pictures (matplotlib, no display needed), each written atomically.
 
-- ``miou_per_bin.png``: mIoU per complexity bin, bars labelled with their delentropy ranges;
+- ``miou_per_bin.png``: mIoU per complexity bin, bars labelled with their delentropy ranges,
+  error bars = the bootstrap intervals;
 - ``miou_vs_delent.png``: per-image mIoU against delentropy, with a least-squares line;
 - ``class_iou_per_bin.png``: per-class IoU per bin as a heat map (blank: class absent);
 - ``hardest.png``: the k images of lowest mIoU, image | ground truth | prediction;
-- ``compare.png`` (``--compare``): the mIoU per bin of several reports side by side.
+- ``compare.png`` (``--compare``): the mIoU per bin of several reports side by side, with
+  their intervals;
+- ``--scores`` reports: ``<metric>_per_bin.png`` (mean per bin with intervals) and
+  ``<metric>_vs_delent.png`` (per image, with the fitted line).
 """
 
 from __future__ import annotations
@@ -35,6 +39,17 @@ def _fmt(value: float | None, digits: int = 2) -> str:
     return "–" if value is None else f"{value:.{digits}f}"
 
 
+def error_bars(values: Sequence[float], rows: Sequence[dict[str, Any]], key: str) -> np.ndarray:
+    """Matplotlib ``yerr`` [2, n] of the intervals ``row[key]`` around ``values`` (0: none)."""
+    err = np.zeros((2, len(rows)))
+    for i, (value, row) in enumerate(zip(values, rows, strict=True)):
+        ci = row.get(key)
+        if ci and np.isfinite(value):
+            # Percentile intervals need not contain the estimate; clip to draw non-negative bars.
+            err[:, i] = max(0.0, value - ci[0]), max(0.0, ci[1] - value)
+    return err
+
+
 def bin_label(row: dict[str, Any]) -> str:
     """``low\\n[3.10, 4.20]\\nn=12``: a bin's name, delentropy range and size."""
     return f"{row['name']}\n[{_fmt(row.get('lo'))}, {_fmt(row.get('hi'))}]\nn={row['num_images']}"
@@ -46,7 +61,8 @@ def plot_bins(report: dict[str, Any], path: str | Path) -> Path:
     fig = Figure(figsize=(max(5, 1.6 * len(rows) + 2), 4), layout="constrained")
     ax = fig.subplots()
     values = [np.nan if r["miou"] is None else r["miou"] for r in rows]
-    bars = ax.bar(range(len(rows)), values, color="tab:blue")
+    bars = ax.bar(range(len(rows)), values, color="tab:blue",
+                  yerr=error_bars(values, rows, "miou_ci"), capsize=6)  # fmt: skip
     ax.bar_label(bars, labels=[_fmt(r["miou"], 3) for r in rows], padding=2)
     ax.set_xticks(range(len(rows)), [bin_label(r) for r in rows])
     overall = report["overall"]["miou"]
@@ -160,16 +176,26 @@ def hardest_figure(
     return fig
 
 
-def plot_compare(reports: Sequence[dict[str, Any]], names: Sequence[str], path: str | Path) -> Path:
-    """Grouped bars: the mIoU of each bin (rows matched by position) for each report."""
+def plot_compare(
+    reports: Sequence[dict[str, Any]],
+    names: Sequence[str],
+    path: str | Path,
+    analysis: dict[str, Any] | None = None,
+) -> Path:
+    """Grouped bars: the mIoU of each bin (rows matched by position) for each report, with
+    their intervals; with ``analysis`` (``compare.json``) a second panel draws each report's
+    gap to the baseline per bin with its interval."""
     n_bins = max(len(r["bins"]) for r in reports)
     width = 0.8 / len(reports)
-    fig = Figure(figsize=(max(6, 1.8 * n_bins + 2), 4.5), layout="constrained")
-    ax = fig.subplots()
+    panels = 2 if analysis is not None else 1
+    fig = Figure(figsize=(max(6, 1.8 * n_bins + 2), 4.5 * panels), layout="constrained")
+    axes = fig.subplots(panels, 1, squeeze=False)[:, 0]
+    ax = axes[0]
     for k, (report, name) in enumerate(zip(reports, names, strict=True)):
         values = [np.nan if r["miou"] is None else r["miou"] for r in report["bins"]]
         xs = np.arange(len(values)) + (k - (len(reports) - 1) / 2) * width
-        bars = ax.bar(xs, values, width, label=name)
+        err = error_bars(values, report["bins"], "miou_ci")
+        bars = ax.bar(xs, values, width, label=name, yerr=err, capsize=4)
         ax.bar_label(bars, labels=[_fmt(r["miou"]) for r in report["bins"]], fontsize=8)
     first = max(reports, key=lambda r: len(r["bins"]))
     ax.set_xticks(range(n_bins), [bin_label(r) for r in first["bins"]])
@@ -177,4 +203,74 @@ def plot_compare(reports: Sequence[dict[str, Any]], names: Sequence[str], path: 
     ax.set_ylabel("mIoU")
     ax.set_title("mIoU per complexity bin")
     ax.legend()
+    if analysis is not None:
+        _plot_gaps(axes[1], analysis, [bin_label(r) for r in first["bins"]])
+    return _save(fig, path)
+
+
+def _plot_gaps(ax: Any, analysis: dict[str, Any], labels: Sequence[str]) -> None:
+    """Gap B − A per bin (points) with interval bars; 0 drawn as a line."""
+    comps = analysis["comparisons"]
+    width = 0.8 / max(1, len(comps))
+    for k, comp in enumerate(comps):
+        rows = comp["bins"]
+        values = [np.nan if r["gap"] is None else 100 * r["gap"] for r in rows]
+        scaled = [{"ci": None if not r.get("gap_ci") else [100 * v for v in r["gap_ci"]]}
+                  for r in rows]  # fmt: skip
+        xs = np.arange(len(rows)) + (k - (len(comps) - 1) / 2) * width
+        err = error_bars(values, scaled, "ci")
+        kind = "paired" if comp["paired"] else "unpaired"
+        ax.bar(xs, values, width, yerr=err, capsize=4, color=f"C{k + 1}",
+               label=f"{comp['report']} − {analysis['baseline']} ({kind})")  # fmt: skip
+    ax.axhline(0, color="k", lw=1)
+    ax.set_xticks(range(len(labels)), labels)
+    level = analysis["uncertainty"]["level"]
+    ax.set_ylabel("mIoU gap (points)")
+    ax.set_title(f"gap to {analysis['baseline']} per bin, {level:.0%} intervals")
+    ax.legend()
+
+
+def plot_metric_bins(report: dict[str, Any], metric: str, path: str | Path) -> Path:
+    """A ``--scores`` metric's mean per complexity bin, with interval bars."""
+    rows = report["bins"]
+    entries = [r["scores"][metric] for r in rows]
+    values = [np.nan if e["mean"] is None else e["mean"] for e in entries]
+    fig = Figure(figsize=(max(5, 1.6 * len(rows) + 2), 4), layout="constrained")
+    ax = fig.subplots()
+    bars = ax.bar(range(len(rows)), values, color="tab:green",
+                  yerr=error_bars(values, entries, "ci"), capsize=6)  # fmt: skip
+    ax.bar_label(bars, labels=[_fmt(e["mean"], 3) for e in entries], padding=2)
+    ax.set_xticks(range(len(rows)), [bin_label(r) for r in rows])
+    overall = report["overall"]["scores"][metric]["mean"]
+    if overall is not None:
+        ax.axhline(overall, color="k", ls="--", lw=1, label=f"overall {overall:.3f}")
+        ax.legend(loc="best")
+    ax.set_ylabel(f"mean {metric}")
+    ax.set_xlabel("delentropy bin")
+    ax.set_title(f"{metric} per complexity bin")
+    return _save(fig, path)
+
+
+def plot_metric_scatter(
+    report: dict[str, Any], metric: str, path: str | Path, measure: str = "delent"
+) -> Path:
+    """A ``--scores`` metric per image against ``measure``, with the least-squares line."""
+    x = np.array([r.get(measure, np.nan) for r in report["images"]], dtype=np.float64)
+    y = np.array([r.get(metric, np.nan) for r in report["images"]], dtype=np.float64)
+    keep = np.isfinite(x) & np.isfinite(y)
+    fig = Figure(figsize=(6, 4.5), layout="constrained")
+    ax = fig.subplots()
+    ax.scatter(x[keep], y[keep], s=14, alpha=0.7)
+    if keep.sum() >= 2 and np.ptp(x[keep]) > 0:
+        slope, intercept = np.polyfit(x[keep], y[keep], 1)
+        xs = np.linspace(x[keep].min(), x[keep].max(), 50)
+        ax.plot(xs, slope * xs + intercept, color="tab:red", label=f"fit: {slope:+.3g} per bit")
+        ax.legend(loc="best")
+    corr = report["correlation"].get(measure, {}).get(metric, {})
+    ax.set_title(
+        f"{metric} vs {measure}: Pearson {_fmt(corr.get('pearson'))}, "
+        f"Spearman {_fmt(corr.get('spearman'))}, n={corr.get('n', int(keep.sum()))}"
+    )
+    ax.set_xlabel(f"{measure} (bits)")
+    ax.set_ylabel(metric)
     return _save(fig, path)

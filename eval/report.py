@@ -6,7 +6,8 @@ A report folder holds:
   ``palette``, ``ignore_index``, ``convention``, ``source`` (how the numbers were made: model
   or predictions, data, windows, binning, skipped images);
 - ``confusions.npz`` (compressed): per-image confusions with their paths, keys, complexity
-  values and missions/viewpoints: everything needed to re-bin or merge;
+  values and units (mission, viewpoint, block, sequence, folder): everything needed to re-bin,
+  merge or bootstrap (any ``--cluster`` unit stored there) without the data;
 - ``report.md`` and the plots (:mod:`claravid.eval.plots`).
 
 :class:`EvalResult` is the per-image table; :func:`build_report` turns it into the JSON.
@@ -23,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from claravid.cli import UsageError, atomic_save, atomic_write_text
+from claravid.eval.bootstrap import Bootstrap
 from claravid.eval.stratify import stratify
 
 REPORT = "report.json"
@@ -38,7 +40,13 @@ KEYS = (
     "ignore_index",
     "convention",
     "source",
+    "uncertainty",
 )
+#: Keys every report of this tool has (reports written before intervals have no uncertainty).
+REQUIRED_KEYS = KEYS[:-1]
+#: The default bootstrap cluster per dataset kind, then the fallbacks when it is not stored.
+DEFAULT_CLUSTER = {"claravid": "block", "uavid": "sequence", "folder": "folder"}
+_FALLBACK_CLUSTERS = ("block", "sequence", "viewpoint", "folder", "image")
 
 
 @dataclass
@@ -50,7 +58,8 @@ class EvalResult:
         keys: the prediction name of each image.
         confusions: int64 [N,K,K].
         complexity: measure -> float64 [N].
-        attributes: ``mission`` / ``viewpoint`` -> one string per image (ClaraVid).
+        attributes: unit -> one label per image: ``mission`` / ``viewpoint`` / ``block``
+            (ClaraVid), ``sequence`` (UAVid), ``folder``; groups and bootstrap clusters.
         classes: the K class names.
         palette: the palette's name.
         source: where the numbers came from (written to the report as is).
@@ -66,17 +75,68 @@ class EvalResult:
     source: dict[str, Any] = field(default_factory=dict)
 
     def groups(self, by: str | None) -> dict[str, list[int]] | None:
-        """Image indices per mission or viewpoint (None: no grouping)."""
+        """Image indices per unit (mission, viewpoint, sequence, folder; None: no grouping)."""
         if by is None:
             return None
         if by not in ("mission", "viewpoint"):
             raise UsageError(f"unknown group_by {by!r}; use mission or viewpoint")
         if by not in self.attributes or not any(self.attributes[by]):
-            raise UsageError(f"--group-by {by} needs ClaraVid data; these images have no {by}")
+            raise UsageError(
+                f"--group-by {by}: these images have no {by} (they have: {', '.join(self.units())})"
+            )
         out: dict[str, list[int]] = {}
         for index, value in enumerate(self.attributes[by]):
             out.setdefault(value, []).append(index)
         return dict(sorted(out.items()))
+
+    def units(self) -> list[str]:
+        """The cluster units these images carry (``image`` always)."""
+        return available_units(self.attributes)
+
+    def cluster_labels(self, unit: str) -> list[str]:
+        """The bootstrap cluster of each image for ``unit`` (:func:`unit_labels`)."""
+        return unit_labels(self.paths, self.attributes, unit)
+
+    def default_cluster(self) -> str:
+        """The dataset's default cluster unit, or the first fallback these images carry."""
+        return default_cluster(str(self.source.get("dataset")), self.attributes)
+
+
+def available_units(attributes: dict[str, list[str]]) -> list[str]:
+    """The cluster units images with these ``attributes`` carry (``image`` always)."""
+    return ["image", *(a for a in attributes if any(attributes[a]))]
+
+
+def unit_labels(paths: Sequence[str], attributes: dict[str, list[str]], unit: str) -> list[str]:
+    """The cluster label of each image for ``unit``.
+
+    ``viewpoint`` is the mission and viewpoint folder together (the same viewpoint of two
+    missions is two clusters); ``image`` makes every image its own cluster.
+
+    Raises:
+        UsageError: these images have no such unit (e.g. ``block`` without extrinsics).
+    """
+    if unit == "image":
+        return [str(p) for p in paths]
+    if unit == "viewpoint" and "mission" in attributes and "viewpoint" in attributes:
+        pairs = zip(attributes["mission"], attributes["viewpoint"], strict=True)
+        return [f"{m}/{v}" for m, v in pairs]
+    if unit != "viewpoint" and unit in attributes and any(attributes[unit]):
+        return list(attributes[unit])
+    raise UsageError(
+        f"--cluster {unit} is not available for these images"
+        + (" (block needs ClaraVid extrinsics)" if unit == "block" else "")
+        + f"; they have: {', '.join(available_units(attributes))}"
+    )
+
+
+def default_cluster(dataset: str, attributes: dict[str, list[str]]) -> str:
+    """The dataset's default cluster unit, or the first fallback the images carry."""
+    units = available_units(attributes)
+    wanted = DEFAULT_CLUSTER.get(dataset)
+    if wanted in units:
+        return wanted
+    return next(u for u in _FALLBACK_CLUSTERS if u in units)
 
 
 def build_report(
@@ -85,8 +145,14 @@ def build_report(
     bins: int = 3,
     edges: Sequence[float] | None = None,
     group_by: str | None = None,
+    bootstrap: Bootstrap | None = None,
 ) -> dict[str, Any]:
-    """The report's JSON (keys in :data:`KEYS` order); the binning goes under ``source``."""
+    """The report's JSON (keys in :data:`KEYS` order); the binning goes under ``source``.
+
+    ``bootstrap`` (default: 1000 resamples, level 0.95, seed 0, the dataset's default cluster
+    unit) sets the intervals; its ``cluster`` must be a unit the images carry.
+    """
+    settings = bootstrap or Bootstrap(cluster=result.default_cluster())
     numbers = stratify(
         result.paths,
         result.confusions,
@@ -95,6 +161,8 @@ def build_report(
         bins=bins,
         edges=edges,
         groups=result.groups(group_by),
+        clusters=result.cluster_labels(settings.cluster),
+        bootstrap=settings,
     )
     source = dict(result.source)
     source["binning"] = {**numbers.pop("binning", {}), "group_by": group_by}
@@ -180,9 +248,10 @@ def read_report(path: str | Path) -> dict[str, Any]:
         report = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise UsageError(f"cannot read {path} as a claravid-eval report ({exc})") from None
-    if not isinstance(report, dict) or not set(KEYS) <= set(report):
+    if not isinstance(report, dict) or not set(REQUIRED_KEYS) <= set(report):
         raise UsageError(
-            f"{path} is not a claravid-eval report.json (expected the keys {', '.join(KEYS)})"
+            f"{path} is not a claravid-eval report.json (expected the keys "
+            f"{', '.join(REQUIRED_KEYS)})"
         )
     return report
 

@@ -3,12 +3,16 @@
 Overall, per complexity bin and per group (mission or viewpoint): number of images, range,
 mIoU, per-class IoU and pixel accuracy, each from the group's summed confusion (FORMAT.md §8);
 per image: its own mIoU and pixel accuracy; Pearson and Spearman correlations between each
-complexity measure and per-image mIoU, with n. Everything here is numpy on finished results,
-so a report can be re-binned or merged from saved confusions without running a model.
+complexity measure and per-image mIoU, with n. With a :class:`~claravid.eval.bootstrap.Bootstrap`
+and a cluster label per image, every mIoU, pixel accuracy and correlation also gets its cluster
+percentile bootstrap interval (``miou_ci``, ``pixel_acc_ci``, ``pearson_ci``, ``spearman_ci``;
+``ci_note`` says why one is null). Everything here is numpy on finished results, so a report can
+be re-binned or merged from saved confusions without running a model.
 """
 
 from __future__ import annotations
 
+import itertools
 import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -18,6 +22,13 @@ from scipy import stats
 
 from claravid.dsp import DegenerateProfileWarning, fit_profile
 from claravid.eval.bins import Bin, fixed_bins, quantile_bins
+from claravid.eval.bootstrap import (
+    Bootstrap,
+    cluster_ids,
+    confusion_features,
+    confusion_interval,
+    correlation_interval,
+)
 from claravid.eval.metrics import (
     CONVENTION,
     IGNORE_INDEX,
@@ -60,7 +71,7 @@ def correlation(x: Sequence[float], y: Sequence[float]) -> dict[str, Any]:
     return out
 
 
-def _profile(values: np.ndarray) -> dict[str, Any]:
+def group_profile(values: np.ndarray) -> dict[str, Any]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateProfileWarning)
         profile = fit_profile(values.tolist())
@@ -76,6 +87,8 @@ def stratify(
     bins: int = 3,
     edges: Sequence[float] | None = None,
     groups: Mapping[str, Sequence[int]] | None = None,
+    clusters: Sequence[str] | None = None,
+    bootstrap: Bootstrap | None = None,
 ) -> dict[str, Any]:
     """The report's numbers (everything but the ``source`` and palette name).
 
@@ -89,10 +102,12 @@ def stratify(
         edges: fixed bin edges, for comparing models and datasets.
         groups: group name -> image indices (missions or viewpoints), each reported with the
             DSP profile (μ, σ, α, β) of its complexity values.
+        clusters: the bootstrap cluster label of each image (default: each image its own).
+        bootstrap: interval settings; None: no intervals and no ``uncertainty`` entry.
 
     Returns:
         ``{"overall", "bins", "groups", "images", "correlation", "classes", "ignore_index",
-        "convention", "binning"}``.
+        "convention", "binning"}``, and ``"uncertainty"`` with ``bootstrap``.
     """
     confusions = np.asarray(confusions, dtype=np.int64)
     n = len(paths)
@@ -137,7 +152,7 @@ def stratify(
     for name, members in (groups or {}).items():
         row = _group_row(name, members, confusions, classes, values)
         if values is not None and len(members):
-            row["profile"] = _profile(values[list(members)])
+            row["profile"] = group_profile(values[list(members)])
         report["groups"].append(row)
 
     per_image_miou = np.array([mean_iou(c) for c in confusions])
@@ -150,7 +165,70 @@ def stratify(
         images.append(row)
     report["images"] = images
     report["correlation"] = {m: correlation(v, per_image_miou) for m, v in complexity.items()}
+    if bootstrap is not None:
+        add_intervals(report, confusions, bin_list, groups or {}, complexity, per_image_miou,
+                      list(paths) if clusters is None else clusters, bootstrap)  # fmt: skip
     return report
+
+
+def add_intervals(
+    report: dict[str, Any],
+    confusions: np.ndarray,
+    bin_list: Sequence[Bin],
+    groups: Mapping[str, Sequence[int]],
+    complexity: Mapping[str, np.ndarray],
+    per_image_miou: np.ndarray,
+    clusters: Sequence[str],
+    settings: Bootstrap,
+) -> None:
+    """Add the bootstrap intervals and the ``uncertainty`` entry to ``report`` in place.
+
+    Each set draws from its own generator (named ``overall``, ``bin:<name>``,
+    ``group:<name>``, ``correlation:<measure>``), so its interval does not depend on the others.
+    """
+    if len(clusters) != len(confusions):
+        raise ValueError(f"{len(clusters)} cluster labels for {len(confusions)} images")
+    ids = cluster_ids(clusters)
+    features = confusion_features(confusions)  # once, not once per bin and group
+
+    def interval(members: Sequence[int], stream: str) -> dict[str, Any]:
+        return confusion_interval(confusions, ids, members, settings, stream=stream,
+                                  features=features)  # fmt: skip
+
+    report["overall"].update(interval(np.arange(len(confusions)), "overall"))
+    for b, row in zip(bin_list, report["bins"], strict=True):
+        row.update(interval(b.indices, f"bin:{b.name}"))
+    for (name, members), row in zip(groups.items(), report["groups"], strict=True):
+        row.update(interval(members, f"group:{name}"))
+    for measure, values in complexity.items():
+        report["correlation"][measure].update(
+            correlation_interval(
+                values, per_image_miou, ids, settings, stream=f"correlation:{measure}"
+            )
+        )
+    uncertainty = settings.describe(int(ids.max()) + 1 if ids.size else 0)
+    uncertainty["warnings"] = order_warnings(report["bins"], "miou_ci", "miou")
+    report["uncertainty"] = uncertainty
+
+
+def order_warnings(rows: Sequence[Mapping[str, Any]], ci: str, value: str) -> list[str]:
+    """Adjacent bins whose order the intervals do not support.
+
+    Two adjacent bins' order is unsupported when each one's point estimate lies inside the
+    other's interval (the intervals overlap past both estimates).
+    """
+    out = []
+    for a, b in itertools.pairwise(rows):
+        va, vb, ca, cb = a.get(value), b.get(value), a.get(ci), b.get(ci)
+        if None in (va, vb) or not ca or not cb:
+            continue
+        if ca[0] <= vb <= ca[1] and cb[0] <= va <= cb[1]:
+            out.append(
+                f"bins {a['name']} ({va:.3f} [{ca[0]:.3f}, {ca[1]:.3f}]) and {b['name']} "
+                f"({vb:.3f} [{cb[0]:.3f}, {cb[1]:.3f}]): each estimate lies inside the other's "
+                "interval, so their order is not supported by the data"
+            )
+    return out
 
 
 def bin_mious(report: Mapping[str, Any]) -> dict[str, float | None]:

@@ -1,0 +1,146 @@
+"""``claravid-eval --scores``: any per-image metric against complexity, checked by hand."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from scipy import stats
+
+from claravid.dsp import image_complexity
+from claravid.eval.cli import main
+
+PSNR = {"seq1": [20.0, 22.0, 27.0], "seq2": [30.0, 26.0], "seq3": [25.0, 21.0]}
+SSIM = {"seq1": [0.5, 0.6, 0.9], "seq2": [0.8, 0.7], "seq3": [0.65, 0.55]}
+
+
+@pytest.fixture(scope="module")
+def uavid_test(tmp_path_factory):
+    """uavid_test (images only, no labels) with 3 sequences of 2-3 random 40×30 frames; the
+    CSV of hand-written PSNR/SSIM values (relative paths for seq1, absolute for the others)."""
+    tmp = tmp_path_factory.mktemp("scores")
+    root = tmp / "uavid"
+    rng = np.random.default_rng(5)
+    rows, paths = [], []
+    for seq, values in PSNR.items():
+        folder = root / "uavid_test" / seq / "Images"
+        folder.mkdir(parents=True)
+        for i, (psnr, ssim) in enumerate(zip(values, SSIM[seq], strict=True)):
+            # Smooth to noisy images: a spread of delentropy.
+            noise = rng.integers(0, 256, (30, 40, 3), dtype=np.uint8)
+            image = cv2.GaussianBlur(noise, (0, 0), 0.5 + 3 * (i % 3) + (seq == "seq2"))
+            path = folder / f"{i:06d}.png"
+            cv2.imwrite(str(path), image)
+            name = path.relative_to(root).as_posix() if seq == "seq1" else str(path)
+            rows.append(f"{name},{psnr},{ssim}")
+            paths.append(path)
+    csv = tmp / "scores.csv"
+    csv.write_text("path,psnr,ssim\n" + "\n".join(rows) + "\n")
+    return {"root": root, "csv": csv, "paths": paths, "tmp": tmp}
+
+
+def _args(case, out, *extra, csv=None):
+    return ["--scores", str(csv or case["csv"]), "--data", str(case["root"]), "--dataset",
+            "uavid", "--split", "test", "--output", str(out), *extra]  # fmt: skip
+
+
+def test_scores_means_groups_and_correlations_by_hand(uavid_test, tmp_path):
+    out = tmp_path / "rep"
+    argv = _args(uavid_test, out, "--group-by", "sequence", "--bins", "2", "--bootstrap", "200")
+    assert main([*argv, "--measures", "delent,pixent"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    psnr = np.array([v for vs in PSNR.values() for v in vs])
+    ssim = np.array([v for vs in SSIM.values() for v in vs])
+    delent = np.array([image_complexity(p) for p in uavid_test["paths"]])
+    assert report["uncertainty"]["cluster"] == "sequence"  # UAVid default
+    assert report["uncertainty"]["num_clusters"] == 3
+    assert report["overall"]["scores"]["psnr"]["mean"] == pytest.approx(psnr.mean())
+    # Quantile bins by (delentropy, path): the 4 lowest, then the 3 highest.
+    order = sorted(range(7), key=lambda i: (delent[i], str(uavid_test["paths"][i])))
+    low, high = report["bins"]
+    assert (low["num_images"], high["num_images"]) == (4, 3)
+    assert low["scores"]["psnr"]["mean"] == pytest.approx(psnr[order[:4]].mean())
+    assert high["scores"]["ssim"]["mean"] == pytest.approx(ssim[order[4:]].mean())
+    assert low["lo"] == pytest.approx(delent[order[0]])
+    groups = {g["name"]: g for g in report["groups"]}
+    assert sorted(groups) == ["seq1", "seq2", "seq3"]
+    for seq, values in PSNR.items():
+        g = groups[seq]
+        assert g["num_images"] == len(values)
+        assert g["scores"]["psnr"]["mean"] == pytest.approx(np.mean(values))
+        assert g["scores"]["ssim"]["mean"] == pytest.approx(np.mean(SSIM[seq]))
+        assert set(g["profile"]) == {"mu", "sigma", "alpha", "beta"}
+        # One cluster per sequence group: no interval, and the note says why.
+        assert g["scores"]["psnr"]["ci"] is None and "at least 2" in g["scores"]["psnr"]["ci_note"]
+    seq1 = [i for i, p in enumerate(uavid_test["paths"]) if "seq1" in str(p)]
+    assert groups["seq1"]["profile"]["mu"] == pytest.approx(delent[seq1].mean(), abs=1e-6)
+    corr = report["correlation"]["delent"]["psnr"]
+    assert corr["n"] == 7
+    assert corr["pearson"] == pytest.approx(stats.pearsonr(delent, psnr).statistic)
+    assert corr["spearman"] == pytest.approx(stats.spearmanr(delent, psnr).statistic)
+    assert len(corr["pearson_ci"]) == 2 and set(report["correlation"]) == {"delent", "pixent"}
+    lo, hi = report["overall"]["scores"]["psnr"]["ci"]
+    assert psnr.min() <= lo <= hi <= psnr.max()
+    text = (out / "report.md").read_text()
+    assert "| group | images | DSP μ | σ | α | β | psnr | ssim |" in text
+    for name in ("psnr_per_bin.png", "psnr_vs_delent.png", "ssim_per_bin.png"):
+        assert (out / name).stat().st_size > 5000
+
+
+def test_folder_group_by_on_a_folder_dataset(tmp_path):
+    rng = np.random.default_rng(0)
+    rows = []
+    for sub, values in (("a", [1.0, 3.0]), ("b/c", [10.0, 20.0, 60.0])):
+        (tmp_path / "img" / sub).mkdir(parents=True)
+        for i, v in enumerate(values):
+            cv2.imwrite(str(tmp_path / "img" / sub / f"{i}.png"),
+                        rng.integers(0, 256, (20, 24, 3), dtype=np.uint8))  # fmt: skip
+            rows.append(f"{sub}/{i}.png,{v}")
+    (tmp_path / "s.csv").write_text("path,err\n" + "\n".join(rows) + "\n")
+    out = tmp_path / "rep"
+    argv = ["--scores", str(tmp_path / "s.csv"), "--data", str(tmp_path / "img"), "--dataset",
+            "folder", "--group-by", "folder", "--bins", "1", "--output", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    report = json.loads((out / "report.json").read_text())
+    groups = {g["name"]: g["scores"]["err"]["mean"] for g in report["groups"]}
+    assert groups == {"a": pytest.approx(2.0), "b/c": pytest.approx(30.0)}
+    assert report["uncertainty"]["cluster"] == "folder"
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("file,psnr\nx.png,1\n", "has no 'path' column"),
+        ("path\nuavid_test/seq1/Images/000000.png\n", "no metric column"),
+        (
+            "path,psnr\nuavid_test/seq1/Images/000000.png,abc\nuavid_test/seq1/Images/000001.png,"
+            "nan\n",
+            "row 2 psnr='abc', row 3 psnr='nan'",
+        ),
+        (
+            "path,psnr\nuavid_test/seq1/Images/000000.png,1\nuavid_test/seq1/Images/000001.png,2\n"
+            "uavid_test/seq1/Images/../Images/000000.png,3\n",
+            "row 4 repeats row 2",
+        ),
+        (
+            "path,psnr\nuavid_test/seq1/Images/000000.png,1\nuavid_test/seq9/Images/000000.png,2\n",
+            "not in the data",
+        ),
+        ("path,psnr\n,1\n", "empty 'path' in row 2"),
+        ("path,psnr\nuavid_test/seq1/Images/000000.png,1,2\n", "more cells than header columns"),
+    ],
+)
+def test_bad_csv_names_the_rows(uavid_test, tmp_path, capsys, content, message):
+    csv = tmp_path / "bad.csv"
+    csv.write_text(content)
+    assert main(_args(uavid_test, tmp_path / "x", csv=csv)) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert not (tmp_path / "x").exists()
+
+
+def test_scores_refuse_units_the_data_lacks(uavid_test, tmp_path, capsys):
+    assert main(_args(uavid_test, tmp_path / "x", "--group-by", "mission")) == 2
+    assert "--group-by mission" in capsys.readouterr().err
+    assert main(_args(uavid_test, tmp_path / "y", "--cluster", "block")) == 2
+    assert "--cluster block is not available" in capsys.readouterr().err

@@ -1,0 +1,199 @@
+"""Intervals, comparisons with a verdict and ``--scores`` through the command line (issue 14).
+
+One tiny ClaraVid tree (36 frames of 64×48), hand-made label maps: A (10 % of pixels shifted
+by one class), B identical to A, C with 40 % shifted (an injected error).
+"""
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from claravid import modalities
+from claravid.eval.bootstrap import Bootstrap, cluster_ids, confusion_interval
+from claravid.eval.cli import main
+from claravid.layout import MISSIONS, frame_file
+from claravid.segmentation import ClaraVidSegmentation
+
+K = 8  # uavid palette
+
+
+def _write_predictions(ds, folder, share, seed):
+    rng = np.random.default_rng(seed)
+    for i, frame in enumerate(ds.frames):
+        truth = ds.read_mask(i)
+        valid = np.where(truth == 255, 0, truth).astype(np.uint8)
+        wrong = rng.random(valid.shape) < share
+        pred = np.where(wrong, (valid + 1) % K, valid).astype(np.uint8)
+        (folder / frame.key).parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(folder / f"{frame.key}.png"), pred)
+
+
+@pytest.fixture(scope="module")
+def runs(claravid_root, tmp_path_factory):
+    """Reports of A, B (= A) and C (injected error) over all 36 frames, and A over a subset."""
+    tmp = tmp_path_factory.mktemp("unc")
+    ds = ClaraVidSegmentation(claravid_root, split="all", palette="uavid")
+    for name, share, seed in (("a", 0.1, 0), ("b", 0.1, 0), ("c", 0.4, 1)):
+        _write_predictions(ds, tmp / f"pred_{name}", share, seed)
+    common = ["--data", str(claravid_root), "--split", "all", "--palette", "uavid",
+              "--no-progress", "--bootstrap", "300"]  # fmt: skip
+    for name in "abc":
+        argv = ["--predictions", str(tmp / f"pred_{name}"), *common, "--output", str(tmp / name)]
+        assert main([*argv, "--group-by", "mission"]) == 0
+    subset = tmp / "subset.txt"
+    subset.write_text("\n".join(f.key for f in ds.frames[::2]) + "\n")
+    half = [a if a != "all" else str(subset) for a in common]
+    assert main(["--predictions", str(tmp / "pred_a"), *half, "--output", str(tmp / "half")]) == 0
+    return {"tmp": tmp, "ds": ds, "common": common}
+
+
+def _report(folder):
+    return json.loads((folder / "report.json").read_text())
+
+
+def _blocks_by_hand(root, frames, size=150.0):
+    labels = []
+    for f in frames:
+        pose = modalities.read_extrinsics(frame_file(root / MISSIONS[f.mission], f.viewpoint,
+                                                     f.stem, "extrinsics"))  # fmt: skip
+        labels.append(
+            (f.mission, int(np.floor(pose[0, 3] / size)), int(np.floor(pose[1, 3] / size)))
+        )
+    return labels
+
+
+def test_intervals_everywhere_with_block_clusters(runs, claravid_root):
+    report = _report(runs["tmp"] / "a")
+    unc = report["uncertainty"]
+    blocks = _blocks_by_hand(claravid_root, runs["ds"].frames)
+    assert unc["method"] == "cluster percentile bootstrap" and unc["cluster"] == "block"
+    assert (unc["resamples"], unc["level"], unc["seed"]) == (300, 0.95, 0)
+    assert unc["num_clusters"] == len(set(blocks)) >= 2
+    for row in [report["overall"], *report["bins"], *report["groups"]]:
+        lo, hi = row["miou_ci"]
+        assert 0 <= lo <= hi <= 1 and row["ci_note"] is None
+        assert row["pixel_acc_ci"][0] <= row["pixel_acc_ci"][1]
+    corr = report["correlation"]["delent"]
+    assert len(corr["pearson_ci"]) == 2 and len(corr["spearman_ci"]) == 2
+    # The overall interval resamples the hand-computed blocks of the saved confusions.
+    with np.load(runs["tmp"] / "a" / "confusions.npz") as saved:
+        conf = saved["confusions"]
+        assert sorted(set(saved["attribute_block"])) == sorted(
+            {f"{m}/{x}_{y}" for m, x, y in blocks}
+        )
+    ids = cluster_ids([str(b) for b in blocks])
+    expected = confusion_interval(conf, ids, range(len(conf)), Bootstrap(resamples=300),
+                                  stream="overall")  # fmt: skip
+    assert report["overall"]["miou_ci"] == pytest.approx(expected["miou_ci"])
+    text = (runs["tmp"] / "a" / "report.md").read_text()
+    o = report["overall"]
+    assert f"{o['miou']:.3f} [{o['miou_ci'][0]:.3f}, {o['miou_ci'][1]:.3f}]" in text
+
+
+def test_merge_rebins_and_bootstraps_without_the_data(runs, tmp_path):
+    copy = shutil.copytree(runs["tmp"] / "a", tmp_path / "a")  # no data, no predictions needed
+    out = tmp_path / "m"
+    argv = ["--merge", str(copy), "--bins", "2", "--cluster", "viewpoint", "--seed", "3",
+            "--bootstrap", "200", "--output", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    report = _report(out)
+    assert report["uncertainty"]["cluster"] == "viewpoint"
+    assert report["uncertainty"]["num_clusters"] == 12  # 2 missions × 6 viewpoints
+    assert len(report["bins"]) == 2 and all(b["miou_ci"] for b in report["bins"])
+    again = tmp_path / "m2"
+    assert main([*argv[:-1], str(again)]) == 0
+    assert _report(again)["bins"] == report["bins"]  # same seed, same numbers
+    off = tmp_path / "off"
+    assert main(["--merge", str(copy), "--bootstrap", "0", "--output", str(off)]) == 0
+    overall = _report(off)["overall"]
+    assert overall["miou_ci"] is None and "off" in overall["ci_note"]
+
+
+def test_compare_identical_and_injected_error(runs, tmp_path, capsys):
+    tmp = runs["tmp"]
+    out = tmp_path / "cmp"
+    argv = ["--compare", str(tmp / "a"), str(tmp / "b"), str(tmp / "c"), "--bootstrap", "300",
+            "--output", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    result = json.loads((out / "compare.json").read_text())
+    assert result["baseline"] == "a" and result["uncertainty"]["cluster"] == "block"
+    same, worse = result["comparisons"]
+    assert same["report"] == "b" and same["paired"]
+    for row in [same["overall"], *same["bins"]]:
+        assert (row["gap"], row["gap_ci"], row["p_value"]) == (0.0, [0.0, 0.0], 1.0)
+    a, c = _report(tmp / "a"), _report(tmp / "c")
+    assert worse["paired"] and worse["overall"]["gap"] == pytest.approx(
+        c["overall"]["miou"] - a["overall"]["miou"]
+    )
+    assert worse["overall"]["gap_ci"][1] < 0 and worse["overall"]["p_value"] < 0.01
+    text = (out / "compare.md").read_text()
+    assert "**yes**" in text and "paired" in text
+    assert (out / "compare.png").stat().st_size > 5000
+
+
+def test_compare_different_images_is_unpaired(runs, tmp_path):
+    tmp = runs["tmp"]
+    out = tmp_path / "cmp"
+    assert main(["--compare", str(tmp / "a"), str(tmp / "half"), "--bootstrap", "100",
+                 "--output", str(out)]) == 0  # fmt: skip
+    comp = json.loads((out / "compare.json").read_text())["comparisons"][0]
+    assert comp["paired"] is False and "unpaired" in comp["note"]
+    assert comp["overall"]["paired"] is False and comp["overall"]["gap_ci"] is not None
+    assert "unpaired" in (out / "compare.md").read_text()
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--bootstrap", "-1"], "--bootstrap must be >= 0"),
+        (["--ci-level", "1.5"], "--ci-level must be between 0 and 1"),
+        (["--cluster", "tile"], "unknown --cluster 'tile'"),
+        (["--cluster", "sequence"], "--cluster sequence is not available"),
+    ],
+)
+def test_bad_uncertainty_arguments(runs, tmp_path, capsys, extra, message):
+    argv = ["--predictions", str(runs["tmp"] / "pred_a"), *runs["common"], *extra,
+            "--output", str(tmp_path / "x")]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+    assert not (tmp_path / "x").exists()
+
+
+def test_block_without_extrinsics_is_refused(writable_root, tmp_path, capsys):
+    for f in writable_root.glob("*/extrinsics/*/*"):
+        f.unlink()
+    ds = ClaraVidSegmentation(writable_root, split="all", palette="uavid")
+    _write_predictions(ds, tmp_path / "p", 0.1, 0)
+    argv = ["--predictions", str(tmp_path / "p"), "--data", str(writable_root), "--split", "all",
+            "--palette", "uavid", "--no-progress", "--output", str(tmp_path / "x")]  # fmt: skip
+    assert main([*argv, "--cluster", "block"]) == 2
+    err = capsys.readouterr().err
+    assert "--cluster block is not available" in err and "extrinsics" in err
+    # Without --cluster the default falls back to the viewpoint.
+    assert main([*argv, "--bootstrap", "50"]) == 0
+    assert _report(tmp_path / "x")["uncertainty"]["cluster"] == "viewpoint"
+
+
+def test_paired_compare_aligns_images_by_path():
+    """B lists the same images as A in another order: the pairs follow the paths."""
+    from claravid.eval.compare import gap_analysis
+    from claravid.eval.report import EvalResult
+
+    rng = np.random.default_rng(0)
+    conf = rng.integers(0, 50, size=(12, 3, 3)) + np.eye(3, dtype=np.int64) * 400
+    paths = [f"img{i:02d}.png" for i in range(12)]
+    attrs = {"folder": [f"f{i // 3}" for i in range(12)]}
+    a = EvalResult(paths, paths, conf, {}, attrs, ["x", "y", "z"], "p", {"dataset": "folder"})
+    order = rng.permutation(12)
+    b = EvalResult([paths[i] for i in order], [paths[i] for i in order], conf[order], {},
+                   {"folder": [attrs["folder"][i] for i in order]}, ["x", "y", "z"], "p",
+                   {"dataset": "folder"})  # fmt: skip
+    report = {"source": {"binning": {}}}
+    out = gap_analysis([a, b], [report, report], ["a", "b"], Bootstrap(resamples=100,
+                       cluster="folder"))["comparisons"][0]  # fmt: skip
+    assert out["paired"] and out["overall"]["gap_ci"] == [0.0, 0.0]
+    assert out["overall"]["p_value"] == 1.0
