@@ -82,7 +82,7 @@ def test_intervals_everywhere_with_block_clusters(runs, claravid_root):
     with np.load(runs["tmp"] / "a" / "confusions.npz") as saved:
         conf = saved["confusions"]
         assert sorted(set(saved["attribute_block"])) == sorted(
-            {f"{m}/{x}_{y}" for m, x, y in blocks}
+            {f"{MISSIONS[m]}/{x}_{y}" for m, x, y in blocks}
         )
     ids = cluster_ids([str(b) for b in blocks])
     expected = confusion_interval(conf, ids, range(len(conf)), Bootstrap(resamples=300),
