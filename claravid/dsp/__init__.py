@@ -13,9 +13,11 @@ from claravid.dsp.cache import ComplexityCache
 from claravid.dsp.collection import (
     ImageError,
     ImageResult,
+    MeasuredImage,
     NoImagesError,
     ProfileRun,
     compute_complexities,
+    compute_measures,
     find_images,
     load_results,
     merge_runs,
@@ -35,6 +37,7 @@ from claravid.dsp.metrics import (
 )
 from claravid.dsp.plot import plot_profile
 from claravid.dsp.profile import DegenerateProfileWarning, Profile, fit_profile
+from claravid.dsp.tiles import tile_bounds, tile_complexities
 
 __all__ = [
     "METRICS",
@@ -43,11 +46,13 @@ __all__ = [
     "ImageError",
     "ImageReadError",
     "ImageResult",
+    "MeasuredImage",
     "NoImagesError",
     "Profile",
     "ProfileRun",
     "compare_table",
     "compute_complexities",
+    "compute_measures",
     "deldensity_counts",
     "delentropy",
     "find_images",
@@ -61,4 +66,6 @@ __all__ = [
     "plot_profile",
     "profile_images",
     "read_gray",
+    "tile_bounds",
+    "tile_complexities",
 ]

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from tqdm.auto import tqdm
 
 from claravid.cli import atomic_write_text
@@ -32,6 +33,7 @@ from claravid.dsp.metrics import (
     read_gray,
 )
 from claravid.dsp.profile import Profile, fit_profile
+from claravid.dsp.tiles import check_tile_size, tile_complexities
 
 
 class NoImagesError(FileNotFoundError):
@@ -182,23 +184,152 @@ def select_shard(paths: Sequence[Path], k: int, n: int) -> list[Path]:
 # Computing values
 
 
-def _measure(job: tuple[str, str, bool, int]) -> tuple[str, float | None, int, int, str | None]:
-    path, metric, blur, ksize = job
+@dataclass(frozen=True)
+class MeasuredImage:
+    """One image's values for several measures from one decode, and optionally per tile.
+
+    Attributes:
+        image_path: the file.
+        values: measure name -> value.
+        height, width: the decoded size.
+        tiles: delentropy of each tile (float64 [rows, cols], :mod:`claravid.dsp.tiles`), when
+            a tile size was given.
+    """
+
+    image_path: str
+    values: dict[str, float]
+    height: int
+    width: int
+    tiles: np.ndarray | None = None
+
+
+_Job = tuple[str, tuple[str, ...], bool, int, int | None]
+_Output = tuple[str, dict[str, float] | None, int, int, np.ndarray | None, str | None]
+
+
+def _measure(job: _Job) -> _Output:
+    """Decode one image once and compute every measure asked for (and its tiles) from it."""
+    path, metrics, blur, ksize, tile_size = job
     try:
         gray = read_gray(path)
         height, width = gray.shape
-        value = gray_complexity(preprocess(gray, blur, ksize), metric)
+        values = {}
+        if metrics:
+            ready = preprocess(gray, blur, ksize)
+            values = {m: gray_complexity(ready, m) for m in metrics}
+        tiles = (
+            None if tile_size is None else tile_complexities(gray, tile_size, "delent", blur, ksize)
+        )
     except ImageReadError as exc:
-        return path, None, 0, 0, exc.reason
+        return path, None, 0, 0, None, exc.reason
     except Exception as exc:  # one bad file must never stop a 17k-image run
-        return path, None, 0, 0, f"{type(exc).__name__}: {exc}"
-    return path, value, height, width, None
+        return path, None, 0, 0, None, f"{type(exc).__name__}: {exc}"
+    return path, values, height, width, tiles, None
 
 
 def _init_worker() -> None:
     import cv2
 
     cv2.setNumThreads(1)  # the processes already fill the cores
+
+
+def compute_measures(
+    paths: Iterable[str | Path],
+    metrics: Sequence[str] = ("delent",),
+    *,
+    tile_size: int | None = None,
+    blur: bool = True,
+    ksize: int = 3,
+    workers: int = 0,
+    cache: bool | ComplexityCache = True,
+    progress: bool = False,
+) -> tuple[list[MeasuredImage], list[ImageError]]:
+    """Several measures of ``paths`` (in order), each image decoded at most once.
+
+    Values found in the cache (file unchanged) are not recomputed; an image is decoded when any
+    of its measures is missing there, or when tiles are asked for (tile values are not cached).
+
+    Args:
+        paths: image files.
+        metrics: measure names among ``delent``, ``glcment``, ``pixent``.
+        tile_size: also the delentropy of each tile of about this many pixels.
+        blur: Gaussian blur before measuring (official default on).
+        ksize: odd blur kernel size.
+        workers: worker processes; 0 or 1 computes in this process.
+        cache: True for the default cache, False for none, or a :class:`ComplexityCache`.
+        progress: show a progress bar on stderr.
+
+    Returns:
+        (results, errors): readable images in input order, and the unreadable ones with reasons.
+    """
+    metrics = tuple(dict.fromkeys(check_metric(m) for m in metrics))
+    if blur:
+        check_blur_ksize(ksize)
+    if tile_size is not None:
+        check_tile_size(tile_size)
+    if workers < 0:
+        raise ValueError(f"workers must be >= 0 (0 or 1: in this process), got {workers}")
+    paths = [str(p) for p in paths]
+    unique = list(dict.fromkeys(paths))
+    store = ComplexityCache() if cache is True else (cache or None)
+    keys = {(p, m): cache_key(p, m, blur, ksize) for p in unique for m in metrics}
+    hits = store.get_many(k for k in keys.values() if k is not None) if store else {}
+    known: dict[str, dict[str, float]] = {p: {} for p in unique}
+    size: dict[str, tuple[int, int]] = {}
+    for (p, m), key in keys.items():
+        if key in hits:
+            value, h, w = hits[key]
+            known[p][m] = value
+            size[p] = (h, w)
+    jobs = []
+    for p in unique:
+        missing = tuple(m for m in metrics if m not in known[p])
+        if missing or tile_size is not None:
+            jobs.append((p, missing, blur, ksize, tile_size))
+    tiles: dict[str, np.ndarray | None] = {}
+    failed: dict[str, str] = {}
+    new_rows = []
+    bar = tqdm(total=len(jobs), desc="+".join(metrics), unit="img", disable=not progress)
+    try:
+        if workers <= 1 or len(jobs) <= 1:
+            outputs: Iterable[_Output] = map(_measure, jobs)
+            executor = None
+        else:
+            executor = ProcessPoolExecutor(
+                max_workers=workers,
+                mp_context=multiprocessing.get_context("spawn"),
+                initializer=_init_worker,
+            )
+            chunk = max(1, min(16, len(jobs) // (workers * 8)))
+            outputs = executor.map(_measure, jobs, chunksize=chunk)
+        for path, values, h, w, tile_values, err in outputs:
+            if values is None:
+                failed[path] = err or "no value"
+            else:
+                known[path].update(values)
+                size[path] = (h, w)
+                tiles[path] = tile_values
+                new_rows += [(keys[path, m], v, h, w) for m, v in values.items()
+                             if keys[path, m] is not None]  # fmt: skip
+                if len(new_rows) >= 256 and store:
+                    store.put_many(new_rows)  # an interrupted run keeps what it measured
+                    new_rows = []
+            bar.update(1)
+    finally:
+        bar.close()
+        if executor is not None:
+            executor.shutdown(cancel_futures=True)
+        if store and new_rows:
+            store.put_many(new_rows)
+    results, errors = [], []
+    for p in paths:
+        if p in failed:
+            errors.append(ImageError(p, failed[p]))
+        else:
+            h, w = size[p]
+            values = {m: float(known[p][m]) for m in metrics}
+            results.append(MeasuredImage(p, values, h, w, tiles.get(p)))
+    return results, errors
 
 
 def compute_complexities(
@@ -213,70 +344,15 @@ def compute_complexities(
 ) -> tuple[list[ImageResult], list[ImageError]]:
     """Per-image values of ``paths`` (in order), reading cached values where the file is unchanged.
 
-    Args:
-        paths: image files.
-        metric: ``delent``, ``glcment`` or ``pixent``.
-        blur: Gaussian blur before measuring (official default on).
-        ksize: odd blur kernel size.
-        workers: worker processes; 0 or 1 computes in this process.
-        cache: True for the default cache, False for none, or a :class:`ComplexityCache`.
-        progress: show a progress bar on stderr.
+    Arguments as :func:`compute_measures`, for one ``metric``.
 
     Returns:
         (results, errors): readable images in input order, and the unreadable ones with reasons.
     """
-    check_metric(metric)
-    if blur:
-        check_blur_ksize(ksize)
-    if workers < 0:
-        raise ValueError(f"workers must be >= 0 (0 or 1: in this process), got {workers}")
-    paths = [str(p) for p in paths]
-    store = ComplexityCache() if cache is True else (cache or None)
-    keys = {p: cache_key(p, metric, blur, ksize) for p in paths}
-    hits = store.get_many(k for k in keys.values() if k is not None) if store else {}
-    done: dict[str, tuple[float | None, int, int, str | None]] = {}
-    for p in paths:
-        if keys[p] in hits:
-            value, h, w = hits[keys[p]]
-            done[p] = (value, h, w, None)
-    todo = [p for p in dict.fromkeys(paths) if p not in done]
-    jobs = [(p, metric, blur, ksize) for p in todo]
-    new_rows = []
-    bar = tqdm(total=len(jobs), desc=f"{metric}", unit="img", disable=not progress)
-    try:
-        if workers <= 1 or len(jobs) <= 1:
-            outputs: Iterable = map(_measure, jobs)
-            executor = None
-        else:
-            executor = ProcessPoolExecutor(
-                max_workers=workers,
-                mp_context=multiprocessing.get_context("spawn"),
-                initializer=_init_worker,
-            )
-            chunk = max(1, min(16, len(jobs) // (workers * 8)))
-            outputs = executor.map(_measure, jobs, chunksize=chunk)
-        for path, value, h, w, err in outputs:
-            done[path] = (value, h, w, err)
-            if value is not None and keys[path] is not None:
-                new_rows.append((keys[path], value, h, w))
-                if len(new_rows) >= 256 and store:
-                    store.put_many(new_rows)  # an interrupted run keeps what it measured
-                    new_rows = []
-            bar.update(1)
-    finally:
-        bar.close()
-        if executor is not None:
-            executor.shutdown(cancel_futures=True)
-        if store and new_rows:
-            store.put_many(new_rows)
-    results, errors = [], []
-    for p in paths:
-        value, h, w, err = done[p]
-        if err is None and value is not None:
-            results.append(ImageResult(p, float(value), h, w))
-        else:
-            errors.append(ImageError(p, err or "no value"))
-    return results, errors
+    results, errors = compute_measures(
+        paths, (metric,), blur=blur, ksize=ksize, workers=workers, cache=cache, progress=progress
+    )
+    return [ImageResult(r.image_path, r.values[metric], r.height, r.width) for r in results], errors
 
 
 def profile_images(
