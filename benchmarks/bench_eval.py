@@ -10,6 +10,10 @@ On generated full-size 4032×3024 ClaraVid frames (uavid palette: panoptic PNG +
    delentropy, cold DSP cache) divided by the bare decode time of the same files (prediction
    PNG, panoptic PNG, dynamic mask, greyscale RGB; cv2.imread only). Target <= 1.5x. Then the
    same work with ``workers=2``: the speed-up over ``workers=0``.
+   Same run: ``--tiles 630`` (every tile's delentropy and confusion too) against the same
+   evaluation without tiles (target <= 1.3x), and ``--measures delent,glcment,pixent`` (one
+   decode for all three) against ``delent`` alone (target <= 1.6x), both as the whole
+   evaluation and as the complexity work alone; the old way, one decode per measure, beside it.
 2. Model path: images/s of the whole evaluation (complexity computed while the model runs)
    vs the same work done one after the other (evaluate_model, then compute_complexities), on
    the demo-sized DINOv2-shaped model (224² windows at scale 0.25; CPU-friendly, it measures
@@ -38,7 +42,7 @@ import numpy as np
 import torch
 
 from claravid import models
-from claravid.dsp import compute_complexities
+from claravid.dsp import compute_complexities, compute_measures
 from claravid.eval.data import open_data
 from claravid.eval.evaluate import evaluate_model
 from claravid.eval.run import collect
@@ -63,11 +67,24 @@ def bare_decode(data, preds: Path) -> tuple[float, float]:
     return time.perf_counter() - start, time.process_time() - cpu
 
 
-def predictions_path(data, preds: Path, tmp: Path, workers: int) -> tuple[float, float]:
+def predictions_path(data, preds: Path, tmp: Path, workers: int, **options) -> tuple[float, float]:
     """(wall, CPU) seconds of the whole --predictions evaluation (cold complexity cache)."""
     _cold_cache(tmp, f"p{workers}")
     start, cpu = time.perf_counter(), time.process_time()
-    collect(data, predictions=preds, workers=workers, hardest=0)
+    collect(data, predictions=preds, workers=workers, hardest=0, **options)
+    return time.perf_counter() - start, time.process_time() - cpu
+
+
+def complexity_only(data, tmp: Path, measures, one_decode: bool = True) -> tuple[float, float]:
+    """(wall, CPU) seconds of the complexity values alone (cold cache): one decode for all
+    measures, or (the old way) one call, hence one decode, per measure."""
+    _cold_cache(tmp, "c")
+    start, cpu = time.perf_counter(), time.process_time()
+    if one_decode:
+        compute_measures(data.paths, measures)
+    else:
+        for measure in measures:
+            compute_complexities(data.paths, measure)
     return time.perf_counter() - start, time.process_time() - cpu
 
 
@@ -93,6 +110,33 @@ def section_predictions(data, preds: Path, tmp: Path, repeats: int) -> None:
         print(f"   {name:<58}{1000 * wall / n:>8.1f}{wall / base[0]:>7.2f}"
               f"{1000 * cpu / n:>8.1f}{cpu / base[1]:>7.2f}")  # fmt: skip
     print(f"   workers=2 vs workers=0: wall speed-up {ours[0] / two[0]:.2f}x")
+
+
+def section_tiles_measures(data, preds: Path, tmp: Path, repeats: int) -> None:
+    n = len(data)
+    three = ("delent", "glcment", "pixent")
+    rows = [
+        ("whole evaluation, delent", lambda: predictions_path(data, preds, tmp, 0), None),
+        ("  + --tiles 630 (target <= 1.3)",
+         lambda: predictions_path(data, preds, tmp, 0, tile_size=630), 0),
+        ("  --measures delent,glcment,pixent (target <= 1.6)",
+         lambda: predictions_path(data, preds, tmp, 0, measures=three), 0),
+        ("complexity alone, delent", lambda: complexity_only(data, tmp, ("delent",)), None),
+        ("  delent,glcment,pixent, one decode (target <= 1.6)",
+         lambda: complexity_only(data, tmp, three), 3),
+        ("  delent,glcment,pixent, one decode per measure (old)",
+         lambda: complexity_only(data, tmp, three, one_decode=False), 3),
+    ]  # fmt: skip
+    print(f"\n1b. tiles and measures, per image (4032×3024, cold DSP cache, workers=0; load "
+          f"average {os.getloadavg()[0]:.1f})")  # fmt: skip
+    print(f"   {'':<58}{'wall ms':>8}{'ratio':>7}{'CPU ms':>8}{'ratio':>7}")
+    times = []
+    for name, fn, base in rows:
+        wall, cpu = best(fn, repeats)
+        times.append((wall, cpu))
+        ref = times[base] if base is not None else (wall, cpu)
+        print(f"   {name:<58}{1000 * wall / n:>8.1f}{wall / ref[0]:>7.2f}"
+              f"{1000 * cpu / n:>8.1f}{cpu / ref[1]:>7.2f}")  # fmt: skip
 
 
 def section_model(data, tmp: Path) -> None:
@@ -273,6 +317,7 @@ def main() -> None:
             (preds / key).parent.mkdir(parents=True, exist_ok=True)
             cv2.imwrite(str(preds / f"{key}.png"), ids)
         section_predictions(data, preds, tmp, args.repeats)
+        section_tiles_measures(data, preds, tmp, args.repeats)
         if not args.skip_model:
             section_model(data, tmp)
     _bootstrap_child()

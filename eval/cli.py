@@ -5,6 +5,7 @@
     claravid-eval --checkpoint runs/exp/best.pt --split val --output runs/exp/report
     claravid-eval --onnx model.onnx --data /data/claravid --palette uavid --output rep
     claravid-eval --predictions preds/ --data /data/claravid --palette uavid --output rep
+    claravid-eval --predictions preds/ --data /data/claravid --tiles 630 --output rep  # + tiles
     claravid-eval --merge part0/ part1/ --output all/            # job-array parts -> one report
     claravid-eval --merge rep/ --edges 4,4.5,5,5.5 --output rep-fixed   # re-bin, no model
     claravid-eval --compare a/report.json b/report.json --output cmp/   # gaps with intervals
@@ -109,6 +110,12 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--group-by", choices=GROUP_BY, help="rows per mission or viewpoint")
     rep.add_argument("--measures", help="delent,glcment,pixent (default delent)")
     rep.add_argument(
+        "--tiles",
+        type=positive_int,
+        metavar="T",
+        help="also bin tiles of about T px by their own delentropy (e.g. 630)",
+    )
+    rep.add_argument(
         "--hardest", type=non_negative_int, default=4, help="overlays of the K hardest images"
     )
     rep.add_argument("--save-predictions", type=Path, metavar="DIR", help="write label maps")
@@ -186,6 +193,8 @@ def _check_args(args: argparse.Namespace) -> str:
         raise UsageError(f"--bins must be at least 1, got {args.bins}")
     if args.edges is not None:
         args.edges = parse_edges(args.edges)
+    if args.tiles is not None and args.tiles < 2:
+        raise UsageError(f"--tiles must be at least 2 pixels (e.g. 630), got {args.tiles}")
     _check_uncertainty(args)
     source = given[0]
     _refuse_idle_options(args, source)
@@ -211,9 +220,9 @@ _MODEL_ONLY = (
 )
 _DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing")
 IDLE = {
-    "compare": (*_MODEL_ONLY, *_DATA, "bins", "edges", "group_by", "measures"),
-    "merge": (*_MODEL_ONLY, *_DATA, "measures"),
-    "scores": (*_MODEL_ONLY, "allow_missing"),
+    "compare": (*_MODEL_ONLY, *_DATA, "bins", "edges", "group_by", "measures", "tiles"),
+    "merge": (*_MODEL_ONLY, *_DATA, "measures", "tiles"),
+    "scores": (*_MODEL_ONLY, "allow_missing", "tiles"),
 }
 
 
@@ -276,6 +285,7 @@ def _run_merge(args: argparse.Namespace) -> int:
     parts = [load_result(p) for p in args.merge]
     _warn_different_runs(parts, args.merge)
     result = merge_results(parts, [str(p) for p in args.merge])
+    _warn_dropped_tiles(parts, result, args.merge)
     _check_bins(args, len(result.paths))
     intervals = bootstrap_settings(args, result.units(), result.default_cluster())
     report = build_report(
@@ -302,6 +312,21 @@ def _warn_different_runs(parts: list[Any], names: list[Path]) -> None:
                 UserWarning,
                 stacklevel=1,
             )
+
+
+def _warn_dropped_tiles(parts: list[Any], merged: Any, names: list[Path]) -> None:
+    """Tiles merge only when every part has tiles of one size; say when some are dropped."""
+    if merged.tiles is None and any(p.tiles is not None for p in parts):
+        import warnings
+
+        sizes = [f"{n}: {p.tiles.size if p.tiles is not None else 'none'}"
+                 for p, n in zip(parts, names, strict=True)]  # fmt: skip
+        warnings.warn(
+            "the merged report has no tiles: the parts' tile sizes differ or some have none "
+            f"({'; '.join(sizes)}); evaluate every part with the same --tiles",
+            UserWarning,
+            stacklevel=1,
+        )
 
 
 def _check_bins(args: argparse.Namespace, n: int) -> None:
@@ -417,6 +442,8 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
         source["predictions"] = str(args.predictions)
     source.update(data.describe)
     source["measures"] = list(args.measures)
+    if args.tiles is not None:
+        source["tiles"] = args.tiles
 
     collected = collect(
         data,
@@ -429,6 +456,7 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
         save_predictions=args.save_predictions,
         allow_missing=args.allow_missing,
         hardest=args.hardest,
+        tile_size=args.tiles,
         progress=main_rank and not args.no_progress,
         source=source,
     )

@@ -1,10 +1,11 @@
 """Per-image complexity computed alongside inference, not after it.
 
-:class:`ComplexityJob` starts :func:`claravid.dsp.compute_complexities` (DSP cache first, then
+:class:`ComplexityJob` starts :func:`claravid.dsp.compute_measures` (DSP cache first, then
 worker processes) in a background thread as soon as the image list is known; the caller runs
-its model or reads its predictions meanwhile and collects the values at the end. Decoding and
-the histograms release the GIL, so even without worker processes the thread overlaps with the
-caller's work.
+its model or reads its predictions meanwhile and collects the values at the end. Every measure
+(and the delentropy of each tile, with a tile size) comes from one decode of the image.
+Decoding and the histograms release the GIL, so even without worker processes the thread
+overlaps with the caller's work.
 """
 
 from __future__ import annotations
@@ -12,7 +13,9 @@ from __future__ import annotations
 import threading
 from collections.abc import Sequence
 
-from claravid.dsp import METRICS, compute_complexities
+import numpy as np
+
+from claravid.dsp import METRICS, compute_measures
 from claravid.dsp.metrics import ImageReadError
 
 PRIMARY = "delent"
@@ -39,6 +42,8 @@ class ComplexityJob:
         threads: threads sharing the images when there are no worker processes (decoding,
             blur, Sobel and the histogram release the GIL, so threads scale).
         cache: use the DSP cache (``$CLARAVID_CACHE/dsp.sqlite3``).
+        tile_size: also the delentropy of each tile of about this many pixels
+            (:mod:`claravid.dsp.tiles`).
     """
 
     def __init__(
@@ -48,13 +53,16 @@ class ComplexityJob:
         workers: int = 0,
         threads: int = 1,
         cache: bool = True,
+        tile_size: int | None = None,
     ) -> None:
         self.paths = [str(p) for p in paths]
         self.measures = list(measures)
+        self.tile_size = tile_size
         parts = 1 if workers > 1 else max(1, min(threads, len(self.paths)))
         # Interleaved slices: neighbouring frames (similar cost) go to different threads.
         self._slices = [list(range(i, len(self.paths), parts)) for i in range(parts)]
         self._values: dict[str, list[float]] = {m: [0.0] * len(self.paths) for m in measures}
+        self._tiles: list[np.ndarray | None] = [None] * len(self.paths)
         self._errors: list[BaseException] = []
         self._stop = threading.Event()
         self._threads = [
@@ -70,21 +78,22 @@ class ComplexityJob:
         try:
             # In this process: a few images at a time, so `stop` takes effect between them.
             step = len(part) if workers > 1 else CHUNK
-            for measure in self.measures:
-                for start in range(0, len(part), step):
-                    if self._stop.is_set():
-                        return
-                    chunk = part[start : start + step]
-                    paths = [self.paths[i] for i in chunk]
-                    results, errors = compute_complexities(
-                        paths, measure, workers=workers, cache=cache
-                    )
-                    if errors:
-                        first = errors[0]
-                        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
-                        raise ImageReadError(first.image_path, f"{first.error}{more}")
-                    for i, result in zip(chunk, results, strict=True):
-                        self._values[measure][i] = result.complexity
+            for start in range(0, len(part), step):
+                if self._stop.is_set():
+                    return
+                chunk = part[start : start + step]
+                paths = [self.paths[i] for i in chunk]
+                results, errors = compute_measures(
+                    paths, self.measures, tile_size=self.tile_size, workers=workers, cache=cache
+                )
+                if errors:
+                    first = errors[0]
+                    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+                    raise ImageReadError(first.image_path, f"{first.error}{more}")
+                for i, result in zip(chunk, results, strict=True):
+                    for measure, value in result.values.items():
+                        self._values[measure][i] = value
+                    self._tiles[i] = result.tiles
         except BaseException as exc:  # re-raised in the caller's thread by result()
             self._errors.append(exc)
 
@@ -100,7 +109,7 @@ class ComplexityJob:
             thread.join()
 
     def result(self) -> dict[str, list[float]]:
-        """Wait for the values: ``{measure: [value per path]}``.
+        """Wait for the values: ``{measure: [value per path]}`` (tiles: :meth:`tiles`).
 
         Raises:
             ImageReadError: an image could not be read (the message names it).
@@ -110,3 +119,8 @@ class ComplexityJob:
         if self._errors:
             raise self._errors[0]
         return self._values
+
+    def tiles(self) -> list[np.ndarray | None]:
+        """Wait for the values and return each path's tile delentropies (None without tiles)."""
+        self.result()
+        return self._tiles

@@ -18,16 +18,19 @@ from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm.auto import tqdm
 
 from claravid.eval.metrics import IGNORE_INDEX, confusion_matrix
+from claravid.eval.tiles import tile_confusions
 from claravid.eval.windows import Model, WindowConfig, predict_labels
 
 
 @dataclass
 class ImageScore:
-    """One image's result: where it came from and its confusion (int64 [K,K])."""
+    """One image's result: where it came from, its confusion (int64 [K,K]) and, with a tile
+    size, the confusion of each tile (int64 [rows, cols, K, K], summing to ``confusion``)."""
 
     path: str
     key: str
     confusion: np.ndarray
+    tiles: np.ndarray | None = None
 
 
 def sample_key(sample: dict[str, Any]) -> str:
@@ -46,6 +49,7 @@ def evaluate_model(
     indices: Sequence[int] | None = None,
     num_workers: int = 0,
     ignore_index: int = IGNORE_INDEX,
+    tile_size: int | None = None,
     progress: bool = False,
     on_prediction: Callable[[dict[str, Any], torch.Tensor], None] | None = None,
     on_score: Callable[[dict[str, Any], torch.Tensor, ImageScore], None] | None = None,
@@ -62,6 +66,7 @@ def evaluate_model(
         indices: evaluate only these dataset indices (a rank's shard).
         num_workers: DataLoader workers decoding the next images while the model runs.
         ignore_index: ground-truth value left out of the confusion.
+        tile_size: also count each tile's confusion (:mod:`claravid.eval.tiles`).
         progress: show a progress bar.
         on_prediction: called with each sample and its predicted ids [H,W] (to save them).
         on_score: called with each sample, its predicted ids and its `ImageScore` (e.g. to
@@ -88,8 +93,13 @@ def evaluate_model(
         if prediction.device.type == "cpu" and num_classes <= 255:
             # Byte ids take metrics' fast CPU path (an int64 map would be checked and cast).
             prediction = prediction.to(torch.uint8)
-        conf = confusion_matrix(prediction, target, num_classes, ignore_index)
-        score = ImageScore(str(sample["path"]), sample_key(sample), conf.cpu().numpy())
+        tiles = None
+        if tile_size is None:
+            conf = confusion_matrix(prediction, target, num_classes, ignore_index).cpu().numpy()
+        else:  # the tiles cover every pixel once: their sum is the image's confusion
+            tiles = tile_confusions(prediction, target, num_classes, tile_size, ignore_index)
+            conf = tiles.sum(axis=(0, 1))
+        score = ImageScore(str(sample["path"]), sample_key(sample), conf, tiles)
         results.append(score)
         if on_prediction is not None:
             on_prediction(sample, prediction)

@@ -116,6 +116,8 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
             for m, c in report["correlation"].items()]  # fmt: skip
     lines += _table(["measure", "Pearson r", "Spearman ρ", "n"], rows)
 
+    lines += tile_section(report.get("tiles"))
+
     hardest = sorted(
         (r for r in report["images"] if r["miou"] is not None), key=lambda r: r["miou"]
     )[:HARDEST_TABLE]
@@ -129,6 +131,31 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         lines += ["## Plots", ""]
         lines += [f"![{name}]({file})" for name, file in plots.items()] + [""]
     return "\n".join(lines)
+
+
+def tile_section(tiles: dict[str, Any] | None) -> list[str]:
+    """``report.md``'s tile section (``--tiles``): mIoU per tile bin, the tile correlation."""
+    if not tiles:
+        return []
+    lines = [f"## Tiles of about {tiles['size']} px", ""]
+    lines.append(
+        f"{tiles['num_tiles']} tiles, each with its own delentropy (the DSP recipe on the tile's "
+        "pixels) and its own confusion; bins over tiles sorted by (delentropy, path, row, "
+        "column); a tile is resampled with its image's cluster."
+        + (f" {tiles['num_without_labels']} tile(s) without a valid pixel are left out of the "
+           "correlation." if tiles.get("num_without_labels") else "")
+    )  # fmt: skip
+    lines.append("")
+    rows = [[r["name"], _range(r), str(r["num_tiles"]), *_scores(r)] for r in tiles["bins"]]
+    lines += _table(["tile bin", "delentropy", "tiles", "mIoU", "pixel acc"], rows)
+    c = tiles["correlation"]["delent"]
+    lines += [
+        f"Tile delentropy vs the tile's own mIoU: Pearson r "
+        f"{with_ci(c['pearson'], c.get('pearson_ci'))}, Spearman ρ "
+        f"{with_ci(c['spearman'], c.get('spearman_ci'))}, n = {c['n']}.",
+        "",
+    ]
+    return lines
 
 
 def _scores(row: dict[str, Any]) -> list[str]:

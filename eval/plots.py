@@ -5,6 +5,8 @@
 - ``miou_vs_delent.png``: per-image mIoU against delentropy, with a least-squares line;
 - ``class_iou_per_bin.png``: per-class IoU per bin as a heat map (blank: class absent);
 - ``hardest.png``: the k images of lowest mIoU, image | ground truth | prediction;
+- ``tiles.png`` (``--tiles``): the same images, image | delentropy per tile (one colour scale
+  for all) | error pixels: where the model fails next to where the scene is complex;
 - ``compare.png`` (``--compare``): the mIoU per bin of several reports side by side, with
   their intervals;
 - ``--scores`` reports: ``<metric>_per_bin.png`` (mean per bin with intervals) and
@@ -28,6 +30,7 @@ PLOTS = {
     "scatter": "miou_vs_delent.png",
     "heatmap": "class_iou_per_bin.png",
     "hardest": "hardest.png",
+    "tiles": "tiles.png",
 }
 
 
@@ -174,6 +177,41 @@ def hardest_figure(
         fig.legend(handles=handles, loc="outside lower center", ncol=min(6, len(handles)),
                    fontsize=9, frameon=False)  # fmt: skip
     return fig
+
+
+def plot_tiles(items: Sequence[dict[str, Any]], path: str | Path) -> Path:
+    """One row per image: the RGB, its tiles' delentropy, its error pixels.
+
+    Args:
+        items: ``{"image": uint8 H×W×3, "tiles": float [R, C], "errors": uint8 H×W (1 wrong,
+            0 right, 2 ignored), "title": str}``, hardest first; the tile map is drawn over
+            the image's extent (tiles of unequal size by at most a pixel, drawn equal).
+        path: the PNG to write.
+    """
+    values = np.concatenate([np.ravel(i["tiles"]) for i in items])
+    lo, hi = float(np.nanmin(values)), float(np.nanmax(values))
+    fig = Figure(figsize=(12, 3.2 * len(items) + 0.6), layout="constrained")
+    axes = fig.subplots(len(items), 3, squeeze=False)
+    # Errors: right = light grey, wrong = red, ignored = white.
+    shades = np.array([[215, 215, 215], [214, 39, 40], [255, 255, 255]], dtype=np.uint8)
+    shown = None
+    for row, item in zip(axes, items, strict=True):
+        h, w = item["image"].shape[:2]
+        row[0].imshow(item["image"])
+        row[0].set_title(item["title"], fontsize=9)
+        shown = row[1].imshow(item["tiles"], cmap="magma", vmin=lo, vmax=hi,
+                              extent=(0, w, h, 0), interpolation="nearest")  # fmt: skip
+        row[1].set_title("delentropy per tile", fontsize=9)
+        row[2].imshow(shades[np.minimum(item["errors"], 2)], interpolation="nearest")
+        wrong = item["errors"] == 1
+        share = wrong.sum() / max(1, (item["errors"] != 2).sum())
+        row[2].set_title(f"error pixels ({100 * share:.1f} % wrong)", fontsize=9)
+        for ax in row:
+            ax.set_axis_off()
+    if shown is not None:
+        fig.colorbar(shown, ax=axes[:, 1].tolist(), location="bottom", shrink=0.8,
+                     label="tile delentropy (bits)")  # fmt: skip
+    return _save(fig, path, dpi=80)
 
 
 def plot_compare(

@@ -22,6 +22,7 @@ from claravid import modalities
 from claravid.cli import UsageError, atomic_save, atomic_write_text
 from claravid.eval.data import EvalData
 from claravid.eval.metrics import confusion_matrix
+from claravid.eval.tiles import tile_confusions
 from claravid.masks import read_label_image
 from claravid.palettes import Palette, load_palette
 
@@ -190,12 +191,16 @@ def check_missing(
     return present, missing
 
 
-def _score_one(data: EvalData, directory: Path, index: int) -> np.ndarray:
+def _score_one(
+    data: EvalData, directory: Path, index: int, tile_size: int | None
+) -> tuple[np.ndarray, np.ndarray | None]:
     mask = data.read_mask(index)
-    ids = read_prediction(
-        prediction_file(directory, data.keys[index]), mask.shape, data.palette.num_classes
-    )
-    return confusion_matrix(ids, mask, data.palette.num_classes).numpy()
+    k = data.palette.num_classes
+    ids = read_prediction(prediction_file(directory, data.keys[index]), mask.shape, k)
+    if tile_size is None:
+        return confusion_matrix(ids, mask, k).numpy(), None
+    tiles = tile_confusions(ids, mask, k, tile_size)
+    return tiles.sum(axis=(0, 1)), tiles
 
 
 def score_predictions(
@@ -204,9 +209,11 @@ def score_predictions(
     indices: Sequence[int],
     *,
     threads: int = 1,
+    tile_size: int | None = None,
     progress: bool = False,
-) -> list[np.ndarray]:
-    """Per-image confusions (int64 [K,K]) of saved predictions against the labels.
+) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """Per-image confusions (int64 [K,K]) of saved predictions against the labels, each with
+    its tiles' confusions (int64 [rows, cols, K, K]) when ``tile_size`` is given, else None.
 
     Only the labels and the prediction PNGs are decoded. Decoding and counting release the GIL,
     so ``threads`` > 1 reads several images at once.
@@ -215,16 +222,17 @@ def score_predictions(
 
     directory = Path(directory)
     bar = tqdm(total=len(indices), desc="evaluate", unit="img", disable=not progress)
-    out: list[np.ndarray] = []
+    out: list[tuple[np.ndarray, np.ndarray | None]] = []
     try:
         if threads <= 1:
             for index in indices:
-                out.append(_score_one(data, directory, index))
+                out.append(_score_one(data, directory, index, tile_size))
                 bar.update(1)
         else:
             with ThreadPoolExecutor(threads) as pool:
-                for conf in pool.map(lambda i: _score_one(data, directory, i), indices):
-                    out.append(conf)
+                scored = pool.map(lambda i: _score_one(data, directory, i, tile_size), indices)
+                for item in scored:
+                    out.append(item)
                     bar.update(1)
     finally:
         bar.close()

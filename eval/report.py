@@ -6,7 +6,8 @@ A report folder holds:
   ``palette``, ``ignore_index``, ``convention``, ``source`` (how the numbers were made: model
   or predictions, data, windows, binning, skipped images);
 - ``confusions.npz`` (compressed): per-image confusions with their paths, keys, complexity
-  values and units (mission, viewpoint, block, sequence, folder): everything needed to re-bin,
+  values and units (mission, viewpoint, block, sequence, folder), and with ``--tiles`` every
+  tile's image, place, delentropy and confusion (``tile_*``): everything needed to re-bin,
   merge or bootstrap (any ``--cluster`` unit stored there) without the data;
 - ``report.md`` and the plots (:mod:`claravid.eval.plots`).
 
@@ -26,6 +27,7 @@ import numpy as np
 from claravid.cli import UsageError, atomic_save, atomic_write_text
 from claravid.eval.bootstrap import Bootstrap
 from claravid.eval.stratify import stratify
+from claravid.eval.tiles import TileTable, concat_tables, tile_report
 
 REPORT = "report.json"
 CONFUSIONS = "confusions.npz"
@@ -41,9 +43,11 @@ KEYS = (
     "convention",
     "source",
     "uncertainty",
+    "tiles",
 )
-#: Keys every report of this tool has (reports written before intervals have no uncertainty).
-REQUIRED_KEYS = KEYS[:-1]
+#: Keys every report of this tool has (``uncertainty`` came with intervals; ``tiles`` is there
+#: with ``--tiles``).
+REQUIRED_KEYS = KEYS[:-2]
 #: The default bootstrap cluster per dataset kind, then the fallbacks when it is not stored.
 DEFAULT_CLUSTER = {"claravid": "block", "uavid": "sequence", "folder": "folder"}
 _FALLBACK_CLUSTERS = ("block", "sequence", "viewpoint", "folder", "image")
@@ -63,6 +67,7 @@ class EvalResult:
         classes: the K class names.
         palette: the palette's name.
         source: where the numbers came from (written to the report as is).
+        tiles: every tile's delentropy and confusion (``--tiles``), or None.
     """
 
     paths: list[str]
@@ -73,6 +78,7 @@ class EvalResult:
     classes: list[str]
     palette: str
     source: dict[str, Any] = field(default_factory=dict)
+    tiles: TileTable | None = None
 
     def groups(self, by: str | None) -> dict[str, list[int]] | None:
         """Image indices per unit (mission, viewpoint, sequence, folder; None: no grouping)."""
@@ -164,11 +170,16 @@ def build_report(
         clusters=result.cluster_labels(settings.cluster),
         bootstrap=settings,
     )
+    if result.tiles is not None and len(result.tiles):
+        numbers["tiles"] = tile_report(
+            result.tiles, result.paths, result.classes, bins=bins, edges=edges,
+            clusters=result.cluster_labels(settings.cluster), bootstrap=settings,
+        )  # fmt: skip
     source = dict(result.source)
     source["binning"] = {**numbers.pop("binning", {}), "group_by": group_by}
     numbers["palette"] = result.palette
     numbers["source"] = source
-    return {key: numbers[key] for key in KEYS}
+    return {key: numbers[key] for key in KEYS if key in numbers}
 
 
 def save_confusions(path: str | Path, result: EvalResult) -> Path:
@@ -184,6 +195,17 @@ def save_confusions(path: str | Path, result: EvalResult) -> Path:
         arrays[f"complexity_{measure}"] = np.asarray(values, dtype=np.float64)
     for name, values in result.attributes.items():
         arrays[f"attribute_{name}"] = np.asarray(values, dtype=str)
+    if result.tiles is not None:
+        tiles = result.tiles
+        arrays.update(
+            tile_size=np.asarray(tiles.size, dtype=np.int64),
+            tile_image=tiles.image.astype(np.int64),
+            tile_row=tiles.row.astype(np.int32),
+            tile_col=tiles.col.astype(np.int32),
+            tile_delent=tiles.delent.astype(np.float64),
+            # A tile holds far fewer than 2**31 pixels: int32 halves the file and the memory.
+            tile_confusions=tiles.confusions.astype(np.int32),
+        )
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as f:
@@ -228,13 +250,33 @@ def load_result(path: str | Path) -> EvalResult:
             classes=classes,
             palette=str(data["palette"]),
             source={k: v for k, v in report["source"].items() if k != "binning"},
+            tiles=_load_tiles(data),
         )
     except (KeyError, ValueError, OSError) as exc:
         raise UsageError(f"{npz_file} is damaged or not written by claravid-eval ({exc})") from None
     n, k = len(result.paths), len(classes)
     if confusions.shape != (n, k, k) or classes != list(report["classes"]):
         raise UsageError(f"{npz_file} does not match {report_file} (classes or image count)")
+    tiles = result.tiles
+    if tiles is not None:
+        inside = len(tiles) == 0 or (tiles.image.min() >= 0 and tiles.image.max() < n)
+        if tiles.confusions.shape[1:] != (k, k) or not inside:
+            raise UsageError(f"{npz_file}: its tiles do not match its images or classes")
     return result
+
+
+def _load_tiles(data: dict[str, np.ndarray]) -> TileTable | None:
+    """The tile table stored in a ``confusions.npz`` (None when it was written without tiles)."""
+    if "tile_size" not in data:
+        return None
+    return TileTable(
+        size=int(data["tile_size"]),
+        image=data["tile_image"].astype(np.int64),
+        row=data["tile_row"].astype(np.int64),
+        col=data["tile_col"].astype(np.int64),
+        delent=data["tile_delent"].astype(np.float64),
+        confusions=data["tile_confusions"].astype(np.int64),
+    )
 
 
 def read_report(path: str | Path) -> dict[str, Any]:
@@ -294,6 +336,7 @@ def merge_results(results: Sequence[EvalResult], names: Sequence[str]) -> EvalRe
         classes=first.classes,
         palette=first.palette,
         source=source,
+        tiles=concat_tables([r.tiles for r in results], [len(r.paths) for r in results], order),
     )
 
 

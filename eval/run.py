@@ -26,7 +26,14 @@ from claravid.eval.data import EvalData
 from claravid.eval.evaluate import ImageScore, evaluate_model
 from claravid.eval.markdown import report_markdown
 from claravid.eval.metrics import mean_iou
-from claravid.eval.plots import PLOTS, plot_bins, plot_hardest, plot_heatmap, plot_scatter
+from claravid.eval.plots import (
+    PLOTS,
+    plot_bins,
+    plot_hardest,
+    plot_heatmap,
+    plot_scatter,
+    plot_tiles,
+)
 from claravid.eval.predictions import (
     check_missing,
     prediction_file,
@@ -37,6 +44,7 @@ from claravid.eval.predictions import (
 from claravid.eval.predictions import write_prediction as save_label_map
 from claravid.eval.report import CONFUSIONS, REPORT, EvalResult, save_confusions, write_json
 from claravid.eval.sources import ModelSource
+from claravid.eval.tiles import TileTable, error_map
 from claravid.eval.windows import WindowConfig
 
 THUMB = 512  # longest side of a hardest-image panel
@@ -123,6 +131,7 @@ def collect(
     save_predictions: str | Path | None = None,
     allow_missing: bool = False,
     hardest: int = 4,
+    tile_size: int | None = None,
     progress: bool = False,
     source: dict[str, Any] | None = None,
 ) -> Collected:
@@ -142,6 +151,7 @@ def collect(
         save_predictions: also write the model's label maps here.
         allow_missing: skip images without a prediction instead of failing.
         hardest: how many of the hardest images' predictions to keep for overlays.
+        tile_size: also each tile's delentropy and confusion (:mod:`claravid.eval.tiles`).
         progress: show a progress bar.
         source: the report's ``source`` entries.
     """
@@ -156,6 +166,8 @@ def collect(
     keeper = Hardest(hardest if model is not None and save_predictions is None else 0)
     error: BaseException | None = None
     confusions: list[np.ndarray] = []
+    tile_confs: list[np.ndarray | None] = []
+    tile_values: list[np.ndarray | None] = []
     values: dict[str, list[float]] = {}
     if save_predictions is not None and distributed.current().is_main:
         # The marker first: an interrupted run's partial label maps are still this tool's, so
@@ -170,6 +182,7 @@ def collect(
             measures,
             workers=workers if model is not None else 0,
             threads=max(1, workers),
+            tile_size=tile_size,
         )
         if model is not None:
 
@@ -186,16 +199,22 @@ def collect(
                 device=device,
                 indices=mine,
                 num_workers=workers,
+                tile_size=tile_size,
                 progress=progress,
                 on_score=on_score,
             )
             confusions = [s.confusion for s in scores]
+            tile_confs = [s.tiles for s in scores]
         else:
             threads = max(1, workers)
-            confusions = score_predictions(
-                data, predictions, mine, threads=threads, progress=progress
+            scored = score_predictions(
+                data, predictions, mine, threads=threads, tile_size=tile_size, progress=progress
             )
+            confusions, tile_confs = [c for c, _ in scored], [t for _, t in scored]
         values = job.result()
+        tile_values = job.tiles()
+        if tile_size is not None:
+            _check_tile_grids(data, mine, tile_values, tile_confs)
     except BaseException as exc:
         if job is not None:
             job.stop()  # join the threads before the error ends the process
@@ -204,7 +223,11 @@ def collect(
         error = _from_worker(exc)
     _raise_any(error)
 
-    rows = [(confusions[j], {m: values[m][j] for m in values}) for j in range(len(mine))]
+    rows = [
+        (confusions[j], {m: values[m][j] for m in values},
+         (tile_values[j], tile_confs[j]) if tile_size is not None else None)
+        for j in range(len(mine))
+    ]  # fmt: skip
     rows = distributed.gather_in_order(rows, mine)
     kept = distributed.gather_in_order([keeper.heap], [distributed.current().rank])
     order = sorted(present)
@@ -220,12 +243,32 @@ def collect(
         classes=list(data.palette.names),
         palette=data.palette.name,
         source={**(source or {}), "skipped": [data.paths[i] for i in skipped]},
+        tiles=None
+        if tile_size is None
+        else TileTable.from_images(tile_size, [r[2] for r in rows], k),
     )
     # Table rows are positions in `present`; hardest predictions are keyed by those too.
     position = {index: pos for pos, index in enumerate(order)}
     return Collected(
         result, [data.paths[i] for i in skipped], {position[-i]: p for _, i, p in heap}
     )
+
+
+def _check_tile_grids(
+    data: EvalData,
+    indices: Sequence[int],
+    values: Sequence[np.ndarray | None],
+    confusions: Sequence[np.ndarray | None],
+) -> None:
+    """The image's tile grid (its delentropy) must be the labels' grid (their confusions)."""
+    for index, value, conf in zip(indices, values, confusions, strict=True):
+        if value is None or conf is None or value.shape != conf.shape[:2]:
+            got = None if value is None else value.shape
+            want = None if conf is None else conf.shape[:2]
+            raise ValueError(
+                f"{data.paths[index]}: the image gives a {got} tile grid and its labels a {want} "
+                "one: --tiles needs labels at the image's resolution"
+            )
 
 
 def hardest_items(
@@ -238,7 +281,8 @@ def hardest_items(
     """Image, ground truth and prediction of the k lowest-mIoU images, as small arrays.
 
     A prediction comes from ``kept`` (the model's run) or from a folder of saved label maps;
-    images without one are left out.
+    images without one are left out. With tiles, an item also has its tiles' delentropy grid
+    (``tiles``) and its error pixels (``errors``, :func:`claravid.eval.tiles.error_map`).
     """
     if data is None or k <= 0:
         return []
@@ -261,13 +305,18 @@ def hardest_items(
         if pred is None:
             continue
         image = sample["image"].permute(1, 2, 0).numpy()
-        items.append({
+        small_mask = _thumb(mask, nearest=True)
+        item = {
             "image": _thumb(image, nearest=False),
-            "mask": _thumb(mask, nearest=True),
+            "mask": small_mask,
             "prediction": pred,
             "title": f"{key}\nmIoU {mious[pos]:.3f}  delent "
             f"{result.complexity.get('delent', [np.nan] * len(mious))[pos]:.2f}",
-        })  # fmt: skip
+        }  # fmt: skip
+        if result.tiles is not None and pred.shape == small_mask.shape:
+            item["tiles"] = result.tiles.grid(int(pos))
+            item["errors"] = error_map(pred, small_mask)
+        items.append(item)
     return items
 
 
@@ -293,7 +342,10 @@ def write_outputs(
         written["scatter"] = plot_scatter(report, out / PLOTS["scatter"])
     if hardest and colors is not None:
         written["hardest"] = plot_hardest(hardest, colors, out / PLOTS["hardest"], result.classes)
-    for name in ("bins", "scatter", "heatmap", "hardest"):
+    tiled = [item for item in hardest if "tiles" in item]
+    if tiled:
+        written["tiles"] = plot_tiles(tiled, out / PLOTS["tiles"])
+    for name in ("bins", "scatter", "heatmap", "hardest", "tiles"):
         if name in written:
             plots[name] = PLOTS[name]
         else:  # a plot of an earlier report in this folder would no longer match it

@@ -1,0 +1,262 @@
+"""Tile-level complexity (``--tiles``): confusions per tile, bins over tiles, merge, the plot.
+
+Expected values are counted by hand or with the official recipe on the cropped pixels.
+"""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from scipy import stats
+
+from claravid.eval.bootstrap import Bootstrap
+from claravid.eval.cli import main
+from claravid.eval.metrics import mean_iou
+from claravid.eval.tiles import TileTable, concat_tables, tile_confusions, tile_report
+from claravid.segmentation import ClaraVidSegmentation
+from tests.claravid.dsp.reference import official_delentropy
+
+K = 8  # uavid palette
+
+
+def _count(pred, truth, k):
+    """The confusion by a plain loop over pixels (rows = truth, 255 ignored)."""
+    out = np.zeros((k, k), dtype=np.int64)
+    for t, p in zip(truth.ravel(), pred.ravel(), strict=True):
+        if t != 255:
+            out[t, p] += 1
+    return out
+
+
+def test_tile_confusions_by_hand():
+    rng = np.random.default_rng(0)
+    truth = rng.integers(0, 3, (5, 7)).astype(np.uint8)
+    truth[0, 0] = 255
+    pred = rng.integers(0, 3, (5, 7)).astype(np.uint8)
+    tiles = tile_confusions(pred, truth, 3, 3)
+    # 5/3 = 1.67 -> 2 rows, bounds 0, round(2.5) = 2, 5; 7/3 = 2.33 -> 2 cols: 0, round(3.5) = 4, 7
+    assert tiles.shape == (2, 2, 3, 3)
+    for r, (y0, y1) in enumerate([(0, 2), (2, 5)]):
+        for c, (x0, x1) in enumerate([(0, 4), (4, 7)]):
+            assert (
+                tiles[r, c].tolist() == _count(pred[y0:y1, x0:x1], truth[y0:y1, x0:x1], 3).tolist()
+            )
+    assert tiles.sum(axis=(0, 1)).tolist() == _count(pred, truth, 3).tolist()
+
+
+def _table():
+    """Two images, 2 tiles each; K = 2. Image 1's second tile has no valid pixel."""
+    conf = np.array([
+        [[5, 1], [0, 4]],  # img0 (0,0)
+        [[2, 2], [2, 2]],  # img0 (0,1)
+        [[9, 0], [1, 0]],  # img1 (0,0)
+        [[0, 0], [0, 0]],  # img1 (0,1): all ignored
+    ])  # fmt: skip
+    return TileTable(
+        size=10,
+        image=np.array([0, 0, 1, 1]),
+        row=np.array([0, 0, 0, 0]),
+        col=np.array([0, 1, 0, 1]),
+        delent=np.array([3.0, 5.0, 3.0, 4.0]),
+        confusions=conf,
+    )
+
+
+def test_tile_bins_and_correlation_by_hand():
+    table = _table()
+    # Sorted by (delentropy, path, row, col): b.png sorts before z.png, so image 1's 3.0 tile
+    # comes first: [2, 0, 3, 1] -> low = tiles 2, 0; high = tiles 3, 1.
+    report = tile_report(table, ["z.png", "b.png"], ["x", "y"], bins=2)
+    low, high = report["bins"]
+    assert (low["name"], low["num_tiles"], low["lo"], low["hi"]) == ("low", 2, 3.0, 3.0)
+    assert (high["num_tiles"], high["lo"], high["hi"]) == (2, 4.0, 5.0)
+    # low: [[14, 1], [1, 4]] -> IoU x = 14/16, y = 4/6
+    assert low["miou"] == pytest.approx((14 / 16 + 4 / 6) / 2)
+    assert low["pixel_acc"] == pytest.approx(18 / 20)
+    # high: [[2, 2], [2, 2]] -> IoU 2/6 each
+    assert high["miou"] == pytest.approx(2 / 6)
+    assert report["num_tiles"] == 4 and report["num_without_labels"] == 1
+    # The correlation leaves the tile without a valid pixel out: 3 pairs.
+    miou = [(5 / 6 + 4 / 5) / 2, 2 / 6, 9 / 10]  # tile 2: class y has union 1, TP 0 -> IoU 0
+    miou[2] = (9 / 10 + 0.0) / 2
+    corr = report["correlation"]["delent"]
+    assert corr["n"] == 3
+    assert corr["pearson"] == pytest.approx(stats.pearsonr([3.0, 5.0, 3.0], miou).statistic)
+    # Fixed edges: [3, 4) holds tiles 0, 2; [4, 5] holds 1, 3.
+    fixed = tile_report(table, ["z.png", "b.png"], ["x", "y"], edges=[3.0, 4.0, 5.0])
+    assert [b["num_tiles"] for b in fixed["bins"]] == [2, 2]
+    assert fixed["bins"][0]["miou"] == pytest.approx(low["miou"])
+
+
+def test_tile_intervals_resample_tiles_with_their_image():
+    table = _table()
+    settings = Bootstrap(resamples=200, seed=0)
+    one = tile_report(table, ["a", "b"], ["x", "y"], bins=1, bootstrap=settings)
+    # Two clusters (the images): every resample is img0 + img1, or one of them twice; resampling
+    # tiles on their own would also draw e.g. tile 1 four times (mIoU 1/3), below all three.
+    lo, hi = one["bins"][0]["miou_ci"]
+    outcomes = [mean_iou(table.confusions[:2].sum(0)), mean_iou(table.confusions[2:].sum(0)),
+                mean_iou(table.confusions.sum(0))]  # fmt: skip
+    assert min(outcomes) <= lo < hi <= max(outcomes)
+    # As one cluster (the same label for both images), there is nothing to resample.
+    single = tile_report(table, ["a", "b"], ["x", "y"], bins=1, clusters=["m", "m"],
+                         bootstrap=settings)  # fmt: skip
+    assert single["bins"][0]["miou_ci"] is None and single["bins"][0]["ci_note"]
+
+
+def test_concat_follows_the_merge_order():
+    a, b = _table(), _table()
+    b.delent = b.delent + 10
+    # Merge of 2 + 2 images whose sorted order is [2, 0, 3, 1] (old index per new place).
+    joined = concat_tables([a, b], [2, 2], np.array([2, 0, 3, 1]))
+    assert joined.image.tolist() == [0, 0, 1, 1, 2, 2, 3, 3]
+    assert joined.delent.tolist() == [13.0, 15.0, 3.0, 5.0, 13.0, 14.0, 3.0, 4.0]
+    assert concat_tables([a, None], [2, 2], np.arange(4)) is None
+
+
+# -- through the command line ------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def tiled(claravid_root, tmp_path_factory):
+    """Label maps with 10 % of pixels shifted, and a --tiles 30 report of them (64×48 frames:
+    rows 48/30 = 1.6 -> 2 (0, 24, 48), columns 64/30 = 2.13 -> 2 (0, 32, 64))."""
+    tmp = tmp_path_factory.mktemp("tiles")
+    ds = ClaraVidSegmentation(claravid_root, split="all", palette="uavid")
+    rng = np.random.default_rng(0)
+    preds = tmp / "preds"
+    for i, frame in enumerate(ds.frames):
+        truth = ds.read_mask(i)
+        valid = np.where(truth == 255, 0, truth).astype(np.uint8)
+        pred = np.where(rng.random(valid.shape) < 0.1, (valid + 1) % K, valid).astype(np.uint8)
+        (preds / frame.key).parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(preds / f"{frame.key}.png"), pred)
+    common = ["--data", str(claravid_root), "--split", "all", "--palette", "uavid",
+              "--no-progress", "--bootstrap", "100"]  # fmt: skip
+    out = tmp / "rep"
+    assert main(["--predictions", str(preds), *common, "--tiles", "30", "--output", str(out)]) == 0
+    return {"tmp": tmp, "ds": ds, "preds": preds, "common": common, "out": out}
+
+
+def _load(folder):
+    report = json.loads((folder / "report.json").read_text())
+    with np.load(folder / "confusions.npz") as npz:
+        saved = {k: npz[k] for k in npz.files}
+    return report, saved
+
+
+def test_cli_tiles_values(tiled):
+    report, saved = _load(tiled["out"])
+    ds, n = tiled["ds"], len(tiled["ds"])
+    tiles = report["tiles"]
+    assert tiles["size"] == 30 and tiles["num_tiles"] == 4 * n
+    assert report["source"]["tiles"] == 30
+    # Each image's tile confusions sum to its confusion; a tile's delentropy is the official
+    # recipe on the tile's pixels; its confusion is counted over the tile's pixels.
+    image, row, col = saved["tile_image"], saved["tile_row"], saved["tile_col"]
+    for i in (0, n - 1):
+        mine = image == i
+        assert mine.sum() == 4
+        np.testing.assert_array_equal(saved["tile_confusions"][mine].sum(0), saved["confusions"][i])
+        path = saved["paths"][i]
+        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        index = ds.paths.index(str(path)) if hasattr(ds, "paths") else i
+        truth = ds.read_mask(index)
+        pred = cv2.imread(str(tiled["preds"] / f"{saved['keys'][i]}.png"), cv2.IMREAD_UNCHANGED)
+        for t in np.flatnonzero(mine):
+            y0, y1 = (0, 24) if row[t] == 0 else (24, 48)
+            x0, x1 = (0, 32) if col[t] == 0 else (32, 64)
+            crop = cv2.GaussianBlur(np.ascontiguousarray(gray[y0:y1, x0:x1]), (3, 3), 1.0)
+            assert saved["tile_delent"][t] == pytest.approx(official_delentropy(crop), abs=1e-9)
+            expected = _count(pred[y0:y1, x0:x1], truth[y0:y1, x0:x1], K)
+            assert saved["tile_confusions"][t].tolist() == expected.tolist()
+    # Quantile bins over tiles sorted by (delentropy, path, row, column), as array_split.
+    order = sorted(range(len(image)), key=lambda t: (saved["tile_delent"][t],
+                   str(saved["paths"][image[t]]), row[t], col[t]))  # fmt: skip
+    for b, members in zip(tiles["bins"], np.array_split(np.array(order), 3), strict=True):
+        assert b["num_tiles"] == len(members)
+        conf = saved["tile_confusions"][members].sum(0)
+        assert b["miou"] == pytest.approx(mean_iou(conf))
+        assert b["miou_ci"][0] <= b["miou_ci"][1]
+    own = [mean_iou(c) for c in saved["tile_confusions"]]
+    keep = np.isfinite(own)
+    corr = tiles["correlation"]["delent"]
+    assert corr["n"] == int(keep.sum())
+    expected = stats.spearmanr(saved["tile_delent"][keep], np.array(own)[keep]).statistic
+    assert corr["spearman"] == pytest.approx(expected)
+    assert (tiled["out"] / "tiles.png").is_file()
+    assert "## Tiles of about 30 px" in (tiled["out"] / "report.md").read_text()
+
+
+def test_merge_rebins_tiles_without_data(tiled):
+    tmp, out = tiled["tmp"], tiled["out"]
+    assert main(["--merge", str(out), "--edges", "0,5,9", "--bootstrap", "0",
+                 "--output", str(tmp / "fixed")]) == 0  # fmt: skip
+    report, saved = _load(tmp / "fixed")
+    tiles = report["tiles"]
+    delent = saved["tile_delent"]
+    assert [b["num_tiles"] for b in tiles["bins"]] == [
+        int(((delent >= 0) & (delent < 5)).sum()),
+        int(((delent >= 5) & (delent <= 9)).sum()),
+    ]
+    # Two halves merged give the tiles of the whole.
+    ds = tiled["ds"]
+    halves = []
+    for part in (0, 1):
+        listing = tmp / f"half{part}.txt"
+        listing.write_text("\n".join(f.key for f in ds.frames[part::2]) + "\n")
+        argv = [a if a != "all" else str(listing) for a in tiled["common"]]
+        folder = tmp / f"half{part}"
+        assert main(["--predictions", str(tiled["preds"]), *argv, "--tiles", "30",
+                     "--output", str(folder)]) == 0  # fmt: skip
+        halves.append(str(folder))
+    assert main(["--merge", *halves, "--bootstrap", "100", "--output", str(tmp / "joined")]) == 0
+    joined, joined_saved = _load(tmp / "joined")
+    whole, whole_saved = _load(out)
+    for key in ("tile_image", "tile_row", "tile_col", "tile_delent", "tile_confusions"):
+        np.testing.assert_array_equal(joined_saved[key], whole_saved[key])
+    assert [b["miou"] for b in joined["tiles"]["bins"]] == [
+        b["miou"] for b in whole["tiles"]["bins"]
+    ]
+
+
+def test_model_tiles_equal_saved_prediction_tiles(claravid_root, model_files, tmp_path):
+    common = ["--data", str(claravid_root), "--split", "all", "--no-progress", "--bootstrap", "0",
+              "--tiles", "30"]  # fmt: skip
+    argv = ["--checkpoint", str(model_files["checkpoint"]), *common,
+            "--save-predictions", str(tmp_path / "p"), "--output", str(tmp_path / "m")]  # fmt: skip
+    assert main(argv) == 0
+    assert main(["--predictions", str(tmp_path / "p"), *common, "--palette", "uavid",
+                 "--output", str(tmp_path / "s")]) == 0  # fmt: skip
+    _, model = _load(tmp_path / "m")
+    _, saved = _load(tmp_path / "s")
+    for key in ("tile_image", "tile_delent", "tile_confusions", "confusions"):
+        np.testing.assert_array_equal(model[key], saved[key])
+    assert len(model["tile_image"]) == 4 * len(model["paths"])
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--tiles", "1"], "--tiles must be at least 2"),
+        (["--tiles", "0"], "positive integer"),
+        (["--tiles", "x"], "positive integer"),
+    ],
+)
+def test_bad_tiles(tiled, extra, message, capsys):
+    argv = ["--predictions", str(tiled["preds"]), *tiled["common"], *extra,
+            "--output", str(tiled["tmp"] / "bad")]  # fmt: skip
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse's own type check exits
+        code = exc.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_tiles_do_nothing_with_merge(tiled, capsys):
+    assert main(["--merge", str(tiled["out"]), "--tiles", "30",
+                 "--output", str(tiled["tmp"] / "m2")]) == 2  # fmt: skip
+    assert "--tiles does nothing with --merge" in capsys.readouterr().err
