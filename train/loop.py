@@ -14,6 +14,9 @@ autocast where the GPU supports it, else fp16 with a GradScaler, float32 on CPU;
 ``fp16`` (with a GradScaler) autocast on any device, CPU included; ``off`` is float32.
 Validation runs at the training precision. A NaN/inf loss stops the run before the step is
 applied.
+
+:func:`train` reads in one sitting: :func:`build_run` (data, model, optimiser, resumed state),
+then per step :func:`optimiser_step` and :func:`after_step` (log row, validation, checkpoints).
 """
 
 from __future__ import annotations
@@ -130,6 +133,44 @@ def _finite_parameters(model: nn.Module) -> bool:
     return all(bool(torch.isfinite(p).all()) for p in model.parameters() if p.requires_grad)
 
 
+@dataclass
+class Run:
+    """Everything one training run holds between steps (:func:`build_run` makes it)."""
+
+    cfg: DictConfig
+    info: DistInfo
+    out: Path
+    start: int
+    total: int
+    model: models.Segmenter
+    module: nn.Module  # what the steps call: the model, end to end, under DDP, compiled
+    ddp: nn.parallel.DistributedDataParallel | None
+    optimizer: torch.optim.Optimizer
+    scheduler: torch.optim.lr_scheduler.LRScheduler
+    scaler: torch.amp.GradScaler
+    dtype: torch.dtype | None
+    weights: torch.Tensor | None
+    validator: Validator
+    batches: Any  # the training loader's iterator
+    log: RunLog | None
+    frames_per_step: int
+    say: Any
+    best_miou: float | None = None
+    best_step: int | None = None
+    last_val: dict[str, Any] = field(default_factory=dict)
+    images: int = 0  # images since the last log row (for images/s)
+    tick: float = 0.0  # when the last log row was written
+
+    def checkpoint(self, path: Path, step: int) -> None:
+        """Write a training checkpoint of the run as it is after ``step`` steps."""
+        save_training_checkpoint(
+            path, self.model, step=step, config=C.to_plain(self.cfg), optimizer=self.optimizer,
+            scheduler=self.scheduler, scaler=self.scaler, frames_per_step=self.frames_per_step,
+            best_miou=self.best_miou, best_step=self.best_step, metrics=self.last_val,
+            backbone_trained=not self.cfg.model.freeze_backbone,
+        )  # fmt: skip
+
+
 def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     """Run (or resume) the training a resolved config describes; rank 0 writes ``out_dir``.
 
@@ -141,6 +182,33 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     Raises:
         TrainingDiverged: a NaN/inf loss (``last.pt`` holds the last good state).
         ValueError, FileNotFoundError: a user's mistake (config, data, out_dir).
+    """
+    run = build_run(cfg, resume, say)
+    if isinstance(run, RunResult):
+        return run
+    main = run.info.is_main
+    bar = tqdm(total=run.total, initial=run.start, unit="step",
+               disable=not (main and cfg.log.progress), dynamic_ncols=True)  # fmt: skip
+    run.tick = time.perf_counter()
+    try:
+        for step in range(run.start, run.total):
+            lr = run.scheduler.get_last_lr()[-1]
+            loss, grad_norm = optimiser_step(run, step, lr)
+            after_step(run, step + 1, loss, lr, grad_norm, bar)
+    finally:
+        bar.close()
+        if run.log is not None:
+            run.log.close()
+            rows = read_metrics(run.log.path)
+            if rows:
+                plot_curves(rows, run.out / "curves.png")
+    return RunResult(run.out, run.total, run.total, run.best_miou, run.best_step, run.last_val)
+
+
+def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
+    """Data, model, optimiser, checkpoint state and logs of a run, ready for its first step.
+
+    Returns a :class:`RunResult` instead when ``out_dir`` holds a finished run (nothing to do).
     """
     check_device(cfg.train.device, "train.device")  # one line, not CUDA's traceback
     info = init_distributed(cfg.train.device)
@@ -180,7 +248,6 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     if cfg.data.val_dataset == "uavid":  # UAVid val labels in data.palette: the right one?
         check_palette_fit([val_set.label_path(p) for p in val_set.images], palette,
                           "data.palette")  # fmt: skip
-    classes = list(palette.names)
 
     m = cfg.model
     model = models.build_model(
@@ -235,7 +302,8 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     module.train()
 
     v = cfg.val
-    validator = Validator(val_set, classes, window, v.bins, cfg.data.val_limit, device)
+    validator = Validator(val_set, list(palette.names), window, v.bins, cfg.data.val_limit,
+                          device)  # fmt: skip
     groups = None
     if cfg.data.sampler == "complexity_balanced":
         groups = complexity_groups(image_paths(train_set), cfg.data.sampler_bins)
@@ -244,101 +312,95 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
         pin_memory=device.type == "cuda", groups=groups,
     )  # fmt: skip
     log = RunLog(out, start, cfg.log.tensorboard) if main else None
-    plain_cfg = C.to_plain(cfg)
-
-    def checkpoint(path: Path, step: int) -> None:
-        save_training_checkpoint(
-            path, model, step=step, config=plain_cfg, optimizer=optimizer, scheduler=scheduler,
-            scaler=scaler, frames_per_step=frames_per_step, best_miou=best_miou,
-            best_step=best_step, metrics=last_val, backbone_trained=not m.freeze_backbone,
-        )  # fmt: skip
-
-    accum = cfg.train.grad_accum
     batches = iter(loader)  # draws the loader's base seed from the torch RNG: restore after it
     if ckpt:
         set_rng_state(ckpt["rng"])
-    bar = tqdm(total=total, initial=start, unit="step", disable=not (main and cfg.log.progress),
-               dynamic_ncols=True)  # fmt: skip
-    tick, images = time.perf_counter(), 0
-    try:
-        for step in range(start, total):
-            lr = scheduler.get_last_lr()[-1]
-            optimizer.zero_grad(set_to_none=True)
-            losses = []
-            for micro in range(accum):
-                batch = next(batches)
-                x = batch["image"].to(device, non_blocking=True)
-                y = batch["mask"].to(device, non_blocking=True)
-                # Gradients are all-reduced once per step, on the last micro-batch.
-                last = micro == accum - 1
-                with contextlib.nullcontext() if ddp is None or last else ddp.no_sync():
-                    with torch.autocast(device.type, dtype=dtype, enabled=dtype is not None):
-                        logits = module(x)
-                    loss = F.cross_entropy(
-                        logits.float(), y, weight=weights, ignore_index=IGNORE_INDEX
-                    )
-                    scaler.scale(loss / accum).backward()
-                losses.append(loss.detach())
-                images += x.shape[0]
-            loss_value = _global_mean(torch.stack(losses).mean(), info)
-            if not math.isfinite(loss_value):
-                raise TrainingDiverged(
-                    f"the loss became {loss_value} at step {step + 1} (lr {lr:.3g}); that step "
-                    f"is not applied. {_last_good(out)} Lower train.lr, keep "
-                    "train.grad_clip on, or check the data, then start a new out_dir or --resume."
-                )
-            scaler.unscale_(optimizer)
-            grad_norm = clip_gradients(model, cfg.train.grad_clip)
-            scaler.step(optimizer)
-            scaler.update()
-            scheduler.step()
-            done = step + 1
+    return Run(
+        cfg=cfg, info=info, out=out, start=start, total=total, model=model, module=module,
+        ddp=ddp, optimizer=optimizer, scheduler=scheduler, scaler=scaler, dtype=dtype,
+        weights=weights, validator=validator, batches=batches, log=log,
+        frames_per_step=frames_per_step, say=say, best_miou=best_miou, best_step=best_step,
+        last_val=last_val,
+    )  # fmt: skip
 
-            if main and (done % cfg.train.log_every == 0 or done == total):
-                now = time.perf_counter()
-                rate = images * info.world_size / max(now - tick, 1e-9)
-                tick, images = now, 0
-                log.write({"step": done, "loss": loss_value, "lr": lr, "images_per_s": rate,  # type: ignore[union-attr]
-                           "grad_norm": grad_norm})  # fmt: skip
-                bar.set_postfix(loss=f"{loss_value:.4f}", lr=f"{lr:.2e}", img_s=f"{rate:.1f}")
-            bar.update(1)
 
-            validate = done == total or (v.every > 0 and done % v.every == 0)
-            save = done % cfg.train.checkpoint_every == 0 or done == total
-            # A finite loss can still leave inf weights (a huge lr): never validate or save them.
-            if (validate or save) and not _finite_parameters(model):
-                raise TrainingDiverged(
-                    f"the weights hold NaN/inf after step {done} (lr {lr:.3g}). "
-                    f"{_last_good(out)} Lower train.lr."
-                )
-            if validate and save and done == total and main:
-                # The trained weights are safe before the final validation runs (and may fail).
-                checkpoint(out / "last.pt", done)
-            if validate:
-                began = time.perf_counter()
-                last_val = {"step": done, **validator(model)}
-                tick += time.perf_counter() - began  # images/s counts training time only
-                if main:
-                    log.write(last_val)  # type: ignore[union-attr]
-                    bins = " ".join(f"{k} {_fmt(x)}" for k, x in last_val["miou_bins"].items())
-                    bar.write(f"step {done}: val mIoU {_fmt(last_val['miou'])} (per bin: {bins})")
-                miou = last_val["miou"]
-                if miou is not None and (best_miou is None or miou > best_miou):
-                    best_miou, best_step = miou, done
-                    if main:
-                        checkpoint(out / "best.pt", done)
-            if save:
-                if main:
-                    checkpoint(out / "last.pt", done)
-                barrier()
-    finally:
-        bar.close()
-        if log is not None:
-            log.close()
-            rows = read_metrics(log.path)
-            if rows:
-                plot_curves(rows, out / "curves.png")
-    return RunResult(out, total, total, best_miou, best_step, last_val)
+def optimiser_step(run: Run, step: int, lr: float) -> tuple[float, float]:
+    """One optimiser step over ``train.grad_accum`` micro-batches: (mean loss, gradient norm).
+
+    Raises:
+        TrainingDiverged: the loss is NaN/inf (the step is not applied).
+    """
+    device, dtype, accum = run.info.device, run.dtype, run.cfg.train.grad_accum
+    run.optimizer.zero_grad(set_to_none=True)
+    losses = []
+    for micro in range(accum):
+        batch = next(run.batches)
+        x = batch["image"].to(device, non_blocking=True)
+        y = batch["mask"].to(device, non_blocking=True)
+        # Gradients are all-reduced once per step, on the last micro-batch.
+        last = micro == accum - 1
+        with contextlib.nullcontext() if run.ddp is None or last else run.ddp.no_sync():
+            with torch.autocast(device.type, dtype=dtype, enabled=dtype is not None):
+                logits = run.module(x)
+            loss = F.cross_entropy(logits.float(), y, weight=run.weights, ignore_index=IGNORE_INDEX)
+            run.scaler.scale(loss / accum).backward()
+        losses.append(loss.detach())
+        run.images += x.shape[0]
+    loss_value = _global_mean(torch.stack(losses).mean(), run.info)
+    if not math.isfinite(loss_value):
+        raise TrainingDiverged(
+            f"the loss became {loss_value} at step {step + 1} (lr {lr:.3g}); that step "
+            f"is not applied. {_last_good(run.out)} Lower train.lr, keep "
+            "train.grad_clip on, or check the data, then start a new out_dir or --resume."
+        )
+    run.scaler.unscale_(run.optimizer)
+    grad_norm = clip_gradients(run.model, run.cfg.train.grad_clip)
+    run.scaler.step(run.optimizer)
+    run.scaler.update()
+    run.scheduler.step()
+    return loss_value, grad_norm
+
+
+def after_step(run: Run, done: int, loss: float, lr: float, grad_norm: float, bar: Any) -> None:
+    """What follows step ``done``: the log row, validation (and ``best.pt``), ``last.pt``."""
+    cfg, main, out = run.cfg, run.info.is_main, run.out
+    if main and (done % cfg.train.log_every == 0 or done == run.total):
+        now = time.perf_counter()
+        rate = run.images * run.info.world_size / max(now - run.tick, 1e-9)
+        run.tick, run.images = now, 0
+        run.log.write({"step": done, "loss": loss, "lr": lr, "images_per_s": rate,  # type: ignore[union-attr]
+                       "grad_norm": grad_norm})  # fmt: skip
+        bar.set_postfix(loss=f"{loss:.4f}", lr=f"{lr:.2e}", img_s=f"{rate:.1f}")
+    bar.update(1)
+
+    validate = done == run.total or (cfg.val.every > 0 and done % cfg.val.every == 0)
+    save = done % cfg.train.checkpoint_every == 0 or done == run.total
+    # A finite loss can still leave inf weights (a huge lr): never validate or save them.
+    if (validate or save) and not _finite_parameters(run.model):
+        raise TrainingDiverged(
+            f"the weights hold NaN/inf after step {done} (lr {lr:.3g}). "
+            f"{_last_good(out)} Lower train.lr."
+        )
+    if validate and save and done == run.total and main:
+        # The trained weights are safe before the final validation runs (and may fail).
+        run.checkpoint(out / "last.pt", done)
+    if validate:
+        began = time.perf_counter()
+        run.last_val = {"step": done, **run.validator(run.model)}
+        run.tick += time.perf_counter() - began  # images/s counts training time only
+        if main:
+            run.log.write(run.last_val)  # type: ignore[union-attr]
+            bins = " ".join(f"{k} {_fmt(x)}" for k, x in run.last_val["miou_bins"].items())
+            bar.write(f"step {done}: val mIoU {_fmt(run.last_val['miou'])} (per bin: {bins})")
+        miou = run.last_val["miou"]
+        if miou is not None and (run.best_miou is None or miou > run.best_miou):
+            run.best_miou, run.best_step = miou, done
+            if main:
+                run.checkpoint(out / "best.pt", done)
+    if save:
+        if main:
+            run.checkpoint(out / "last.pt", done)
+        barrier()
 
 
 def _val_window(cfg: DictConfig, patch_size: int, precision: str) -> WindowConfig:
