@@ -54,35 +54,58 @@ def _get(config: Any, *keys: str) -> Any:
     return config
 
 
+#: Every training-config key :func:`checkpoint_defaults` reads, by the name it gives it. eval
+#: cannot import the training schema (train imports eval), so tests/train checks each path
+#: against ``claravid.train.config``: renaming a key there fails a test instead of silently
+#: dropping a default here.
+TRAINING_KEYS: dict[str, tuple[str, ...]] = {
+    "val_dataset": ("data", "val_dataset"),
+    "dataset": ("data", "dataset"),
+    "val_root": ("data", "val_root"),
+    "root": ("data", "root"),
+    "palette": ("data", "palette"),
+    "val_split": ("data", "val_split"),
+    "split": ("data", "split"),
+    "missions": ("data", "missions"),
+    "altitude": ("data", "altitude"),
+    "direction": ("data", "direction"),
+    "augment": ("data", "augment"),
+}
+#: The fields of ``data.split`` that make ``--split val`` the split training held out.
+SPLIT_FIELDS = ("block_size", "fractions", "seed", "val_missions", "test_missions")
+
+
 def checkpoint_defaults(checkpoint: Mapping[str, Any]) -> dict[str, Any]:
     """What a training checkpoint says about evaluating it: its validation data and windows.
 
-    Reads the resolved training config (``checkpoint["config"]``): the validation dataset
-    (``data.val_dataset``, ``data.val_root`` or ``data.root``, ``data.val_split``), the
-    palette, the ClaraVid selection and split settings (so ``--split val`` is the very split
-    training held out), and the validation windows (``val.window``, ``val.stride``,
-    ``val.scale``, ``val.batch_size``). Anything missing or of the wrong type is left out, so
-    the command line's values or the defaults apply.
+    Reads the resolved training config (``checkpoint["config"]``) at :data:`TRAINING_KEYS`:
+    the validation dataset (``data.val_dataset``, ``data.val_root`` or ``data.root``,
+    ``data.val_split``), the palette, the ClaraVid selection and split settings (so ``--split
+    val`` is the very split training held out), and the validation windows (``val.window``,
+    ``val.stride``, ``val.scale``, ``val.batch_size``). Anything missing or of the wrong type
+    is left out, so the command line's values or the defaults apply.
     """
     config = checkpoint.get("config")
+
+    def read(name: str) -> Any:
+        return _get(config, *TRAINING_KEYS[name])
+
     out: dict[str, Any] = {}
-    dataset = _get(config, "data", "val_dataset") or _get(config, "data", "dataset")
+    dataset = read("val_dataset") or read("dataset")
     if dataset in ("claravid", "uavid", "folder"):
         out["dataset"] = dataset
-    root = _get(config, "data", "val_root") or _get(config, "data", "root")
     for name, value in {
-        "data": root,
-        "palette": _get(config, "data", "palette"),
-        "split": _get(config, "data", "val_split"),
+        "data": read("val_root") or read("root"),
+        "palette": read("palette"),
+        "split": read("val_split"),
     }.items():
         if isinstance(value, str) and value:
             out[name] = value
-    split = _get(config, "data", "split")
+    split = read("split")
     if isinstance(split, Mapping):
-        fields = ("block_size", "fractions", "seed", "val_missions", "test_missions")
-        out["split_config"] = {k: split[k] for k in fields if k in split}
+        out["split_config"] = {k: split[k] for k in SPLIT_FIELDS if k in split}
     for name in ("missions", "altitude", "direction"):
-        value = _get(config, "data", name)
+        value = read(name)
         if isinstance(value, list | tuple | str):
             out[name] = value
     window = window_from_config(config)  # the same reading as the ONNX metadata's
@@ -93,7 +116,7 @@ def checkpoint_defaults(checkpoint: Mapping[str, Any]) -> dict[str, Any]:
     for name in ("scale", "batch_size"):
         if name in window:
             out[name] = window[name]
-    augment = _get(config, "data", "augment")
+    augment = read("augment")
     if isinstance(augment, Mapping) and ("mean" in augment or "std" in augment):
         out["normalisation"] = normalisation_from_config(config)
     return out

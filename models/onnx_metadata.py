@@ -58,6 +58,17 @@ def _pair(value: Any) -> list[int] | None:
     return None
 
 
+#: The training-config keys read here (tests/train checks them against the training schema).
+CONFIG_KEYS: tuple[tuple[str, ...], ...] = (
+    ("val", "window"),
+    ("val", "stride"),
+    ("val", "scale"),
+    ("val", "batch_size"),
+    ("data", "augment", "mean"),
+    ("data", "augment", "std"),
+)
+
+
 def window_from_config(config: Any) -> dict[str, Any]:
     """The validation windows of a resolved training config (``val.window/stride/scale/...``).
 

@@ -107,3 +107,17 @@ def test_changed_keys_ignore_where_and_how_shown():
     c = load_config("demo", ["train.lr=0.1", "seed=1"])
     assert changed_keys(a, c) == ["seed", "train.lr"]
     assert OmegaConf.to_container(a) != OmegaConf.to_container(c)
+
+
+def test_every_key_eval_reads_from_a_checkpoint_exists_in_the_schema():
+    """eval reads a checkpoint's training config by key paths (it cannot import this schema):
+    each path must name a key of the schema, so a rename here fails this test."""
+    from claravid.eval.sources import SPLIT_FIELDS, TRAINING_KEYS
+    from claravid.models.onnx_metadata import CONFIG_KEYS
+
+    keys = set(valid_keys())
+    prefixes = {k.rsplit(".", i)[0] for k in keys for i in range(k.count(".") + 1)}
+    paths = [*TRAINING_KEYS.values(), *CONFIG_KEYS, *(("data", "split", f) for f in SPLIT_FIELDS)]
+    missing = [".".join(p) for p in paths if ".".join(p) not in keys | prefixes]
+    assert not missing, f"keys read by eval that the training schema lacks: {missing}"
+    assert "data.val_root" in keys and "val.window" in keys  # the check sees leaf keys
