@@ -89,6 +89,13 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_argument("--split", help="train, val, test or all (default val)")
     data.add_argument("--palette", help="palette name or YAML (default: the checkpoint's)")
     data.add_argument("--masks", type=Path, help="label folder mirroring --data (folder only)")
+    data.add_argument(
+        "--missions", help="ClaraVid missions, e.g. rural_1,urban_2 (default: the checkpoint's)"
+    )
+    data.add_argument(
+        "--altitude", help="ClaraVid altitudes low,mid,high (default: the checkpoint's)"
+    )
+    data.add_argument("--direction", help="ClaraVid directions h,v (default: the checkpoint's)")
     infer = p.add_argument_group("inference")
     infer.add_argument("--window", type=_size, help="window N or HxW (default 630)")
     infer.add_argument("--stride", type=_size, help="window step (default 2/3 of the window)")
@@ -218,7 +225,8 @@ _MODEL_ONLY = (
     "no_amp",
     "save_predictions",
 )
-_DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing")
+_SELECTION = ("missions", "altitude", "direction")
+_DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing", *_SELECTION)
 IDLE = {
     "compare": (*_MODEL_ONLY, *_DATA, "bins", "edges", "group_by", "measures", "tiles"),
     "merge": (*_MODEL_ONLY, *_DATA, "measures", "tiles"),
@@ -334,6 +342,26 @@ def _check_bins(args: argparse.Namespace, n: int) -> None:
         raise UsageError(f"{args.bins or 3} bins for {n} images: use --bins {n} or fewer")
 
 
+def selection_flags(args: argparse.Namespace, dataset: str) -> dict[str, list[str]]:
+    """``--missions``/``--altitude``/``--direction`` as lists (they replace the checkpoint's)."""
+    given = {k: getattr(args, k) for k in _SELECTION if getattr(args, k) is not None}
+    if given and dataset != "claravid":
+        flag = "--" + next(iter(given))
+        raise UsageError(
+            f"{flag} selects ClaraVid frames; it does nothing with --dataset {dataset}"
+        )
+    out = {}
+    for name, text in given.items():
+        values = [v.strip() for v in text.split(",") if v.strip()]
+        if not values:
+            raise UsageError(f"--{name} is empty; give e.g. --{name} {_EXAMPLE[name]}")
+        out[name] = values
+    return out
+
+
+_EXAMPLE = {"missions": "rural_1,urban_2", "altitude": "low,mid", "direction": "h"}
+
+
 def _resolve_data(args: argparse.Namespace, defaults: dict[str, Any]) -> dict[str, Any]:
     """Command line first, then what the checkpoint recorded, then the defaults."""
     root = args.data or defaults.get("data")
@@ -351,6 +379,7 @@ def _resolve_data(args: argparse.Namespace, defaults: dict[str, Any]) -> dict[st
         # exactly the frames training held out.
         selection = {k: defaults[k] for k in ("missions", "altitude", "direction",
                                               "split_config") if k in defaults}  # fmt: skip
+    selection.update(selection_flags(args, dataset))
     return {
         "root": Path(root),
         "dataset": dataset,

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -211,6 +212,23 @@ def _claravid(
     )
 
 
+def _selection_used(raw: ClaraVidSegmentation, selection: dict[str, Any]) -> dict[str, Any]:
+    """The report's record of the ClaraVid frames chosen: the missions present, the altitude
+    and direction filters (null: all) and the split settings."""
+    return {
+        "missions": sorted({f.mission for f in raw.frames}),
+        "altitude": _as_list(selection.get("altitude")),
+        "direction": _as_list(selection.get("direction")),
+        "split_config": dataclasses.asdict(raw.split_config),
+    }
+
+
+def _as_list(value: Any) -> list[str] | None:
+    if value is None:
+        return None
+    return [value] if isinstance(value, str) else [str(v) for v in value]
+
+
 def _uavid(root: Path, split: str, pal: Palette, norm: Any = None, labels: bool = True) -> _Opened:
     raw = targets.UAVidSegmentation(root, split=split, palette=pal)
     if labels:
@@ -288,6 +306,7 @@ def open_data(
     describe: dict[str, Any] = {"dataset": dataset, "data": str(root), "split": str(split)}
     if dataset == "claravid":
         opened = _claravid(root, split, pal, selection or {}, normalisation)
+        describe["selection"] = _selection_used(opened.raw, selection or {})
     elif dataset == "uavid":
         opened = _uavid(root, split, pal, normalisation, labels)
     else:

@@ -66,6 +66,16 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         lines.append(
             f"- data: {source.get('dataset')} `{source['data']}`, split {source.get('split')}"
         )
+    chosen = source.get("selection")
+    if chosen:
+        split = chosen.get("split_config") or {}
+        lines.append(
+            f"- frames: missions {', '.join(chosen['missions'])}; altitude "
+            f"{', '.join(chosen.get('altitude') or ['all'])}; direction "
+            f"{', '.join(chosen.get('direction') or ['all'])}; split blocks of "
+            f"{split.get('block_size')} m, fractions {split.get('fractions')}, seed "
+            f"{split.get('seed')}"
+        )
     lines.append(f"- palette: {report['palette']} ({len(classes)} classes), ignore index "
                  f"{report['ignore_index']}")  # fmt: skip
     method = binning.get("method")

@@ -249,7 +249,7 @@ def _slug(name: str) -> str:
 
 def run_scores(args: argparse.Namespace) -> int:
     """The ``--scores`` mode of ``claravid-eval`` (arguments checked by the CLI)."""
-    from claravid.eval.cli import data_bootstrap
+    from claravid.eval.cli import data_bootstrap, selection_flags
     from claravid.eval.complexity import ComplexityJob
     from claravid.eval.data import open_data
     from claravid.eval.markdown import scores_markdown
@@ -266,6 +266,7 @@ def run_scores(args: argparse.Namespace) -> int:
         split=args.split or ("all" if dataset == "claravid" else "val"),
         palette=args.palette,
         masks=args.masks,
+        selection=selection_flags(args, dataset),
         labels=False,
     )
     if args.group_by is not None:
