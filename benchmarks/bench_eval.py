@@ -43,9 +43,9 @@ import torch
 
 from claravid import models
 from claravid.dsp import compute_complexities, compute_measures
+from claravid.eval.collect import collect
 from claravid.eval.data import open_data
 from claravid.eval.evaluate import evaluate_model
-from claravid.eval.run import collect
 from claravid.eval.windows import WindowConfig
 from claravid.synth import synthesize
 

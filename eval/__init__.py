@@ -11,18 +11,20 @@ The core that training validates through::
 The product on top (``claravid-eval``, ``claravid-predict``; see :mod:`claravid.eval.cli`)::
 
     from claravid.eval.data import open_data            # ClaraVid / UAVid / folder: keys, labels
-    from claravid.eval.run import collect, write_outputs
-    from claravid.eval.report import build_report
+    from claravid.eval.collect import collect
+    from claravid.eval.report import build_report, write_outputs
 
     data = open_data("/data/claravid", split="val", palette="uavid")
     collected = collect(data, predictions="preds/")    # or model=eval.sources.load_source(...)
     report = build_report(collected.result, bins=3)
     write_outputs("report/", report, collected.result)
 
-Modules: ``data`` (what is evaluated), ``sources`` (checkpoint / ONNX), ``predictions``
-(label maps on disk), ``complexity`` (delentropy beside inference), ``run`` (one evaluation,
-sharded under torchrun), ``report`` (JSON, confusions, merge), ``markdown``, ``plots``,
-``compare``, ``cli``, ``predict``.
+Modules: ``data`` (what is evaluated), ``units`` (groups and bootstrap clusters),
+``sources`` (checkpoint / ONNX), ``label_maps`` (label maps on disk, image keys),
+``complexity`` (delentropy beside inference), ``collect`` (one evaluation's per-image table,
+sharded under torchrun), ``tiles`` (tile-level complexity), ``hardest`` (the hardest images),
+``report`` (JSON, confusions, merge, the report folder), ``bootstrap`` (intervals),
+``markdown``, ``plots``, ``compare``, ``scores`` (any per-image metric), ``cli``, ``predict``.
 """
 
 from claravid.eval.bins import Bin, bin_names, fixed_bins, parse_edges, quantile_bins

@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-#: Resampled units ``--cluster`` accepts.
-CLUSTER_UNITS = ("image", "viewpoint", "mission", "block", "sequence", "folder")
+from claravid.eval.units import CLUSTER_UNITS
+
 METHOD = "cluster percentile bootstrap"
 #: Resamples per matrix product: bounds the memory of the float64 draw-count block.
 _CHUNK = 256

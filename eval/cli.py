@@ -37,11 +37,12 @@ from claravid.cli import (
     run_cli,
 )
 from claravid.eval.bins import parse_edges
-from claravid.eval.bootstrap import CLUSTER_UNITS, Bootstrap
+from claravid.eval.bootstrap import Bootstrap
 from claravid.eval.complexity import parse_measures
-from claravid.eval.data import DATASETS, GROUP_BY
-from claravid.eval.predictions import MARKER, predictions_defaults, write_marker
+from claravid.eval.data import DATASETS
+from claravid.eval.label_maps import MARKER, predictions_defaults, write_marker
 from claravid.eval.report import REPORT
+from claravid.eval.units import CLUSTER_UNITS, GROUP_BY
 from claravid.models.onnx_runtime import PROVIDERS
 
 PROG = "claravid-eval"
@@ -114,7 +115,9 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--output", "-o", type=Path, help="report folder")
     rep.add_argument("--bins", type=positive_int, help="quantile bins of delentropy (default 3)")
     rep.add_argument("--edges", help="fixed delentropy edges e1,e2,... instead of --bins")
-    rep.add_argument("--group-by", choices=GROUP_BY, help="rows per mission or viewpoint")
+    rep.add_argument(
+        "--group-by", choices=GROUP_BY, help="rows per mission, viewpoint, UAVid sequence or folder"
+    )
     rep.add_argument("--measures", help="delent,glcment,pixent (default delent)")
     rep.add_argument(
         "--tiles",
@@ -180,7 +183,7 @@ def bootstrap_settings(args: argparse.Namespace, units: list[str], default: str)
 
 def data_bootstrap(args: argparse.Namespace, data: Any) -> Bootstrap:
     """:func:`bootstrap_settings` for opened data (:class:`claravid.eval.data.EvalData`)."""
-    from claravid.eval.report import available_units, default_cluster
+    from claravid.eval.units import available_units, default_cluster
 
     units = available_units(data.attributes)
     return bootstrap_settings(args, units, default_cluster(data.name, data.attributes))
@@ -286,8 +289,7 @@ def _run_compare(args: argparse.Namespace) -> int:
 
 
 def _run_merge(args: argparse.Namespace) -> int:
-    from claravid.eval.report import build_report, load_result, merge_results
-    from claravid.eval.run import write_outputs
+    from claravid.eval.report import build_report, load_result, merge_results, write_outputs
 
     check_output_dir(args.output, marker=REPORT, overwrite=args.overwrite)
     parts = [load_result(p) for p in args.merge]
@@ -394,9 +396,10 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     import torch
 
     from claravid.eval import distributed
+    from claravid.eval.collect import collect
     from claravid.eval.data import open_data
-    from claravid.eval.report import build_report
-    from claravid.eval.run import collect, hardest_items, write_outputs
+    from claravid.eval.hardest import hardest_items
+    from claravid.eval.report import build_report, write_outputs
     from claravid.eval.sources import load_source, resolve_settings
     from claravid.eval.windows import autocast_dtype, precision_name
 

@@ -18,7 +18,8 @@ import numpy as np
 from claravid.dsp import METRICS, compute_measures
 from claravid.dsp.metrics import ImageReadError
 
-PRIMARY = "delent"
+#: The measure bins are made of (always computed, listed first).
+PRIMARY_MEASURE = "delent"
 CHUNK = 8  # images per call in this process: how soon `ComplexityJob.stop` takes effect
 
 
@@ -28,7 +29,7 @@ def parse_measures(text: str | Sequence[str]) -> list[str]:
     unknown = [m for m in names if m not in METRICS]
     if unknown:
         raise ValueError(f"unknown measure(s) {unknown} in --measures; choose from {METRICS}")
-    return list(dict.fromkeys([PRIMARY, *names]))
+    return list(dict.fromkeys([PRIMARY_MEASURE, *names]))
 
 
 class ComplexityJob:

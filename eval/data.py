@@ -1,11 +1,11 @@
 """The images an evaluation covers: one view over ClaraVid, UAVid and plain folders.
 
 An evaluation needs, per dataset index, more than a sample: the RGB file (for delentropy), the
-name its prediction is saved under (``key``: ``<mission folder>/<viewpoint>/<stem>`` for
-ClaraVid, the image's path relative to the data root without extension otherwise), the labels
-alone (the ``--predictions`` path never decodes the image) and the units images are grouped and
-clustered by (:data:`UNITS`): ClaraVid mission, viewpoint and spatial block, UAVid sequence, and
-every image's parent folder. :class:`EvalData` gathers these behind one interface.
+name its prediction is saved under (``key``, :func:`claravid.eval.label_maps.image_key`), the
+labels alone (the ``--predictions`` path never decodes the image) and the units images are
+grouped and clustered by (:mod:`claravid.eval.units`): ClaraVid mission, viewpoint and spatial
+block, UAVid sequence, and every image's parent folder. :class:`EvalData` gathers these behind
+one interface.
 """
 
 from __future__ import annotations
@@ -23,6 +23,8 @@ import torch
 from torch.utils.data import Dataset
 
 from claravid import targets
+from claravid.eval.label_maps import image_key
+from claravid.eval.units import group_indices
 from claravid.masks import mask_to_ids, read_label_image
 from claravid.masks import read_mask as read_label_mask
 from claravid.palettes import Palette, available_palettes, load_palette
@@ -30,15 +32,6 @@ from claravid.segmentation import ClaraVidSegmentation
 from claravid.transforms import eval_transforms
 
 DATASETS = ("claravid", "uavid", "folder")
-GROUP_BY = ("mission", "viewpoint", "sequence", "folder")
-#: Per-image units an image belongs to, by dataset (``block`` only where extrinsics exist);
-#: every image is also its own unit, ``image``. Groups (``--group-by``) and bootstrap clusters
-#: (``--cluster``) are drawn from these.
-UNITS = {
-    "claravid": ("mission", "viewpoint", "block", "folder"),
-    "uavid": ("sequence", "folder"),
-    "folder": ("folder",),
-}
 FIT_FILES = 3  # label files sampled by check_palette_fit
 FIT_MAX_UNKNOWN = 0.5  # more label pixels than this outside the palette: the wrong palette
 
@@ -71,8 +64,8 @@ class EvalData:
         raw: the same samples without transforms (uint8 image), for overlays.
         paths: the RGB file of each index.
         keys: the prediction name of each index.
-        attributes: per-index unit labels (:data:`UNITS`): ``mission`` / ``viewpoint`` /
-            ``block`` (ClaraVid), ``sequence`` (UAVid), ``folder`` (all).
+        attributes: per-index unit labels (:mod:`claravid.eval.units`): ``mission``,
+            ``viewpoint``, ``block`` (ClaraVid), ``sequence`` (UAVid), ``folder`` (all).
         describe: root, split and dataset kind, for the report's ``source``.
     """
 
@@ -98,13 +91,8 @@ class EvalData:
         return mask if mask.dtype == np.uint8 else mask.astype(np.uint8)
 
     def groups(self, by: str) -> dict[str, list[int]]:
-        """Indices per unit (mission, viewpoint, sequence, folder), in first-seen order."""
-        if by not in self.attributes:
-            raise ValueError(unit_missing(by, self.name, "--group-by"))
-        out: dict[str, list[int]] = {}
-        for index, value in enumerate(self.attributes[by]):
-            out.setdefault(value, []).append(index)
-        return out
+        """Indices per unit (:func:`claravid.eval.units.group_indices`)."""
+        return group_indices(self.paths, self.attributes, by)
 
 
 def _unknown_share(labels: list[np.ndarray], palette: Palette) -> float:
@@ -147,28 +135,9 @@ def check_palette_fit(label_files: list[Path], palette: Palette, flag: str = "--
     )
 
 
-def unit_missing(unit: str, dataset: str, flag: str) -> str:
-    """The one-line error for a unit the images do not have."""
-    where = {"mission": "ClaraVid", "viewpoint": "ClaraVid", "block": "ClaraVid with extrinsics",
-             "sequence": "UAVid"}.get(unit, "")  # fmt: skip
-    has = ", ".join(("image", *UNITS.get(dataset, ()))) if dataset in UNITS else "image, folder"
-    return (
-        f"{flag} {unit} needs {where or 'images with that unit'} data; these {dataset} images "
-        f"have: {has}"
-    )
-
-
 def folder_labels(paths: list[str], root: Path) -> list[str]:
     """Each image's parent folder, relative to the data root (``.`` for the root itself)."""
-    return [Path(_relative_key(Path(p), root)).parent.as_posix() or "." for p in paths]
-
-
-def _relative_key(path: Path, root: Path) -> str:
-    try:
-        rel = path.resolve().relative_to(root.resolve())
-    except ValueError:
-        rel = Path(path.name)
-    return rel.with_suffix("").as_posix()
+    return [Path(image_key(Path(p), root)).parent.as_posix() or "." for p in paths]
 
 
 @dataclass
@@ -239,7 +208,7 @@ def _uavid(root: Path, split: str, pal: Palette, norm: Any = None, labels: bool 
         raw,
         _with_transforms(raw, eval_transforms(norm)),
         [str(p) for p in raw.images],
-        [_relative_key(p, root) for p in raw.images],  # as the samples' "key"
+        [image_key(p, root) for p in raw.images],  # as the samples' "key"
         lambda i: read_label_mask(raw.label_path(raw.images[i]), pal),
         {"sequence": [p.parent.parent.name for p in raw.images]},  # seqN/Images/<name>
     )

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -17,6 +16,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm.auto import tqdm
 
+from claravid.eval.label_maps import image_key
 from claravid.eval.metrics import IGNORE_INDEX, confusion_matrix
 from claravid.eval.tiles import tile_confusions
 from claravid.eval.windows import Model, WindowConfig, predict_labels
@@ -34,9 +34,10 @@ class ImageScore:
 
 
 def sample_key(sample: dict[str, Any]) -> str:
-    """The name an image's prediction is saved under (relative, no extension)."""
+    """The name a sample's prediction is saved under: its ``key``, else
+    :func:`claravid.eval.label_maps.image_key` of its path (the stem)."""
     key = sample.get("key")
-    return str(key) if key else Path(str(sample["path"])).stem
+    return str(key) if key else image_key(str(sample["path"]))
 
 
 def evaluate_model(

@@ -39,7 +39,7 @@ from claravid.cli import (
     run_cli,
 )
 from claravid.eval.cli import _size
-from claravid.eval.predictions import MARKER, write_image, write_marker, write_prediction
+from claravid.eval.label_maps import MARKER, image_key, write_image, write_marker, write_prediction
 from claravid.eval.sources import RunSettings
 from claravid.eval.windows import flag_precision, predict_labels
 from claravid.models.onnx_runtime import PROVIDERS
@@ -81,14 +81,14 @@ def list_images(inputs: list[Path]) -> tuple[list[Path], list[str]]:
         paths = sorted(p for p in root.rglob("*") if p.is_file() and p.suffix.lower() in EXTENSIONS)
         if not paths:
             raise UsageError(f"no images ({', '.join(EXTENSIONS)}) under {root}")
-        keys = [p.relative_to(root).with_suffix("").as_posix() for p in paths]
+        keys = [image_key(p, root) for p in paths]
         return paths, keys
     for p in inputs:
         if not p.exists():
             raise UsageError(f"{p} not found")
         if not p.is_file():
             raise UsageError(f"{p} is not an image file (give one folder or image files)")
-    keys = [p.stem for p in inputs]
+    keys = [image_key(p) for p in inputs]
     if len(set(keys)) < len(keys):
         raise UsageError("two listed images share a file name; give their folder instead")
     return list(inputs), keys

@@ -11,7 +11,8 @@ A report folder holds:
   merge or bootstrap (any ``--cluster`` unit stored there) without the data;
 - ``report.md`` and the plots (:mod:`claravid.eval.plots`).
 
-:class:`EvalResult` is the per-image table; :func:`build_report` turns it into the JSON.
+:class:`EvalResult` is the per-image table; :func:`build_report` turns it into the JSON and
+:func:`write_outputs` writes the folder.
 """
 
 from __future__ import annotations
@@ -26,8 +27,18 @@ import numpy as np
 
 from claravid.cli import UsageError, atomic_save, atomic_write_text
 from claravid.eval.bootstrap import Bootstrap
+from claravid.eval.markdown import report_markdown
+from claravid.eval.plots import (
+    PLOTS,
+    plot_bins,
+    plot_hardest,
+    plot_heatmap,
+    plot_scatter,
+    plot_tiles,
+)
 from claravid.eval.stratify import stratify
 from claravid.eval.tiles import TileTable, concat_tables, tile_report
+from claravid.eval.units import available_units, default_cluster, group_indices, unit_labels
 
 REPORT = "report.json"
 CONFUSIONS = "confusions.npz"
@@ -48,9 +59,6 @@ KEYS = (
 #: Keys every report of this tool has (``uncertainty`` came with intervals; ``tiles`` is there
 #: with ``--tiles``).
 REQUIRED_KEYS = KEYS[:-2]
-#: The default bootstrap cluster per dataset kind, then the fallbacks when it is not stored.
-DEFAULT_CLUSTER = {"claravid": "block", "uavid": "sequence", "folder": "folder"}
-_FALLBACK_CLUSTERS = ("block", "sequence", "viewpoint", "folder", "image")
 
 
 @dataclass
@@ -81,19 +89,8 @@ class EvalResult:
     tiles: TileTable | None = None
 
     def groups(self, by: str | None) -> dict[str, list[int]] | None:
-        """Image indices per unit (mission, viewpoint, sequence, folder; None: no grouping)."""
-        if by is None:
-            return None
-        if by not in ("mission", "viewpoint"):
-            raise UsageError(f"unknown group_by {by!r}; use mission or viewpoint")
-        if by not in self.attributes or not any(self.attributes[by]):
-            raise UsageError(
-                f"--group-by {by}: these images have no {by} (they have: {', '.join(self.units())})"
-            )
-        out: dict[str, list[int]] = {}
-        for index, value in enumerate(self.attributes[by]):
-            out.setdefault(value, []).append(index)
-        return dict(sorted(out.items()))
+        """Image indices per unit (:func:`claravid.eval.units.group_indices`; None: none)."""
+        return None if by is None else group_indices(self.paths, self.attributes, by)
 
     def units(self) -> list[str]:
         """The cluster units these images carry (``image`` always)."""
@@ -106,43 +103,6 @@ class EvalResult:
     def default_cluster(self) -> str:
         """The dataset's default cluster unit, or the first fallback these images carry."""
         return default_cluster(str(self.source.get("dataset")), self.attributes)
-
-
-def available_units(attributes: dict[str, list[str]]) -> list[str]:
-    """The cluster units images with these ``attributes`` carry (``image`` always)."""
-    return ["image", *(a for a in attributes if any(attributes[a]))]
-
-
-def unit_labels(paths: Sequence[str], attributes: dict[str, list[str]], unit: str) -> list[str]:
-    """The cluster label of each image for ``unit``.
-
-    ``viewpoint`` is the mission and viewpoint folder together (the same viewpoint of two
-    missions is two clusters); ``image`` makes every image its own cluster.
-
-    Raises:
-        UsageError: these images have no such unit (e.g. ``block`` without extrinsics).
-    """
-    if unit == "image":
-        return [str(p) for p in paths]
-    if unit == "viewpoint" and "mission" in attributes and "viewpoint" in attributes:
-        pairs = zip(attributes["mission"], attributes["viewpoint"], strict=True)
-        return [f"{m}/{v}" for m, v in pairs]
-    if unit != "viewpoint" and unit in attributes and any(attributes[unit]):
-        return list(attributes[unit])
-    raise UsageError(
-        f"--cluster {unit} is not available for these images"
-        + (" (block needs ClaraVid extrinsics)" if unit == "block" else "")
-        + f"; they have: {', '.join(available_units(attributes))}"
-    )
-
-
-def default_cluster(dataset: str, attributes: dict[str, list[str]]) -> str:
-    """The dataset's default cluster unit, or the first fallback the images carry."""
-    units = available_units(attributes)
-    wanted = DEFAULT_CLUSTER.get(dataset)
-    if wanted in units:
-        return wanted
-    return next(u for u in _FALLBACK_CLUSTERS if u in units)
 
 
 def build_report(
@@ -343,3 +303,38 @@ def merge_results(results: Sequence[EvalResult], names: Sequence[str]) -> EvalRe
 def write_json(path: str | Path, report: dict[str, Any]) -> Path:
     """``report.json``, strict JSON (NaN already written as null), atomically."""
     return atomic_write_text(path, json.dumps(report, indent=2, allow_nan=False) + "\n")
+
+
+def write_outputs(
+    out: str | Path,
+    report: dict[str, Any],
+    result: EvalResult,
+    hardest: Sequence[dict[str, Any]] = (),
+    colors: np.ndarray | None = None,
+) -> dict[str, Path]:
+    """Write the report folder: ``report.json``, ``confusions.npz``, plots, ``report.md``.
+
+    ``report.json`` is written last: it marks the folder as this tool's, complete.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = {"confusions": save_confusions(out / CONFUSIONS, result)}
+    plots: dict[str, str] = {}
+    if report["bins"]:
+        written["bins"] = plot_bins(report, out / PLOTS["bins"])
+        written["heatmap"] = plot_heatmap(report, out / PLOTS["heatmap"])
+    if "delent" in report["correlation"]:
+        written["scatter"] = plot_scatter(report, out / PLOTS["scatter"])
+    if hardest and colors is not None:
+        written["hardest"] = plot_hardest(hardest, colors, out / PLOTS["hardest"], result.classes)
+    tiled = [item for item in hardest if "tiles" in item]
+    if tiled:
+        written["tiles"] = plot_tiles(tiled, out / PLOTS["tiles"])
+    for name in ("bins", "scatter", "heatmap", "hardest", "tiles"):
+        if name in written:
+            plots[name] = PLOTS[name]
+        else:  # a plot of an earlier report in this folder would no longer match it
+            (out / PLOTS[name]).unlink(missing_ok=True)
+    written["markdown"] = atomic_write_text(out / "report.md", report_markdown(report, plots))
+    written["report"] = write_json(out / REPORT, report)
+    return written

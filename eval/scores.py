@@ -26,8 +26,10 @@ import numpy as np
 from claravid.cli import UsageError, atomic_write_text, check_output_dir
 from claravid.eval.bins import Bin, fixed_bins, quantile_bins
 from claravid.eval.bootstrap import Bootstrap, cluster_ids, correlation_interval, mean_interval
-from claravid.eval.report import unit_labels, write_json
-from claravid.eval.stratify import PRIMARY_MEASURE, correlation, group_profile, order_warnings
+from claravid.eval.complexity import PRIMARY_MEASURE
+from claravid.eval.report import write_json
+from claravid.eval.stratify import correlation, group_profile, order_warnings
+from claravid.eval.units import unit_labels
 
 PATH_COLUMN = "path"
 REPORT = "report.json"

@@ -29,6 +29,7 @@ from claravid.eval.bootstrap import (
     confusion_interval,
     correlation_interval,
 )
+from claravid.eval.complexity import PRIMARY_MEASURE
 from claravid.eval.metrics import (
     CONVENTION,
     IGNORE_INDEX,
@@ -37,8 +38,6 @@ from claravid.eval.metrics import (
     pixel_accuracy,
     scores,
 )
-
-PRIMARY_MEASURE = "delent"
 
 
 def _group_row(

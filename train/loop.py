@@ -43,6 +43,7 @@ from claravid.cli import check_device
 from claravid.eval import WindowConfig
 from claravid.eval.data import check_palette_fit
 from claravid.eval.distributed import DistInfo, barrier, init_distributed
+from claravid.eval.metrics import IGNORE_INDEX
 from claravid.eval.windows import autocast_dtype, precision_name
 from claravid.palettes import load_palette
 from claravid.train import config as C
@@ -67,8 +68,6 @@ from claravid.train.optim import build_optimizer, build_scheduler, clip_gradient
 from claravid.train.outdir import prepare_out_dir
 from claravid.train.sampler import complexity_groups
 from claravid.train.validate import Validator
-
-IGNORE_INDEX = 255
 
 
 class TrainingDiverged(RuntimeError):

@@ -9,8 +9,7 @@ import pytest
 import torch
 from PIL import Image
 
-import claravid.eval.run as run_module
-from claravid.cli import UsageError
+import claravid.eval.collect as collect_module
 from claravid.eval.cli import main
 from claravid.eval.predict import main as predict_main
 from claravid.eval.report import build_report, load_result
@@ -84,13 +83,13 @@ def test_interrupted_save_predictions_can_be_run_again(
     preds = tmp_path / "preds"
     argv = ["--checkpoint", str(model_files["checkpoint"]), "--split", str(two_frames),
             "--save-predictions", str(preds)]  # fmt: skip
-    real = run_module.save_label_map
+    real = collect_module.save_label_map
 
     def ctrl_c(*args, **kwargs):  # injected: the user presses Ctrl-C after the first map
         real(*args, **kwargs)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(run_module, "save_label_map", ctrl_c)
+    monkeypatch.setattr(collect_module, "save_label_map", ctrl_c)
     assert _eval(tmp_path / "r", *argv) == 130
     assert (preds / "predictions.json").is_file()  # the marker came first
     monkeypatch.undo()
@@ -222,8 +221,16 @@ def test_merging_reports_of_different_data_warns_and_group_by_is_checked(
     merged = ["--merge", str(tmp_path / "a"), str(tmp_path / "b"), "--bins", "1"]
     assert main([*merged, "--output", str(tmp_path / "m")]) == 0
     assert "merging reports of different data roots" in capsys.readouterr().err
-    with pytest.raises(UsageError, match="unknown group_by 'color'"):
+    with pytest.raises(ValueError, match="unknown --group-by 'color'"):
         build_report(load_result(tmp_path / "a"), bins=1, group_by="color")
+    # A saved report regroups by any stored unit: UAVid sequence and folder too.
+    saved = load_result(tmp_path / "a")
+    for unit in ("sequence", "folder"):
+        rows = build_report(saved, bins=1, group_by=unit)["groups"]
+        assert [r["name"] for r in rows] == sorted(set(saved.attributes[unit]))
+        assert sum(r["num_images"] for r in rows) == len(saved.paths)
+    with pytest.raises(ValueError, match="--group-by mission is not available"):
+        build_report(saved, bins=1, group_by="mission")
 
 
 def test_labels_read_with_the_wrong_palette_stop_naming_the_right_one(uavid_case, tmp_path, capsys):

@@ -1,83 +1,37 @@
-"""One evaluation, end to end: images -> per-image confusions and complexity -> report folder.
+"""One evaluation's per-image table: images -> per-image confusions and complexity.
 
-:func:`collect` produces the per-image table (:class:`claravid.eval.report.EvalResult`) from a model
-or from saved label maps, on one process or sharded over ``torchrun`` ranks (each rank evaluates
-every ``world_size``-th image and measures its complexity meanwhile; rank 0 gathers everything in
-dataset order, so the table is the same as one process's). :func:`write_outputs` writes the report
-folder. The command line (:mod:`claravid.eval.cli`) is a thin layer over both.
+:func:`collect` produces the per-image table (:class:`claravid.eval.report.EvalResult`) from a
+model or from saved label maps, on one process or sharded over ``torchrun`` ranks (each rank
+evaluates every ``world_size``-th image and measures its complexity meanwhile; rank 0 gathers
+everything in dataset order, so the table is the same as one process's). The report folder is
+then :func:`claravid.eval.report.write_outputs`; the command line
+(:mod:`claravid.eval.cli`) is a thin layer over both.
 """
 
 from __future__ import annotations
 
 import heapq
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import torch
 
-from claravid.cli import USER_ERRORS, UsageError, atomic_write_text
+from claravid.cli import USER_ERRORS, UsageError
 from claravid.eval import distributed
 from claravid.eval.complexity import ComplexityJob
 from claravid.eval.data import EvalData
 from claravid.eval.evaluate import ImageScore, evaluate_model
-from claravid.eval.markdown import report_markdown
+from claravid.eval.hardest import Hardest
+from claravid.eval.label_maps import check_missing, score_predictions, write_marker
+from claravid.eval.label_maps import write_prediction as save_label_map
 from claravid.eval.metrics import mean_iou
-from claravid.eval.plots import (
-    PLOTS,
-    plot_bins,
-    plot_hardest,
-    plot_heatmap,
-    plot_scatter,
-    plot_tiles,
-)
-from claravid.eval.predictions import (
-    check_missing,
-    prediction_file,
-    read_prediction,
-    score_predictions,
-    write_marker,
-)
-from claravid.eval.predictions import write_prediction as save_label_map
-from claravid.eval.report import CONFUSIONS, REPORT, EvalResult, save_confusions, write_json
+from claravid.eval.report import EvalResult
 from claravid.eval.sources import ModelSource
-from claravid.eval.tiles import TileTable, error_map
+from claravid.eval.tiles import TileTable
 from claravid.eval.windows import WindowConfig
-
-THUMB = 512  # longest side of a hardest-image panel
-
-
-def _thumb(array: np.ndarray, nearest: bool) -> np.ndarray:
-    h, w = array.shape[:2]
-    f = THUMB / max(h, w)
-    if f >= 1:
-        return np.ascontiguousarray(array)
-    size = (max(1, round(w * f)), max(1, round(h * f)))
-    return cv2.resize(array, size, interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
-
-
-@dataclass
-class Hardest:
-    """The k images of lowest mIoU seen so far, with a small copy of their prediction."""
-
-    k: int
-    heap: list[tuple[float, int, np.ndarray]] = field(default_factory=list)
-
-    def offer(self, index: int, miou: float, prediction: torch.Tensor) -> None:
-        """Keep this image if it is among the k hardest so far (ties: the lower index)."""
-        if self.k <= 0 or not np.isfinite(miou):
-            return
-        # A min-heap on (-mIoU, -index): its root is the easiest kept image, evicted first.
-        rank = (-miou, -index)
-        if len(self.heap) < self.k or rank > self.heap[0][:2]:
-            item = (-miou, -index, _thumb(prediction.to("cpu", torch.uint8).numpy(), True))
-            if len(self.heap) < self.k:
-                heapq.heappush(self.heap, item)
-            else:
-                heapq.heapreplace(self.heap, item)
 
 
 @dataclass
@@ -269,87 +223,3 @@ def _check_tile_grids(
                 f"{data.paths[index]}: the image gives a {got} tile grid and its labels a {want} "
                 "one: --tiles needs labels at the image's resolution"
             )
-
-
-def hardest_items(
-    result: EvalResult,
-    data: EvalData | None,
-    k: int,
-    kept: dict[int, np.ndarray],
-    prediction_dirs: Sequence[str | Path],
-) -> list[dict[str, Any]]:
-    """Image, ground truth and prediction of the k lowest-mIoU images, as small arrays.
-
-    A prediction comes from ``kept`` (the model's run) or from a folder of saved label maps;
-    images without one are left out. With tiles, an item also has its tiles' delentropy grid
-    (``tiles``) and its error pixels (``errors``, :func:`claravid.eval.tiles.error_map`).
-    """
-    if data is None or k <= 0:
-        return []
-    mious = np.array([mean_iou(c) for c in result.confusions])
-    order = [i for i in np.argsort(np.where(np.isnan(mious), np.inf, mious), kind="stable")
-             if np.isfinite(mious[i])][:k]  # fmt: skip
-    index_of = {key: i for i, key in enumerate(data.keys)}
-    items = []
-    for pos in order:
-        key = result.keys[pos]
-        pred = kept.get(int(pos))
-        sample = data.raw[index_of[key]]
-        mask = np.asarray(sample["mask"], dtype=np.uint8)
-        if pred is None:
-            for folder in prediction_dirs:
-                file = prediction_file(folder, key)
-                if file.is_file():
-                    pred = _thumb(read_prediction(file, mask.shape, len(result.classes)), True)
-                    break
-        if pred is None:
-            continue
-        image = sample["image"].permute(1, 2, 0).numpy()
-        small_mask = _thumb(mask, nearest=True)
-        item = {
-            "image": _thumb(image, nearest=False),
-            "mask": small_mask,
-            "prediction": pred,
-            "title": f"{key}\nmIoU {mious[pos]:.3f}  delent "
-            f"{result.complexity.get('delent', [np.nan] * len(mious))[pos]:.2f}",
-        }  # fmt: skip
-        if result.tiles is not None and pred.shape == small_mask.shape:
-            item["tiles"] = result.tiles.grid(int(pos))
-            item["errors"] = error_map(pred, small_mask)
-        items.append(item)
-    return items
-
-
-def write_outputs(
-    out: str | Path,
-    report: dict[str, Any],
-    result: EvalResult,
-    hardest: Sequence[dict[str, Any]] = (),
-    colors: np.ndarray | None = None,
-) -> dict[str, Path]:
-    """Write the report folder: ``report.json``, ``confusions.npz``, plots, ``report.md``.
-
-    ``report.json`` is written last: it marks the folder as this tool's, complete.
-    """
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    written = {"confusions": save_confusions(out / CONFUSIONS, result)}
-    plots: dict[str, str] = {}
-    if report["bins"]:
-        written["bins"] = plot_bins(report, out / PLOTS["bins"])
-        written["heatmap"] = plot_heatmap(report, out / PLOTS["heatmap"])
-    if "delent" in report["correlation"]:
-        written["scatter"] = plot_scatter(report, out / PLOTS["scatter"])
-    if hardest and colors is not None:
-        written["hardest"] = plot_hardest(hardest, colors, out / PLOTS["hardest"], result.classes)
-    tiled = [item for item in hardest if "tiles" in item]
-    if tiled:
-        written["tiles"] = plot_tiles(tiled, out / PLOTS["tiles"])
-    for name in ("bins", "scatter", "heatmap", "hardest", "tiles"):
-        if name in written:
-            plots[name] = PLOTS[name]
-        else:  # a plot of an earlier report in this folder would no longer match it
-            (out / PLOTS[name]).unlink(missing_ok=True)
-    written["markdown"] = atomic_write_text(out / "report.md", report_markdown(report, plots))
-    written["report"] = write_json(out / REPORT, report)
-    return written

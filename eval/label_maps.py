@@ -13,18 +13,20 @@ import json
 from collections.abc import Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 
 from claravid import modalities
 from claravid.cli import UsageError, atomic_save, atomic_write_text
-from claravid.eval.data import EvalData
 from claravid.eval.metrics import confusion_matrix
 from claravid.eval.tiles import tile_confusions
 from claravid.masks import read_label_image
 from claravid.palettes import Palette, load_palette
+
+if TYPE_CHECKING:  # eval.data names images by image_key: no import at run time
+    from claravid.eval.data import EvalData
 
 SHOW_MISSING = 5
 #: What a folder of label maps written by claravid-eval/claravid-predict holds besides them: its
@@ -35,6 +37,22 @@ PALETTE_PNG = 3  # the PNG colour type of an indexed (palette-mode) image
 
 class PredictionError(ValueError):
     """A prediction file is unusable; the message names it and says what is expected."""
+
+
+def image_key(path: str | Path, root: str | Path | None = None) -> str:
+    """The name an image's label map is saved under: its path relative to ``root`` without the
+    extension (``seq1/Images/000000``), or its stem when there is no root or it lies elsewhere.
+
+    ClaraVid frames carry their own key (``<mission folder>/<viewpoint>/<stem>``, the frame's
+    path relative to the dataset root), which is this rule applied to the ClaraVid root.
+    """
+    path = Path(path)
+    if root is not None:
+        try:
+            return path.resolve().relative_to(Path(root).resolve()).with_suffix("").as_posix()
+        except ValueError:
+            pass
+    return path.stem
 
 
 def prediction_file(directory: str | Path, key: str) -> Path:
