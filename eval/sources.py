@@ -23,7 +23,11 @@ import torch
 
 from claravid.cli import UsageError
 from claravid.eval.windows import Model, WindowConfig
-from claravid.models.onnx_metadata import normalisation_from_config, window_from_config
+from claravid.models.onnx_metadata import (
+    config_get,
+    normalisation_from_config,
+    window_from_config,
+)
 
 DEFAULT_WINDOW = (630, 630)
 DEFAULT_SCALE = 1.0
@@ -44,14 +48,6 @@ class ModelSource:
     def describe(self) -> dict[str, Any]:
         """The report's ``source`` entries for the model."""
         return {"kind": self.kind, "path": self.path}
-
-
-def _get(config: Any, *keys: str) -> Any:
-    for key in keys:
-        if not isinstance(config, Mapping) or key not in config:
-            return None
-        config = config[key]
-    return config
 
 
 #: Every training-config key :func:`checkpoint_defaults` reads, by the name it gives it. eval
@@ -88,7 +84,7 @@ def checkpoint_defaults(checkpoint: Mapping[str, Any]) -> dict[str, Any]:
     config = checkpoint.get("config")
 
     def read(name: str) -> Any:
-        return _get(config, *TRAINING_KEYS[name])
+        return config_get(config, *TRAINING_KEYS[name])
 
     out: dict[str, Any] = {}
     dataset = read("val_dataset") or read("dataset")

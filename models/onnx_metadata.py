@@ -37,7 +37,8 @@ IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
 
-def _get(config: Any, *keys: str) -> Any:
+def config_get(config: Any, *keys: str) -> Any:
+    """``config[k1][k2]...`` of a plain nested mapping, or None where a key is missing."""
     for key in keys:
         if not isinstance(config, Mapping) or key not in config:
             return None
@@ -77,14 +78,14 @@ def window_from_config(config: Any) -> dict[str, Any]:
     """
     out: dict[str, Any] = {}
     for name, key in (("size", "window"), ("stride", "stride")):
-        pair = _pair(_get(config, "val", key))
+        pair = _pair(config_get(config, "val", key))
         if pair is not None:
             out[name] = pair
-    scale = _get(config, "val", "scale")
+    scale = config_get(config, "val", "scale")
     if isinstance(scale, int | float) and not isinstance(scale, bool) and scale > 0:
         out["scale"] = float(scale)
-    if _positive_int(_get(config, "val", "batch_size")):
-        out["batch_size"] = _get(config, "val", "batch_size")
+    if _positive_int(config_get(config, "val", "batch_size")):
+        out["batch_size"] = config_get(config, "val", "batch_size")
     return out
 
 
@@ -92,7 +93,7 @@ def normalisation_from_config(config: Any) -> dict[str, Any]:
     """Mean and std of the config's ``data.augment`` (ImageNet's when it does not set them)."""
     stats = {}
     for name, default in (("mean", IMAGENET_MEAN), ("std", IMAGENET_STD)):
-        value = _get(config, "data", "augment", name)
+        value = config_get(config, "data", "augment", name)
         ok = isinstance(value, list | tuple) and len(value) == 3
         ok = ok and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
         stats[name] = [float(v) for v in (value if ok else default)]
