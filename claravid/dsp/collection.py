@@ -30,7 +30,7 @@ from claravid.dsp.metrics import (
     check_metric,
     gray_complexity,
     preprocess,
-    read_gray,
+    read_gray_views,
 )
 from claravid.dsp.profile import Profile, fit_profile
 from claravid.dsp.tiles import check_tile_size, tile_complexities
@@ -211,15 +211,17 @@ def _measure(job: _Job) -> _Output:
     """Decode one image once and compute every measure asked for (and its tiles) from it."""
     path, metrics, blur, ksize, tile_size = job
     try:
-        gray = read_gray(path)
+        # Whole-image values as the official code reads the file; tiles on the pixels as stored,
+        # the ones the labels (and the model) see, so each tile lines up with its confusion.
+        gray, stored = read_gray_views(path, stored=tile_size is not None)
         height, width = gray.shape
         values = {}
         if metrics:
             ready = preprocess(gray, blur, ksize)
             values = {m: gray_complexity(ready, m) for m in metrics}
-        tiles = (
-            None if tile_size is None else tile_complexities(gray, tile_size, "delent", blur, ksize)
-        )
+        tiles = None
+        if tile_size is not None:
+            tiles = tile_complexities(stored, tile_size, "delent", blur, ksize)
     except ImageReadError as exc:
         return path, None, 0, 0, None, exc.reason
     except Exception as exc:  # one bad file must never stop a 17k-image run

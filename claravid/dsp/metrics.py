@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from claravid.errors import CorruptFileError
-from claravid.modalities import decode_image
+from claravid.modalities import decode_bytes, read_checked
 
 #: The official metric names, in the official order.
 METRICS: tuple[str, ...] = ("delent", "glcment", "pixent")
@@ -264,13 +264,36 @@ def read_gray(path: str | Path) -> np.ndarray:
     Raises:
         ImageReadError: the file is missing, empty, truncated, or not a decodable image.
     """
+    return read_gray_views(path, stored=False)[0]
+
+
+#: An EXIF block (JPEG APP1, PNG eXIf chunk) can carry an orientation tag; files without one
+#: decode the same either way.
+_EXIF_MARKERS = (b"Exif\x00\x00", b"eXIf")
+
+
+def read_gray_views(path: str | Path, stored: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """The greyscale image as the official code reads it (``cv2.imread``: the EXIF orientation
+    applied) and, with ``stored``, as the datasets and their labels read it (pixels as stored,
+    as PIL reads them). One decode unless the file has an EXIF block; then the two can differ.
+
+    Raises:
+        ImageReadError: the file is missing, empty, truncated, or not a decodable image.
+    """
     path = Path(path)
     if not path.exists():
         raise ImageReadError(path, "no such file")
     if not path.is_file():
         raise ImageReadError(path, "not a regular file")
     try:
-        return decode_image(path, cv2.IMREAD_GRAYSCALE, exif_orientation=True)
+        data = read_checked(path)
+        official = decode_bytes(data, path, cv2.IMREAD_GRAYSCALE, exif_orientation=True)
+        if not stored:
+            return official, None
+        head = data[: 1 << 16].tobytes()
+        if not any(marker in head for marker in _EXIF_MARKERS):
+            return official, official
+        return official, decode_bytes(data, path, cv2.IMREAD_GRAYSCALE, exif_orientation=False)
     except CorruptFileError as exc:
         raise ImageReadError(path, exc.reason) from None
     except OSError as exc:

@@ -80,8 +80,10 @@ def images(tmp_path):
 
 def test_measures_from_one_decode_equal_the_official_values(images, monkeypatch):
     decodes = []
-    real = collection_module.read_gray
-    monkeypatch.setattr(collection_module, "read_gray", lambda p: decodes.append(p) or real(p))
+    real = collection_module.read_gray_views
+    monkeypatch.setattr(
+        collection_module, "read_gray_views", lambda p, stored: decodes.append(p) or real(p, stored)
+    )
     results, errors = compute_measures(
         images, ["delent", "glcment", "pixent"], tile_size=32, cache=False
     )
@@ -108,8 +110,10 @@ def test_cached_measures_are_not_decoded_again_but_tiles_are(images, tmp_path, m
     cache = ComplexityCache(tmp_path / "dsp.sqlite3")
     first, _ = compute_complexities(images, "delent", cache=cache)
     decodes = []
-    real = collection_module.read_gray
-    monkeypatch.setattr(collection_module, "read_gray", lambda p: decodes.append(p) or real(p))
+    real = collection_module.read_gray_views
+    monkeypatch.setattr(
+        collection_module, "read_gray_views", lambda p, stored: decodes.append(p) or real(p, stored)
+    )
     again, _ = compute_measures(images, ["delent"], cache=cache)
     assert decodes == [] and [r.values["delent"] for r in again] == [r.complexity for r in first]
     tiled, _ = compute_measures(images, ["delent"], tile_size=32, cache=cache)
@@ -124,3 +128,25 @@ def test_an_unreadable_image_is_an_error_for_every_measure(images, tmp_path):
     results, errors = compute_measures([images[0], str(broken)], ["delent", "pixent"], cache=False)
     assert [r.image_path for r in results] == [images[0]]
     assert [e.image_path for e in errors] == [str(broken)] and errors[0].error
+
+
+def test_tiles_follow_the_stored_pixels_of_an_exif_rotated_photo(tmp_path):
+    """The labels (and the model) see a photo's pixels as stored; the official whole-image value
+    reads it as cv2.imread does, rotated by its EXIF orientation. Tiles must line up with the
+    labels: they are cut from the stored pixels."""
+    from PIL import Image
+
+    stored = textured(np.random.default_rng(5), 64, 90)
+    path = tmp_path / "photo.jpg"
+    exif = Image.Exif()
+    exif[0x0112] = 6  # rotate 90° clockwise to display
+    Image.fromarray(stored).save(path, exif=exif, quality=95)
+    as_stored = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+    assert as_stored.shape == (64, 90)
+    (result,), errors = compute_measures([path], ["delent"], tile_size=32, cache=False)
+    assert errors == []
+    assert (result.height, result.width) == (90, 64)  # the official read is rotated
+    assert result.values["delent"] == pytest.approx(official_image_complexity(path), abs=1e-9)
+    assert result.tiles.shape == (2, 3)  # 64/32 = 2 rows, 90/32 = 2.8 -> 3 columns (0, 30, 60, 90)
+    crop = cv2.GaussianBlur(np.ascontiguousarray(as_stored[:32, 30:60]), (3, 3), 1.0)
+    assert result.tiles[0, 1] == pytest.approx(official_delentropy(crop), abs=1e-9)
