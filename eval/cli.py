@@ -468,7 +468,10 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
             "stride": list(window.stride),
             "scale": window.scale,
         }
-        source["precision"] = precision_name(autocast_dtype(window.precision, info.device))
+        if model.kind == "onnx":  # runs as exported: the file's metadata, None when foreign
+            source["precision"] = getattr(model.model, "precision", None)
+        else:
+            source["precision"] = precision_name(autocast_dtype(window.precision, info.device))
         source["settings"] = settings.describe()
     else:
         source["predictions"] = str(args.predictions)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -222,9 +223,20 @@ def compare_markdown(
         for i in range(n_bins):
             a = reports[0]["bins"][i]["miou"] if i < len(reports[0]["bins"]) else None
             b = reports[1]["bins"][i]["miou"] if i < len(reports[1]["bins"]) else None
-            gaps.append([rows[i][0], _f(None if a is None or b is None else 100 * (b - a), 1)])
+            gap = None if a is None or b is None else 100 * (b - a)
+            gaps.append([rows[i][0], _f(gap, _points_digits([gap]))])
         lines += _table(["bin", "gap"], gaps)
     return "\n".join(lines)
+
+
+def _points_digits(values: Sequence[float | None], most: int = 4) -> int:
+    """Decimals for gaps in mIoU points: 1, or as many as the smallest non-zero value needs to
+    show its first significant digit (at most ``most``), so that a gap of 0.003 points with an
+    interval that excludes 0 is not written ``+0.0 [+0.0, +0.0]``."""
+    small = min((abs(v) for v in values if v), default=None)
+    if small is None or small >= 0.05:
+        return 1
+    return min(most, max(1, math.ceil(-math.log10(small))))
 
 
 def _p(p: float | None, resamples: int) -> str:
@@ -239,9 +251,11 @@ def _gap_cell(row: dict[str, Any], resamples: int) -> list[str]:
     gap, ci = row.get("gap"), row.get("gap_ci")
     if gap is None:
         return ["–", "–", ""]
-    text = f"{100 * gap:+.1f}"
+    points = [100 * v for v in (gap, *(ci or []))]
+    d = _points_digits(points)
+    text = f"{points[0]:+.{d}f}"
     if ci:
-        text += f" [{100 * ci[0]:+.1f}, {100 * ci[1]:+.1f}]"
+        text += f" [{points[1]:+.{d}f}, {points[2]:+.{d}f}]"
     p = row.get("p_value")
     excludes = bool(ci) and (ci[0] > 0 or ci[1] < 0)
     return [text, _p(p, resamples), "**yes**" if excludes else "no"]

@@ -111,3 +111,34 @@ def test_predict_refuses_a_missing_image(tmp_path, capsys):
                          str(tmp_path / "o")])  # fmt: skip
     assert code == 2
     assert "nope.jpg not found" in capsys.readouterr().err
+
+
+def test_compare_markdown_shows_gaps_smaller_than_a_tenth_of_a_point():
+    # The demo's int8 export: a gap of 2.8e-5 mIoU whose interval excludes 0 was written
+    # "+0.0 [+0.0, +0.0]" next to "**yes**". Decimals now follow the smallest non-zero value.
+    from claravid.eval.markdown import compare_markdown
+
+    def row(name, gap, ci, p):
+        return {"name": name, "paired": True, "gap": gap, "gap_ci": ci, "p_value": p}
+
+    bins = [{"name": n, "lo": 4.0, "hi": 5.0, "num_images": 2, "miou": 0.5} for n in "abc"]
+    report = {"palette": "uavid", "overall": {"num_images": 6, "miou": 0.5}, "bins": bins}
+    analysis = {
+        "baseline": "fp32",
+        "comparisons": [{"report": "int8", "paired": True,
+            "overall": row("overall", 0.0, [0.0, 0.0], 1.0),
+            "bins": [row("a", 2.76e-5, [3.87e-6, 3.36e-5], 0.01),  # points 0.00276 [0.000387, ..]
+                     row("b", -0.0009, [-0.0012, -0.0004], 0.002),  # points -0.09 [-0.12, -0.04]
+                     row("c", 0.0123, [-0.004, 0.0251], 0.3)]}],  # points 1.23 [-0.4, 2.51]
+        "uncertainty": {"level": 0.95, "method": "cluster percentile bootstrap",
+                        "resamples": 1000, "num_clusters": 6, "cluster": "block", "seed": 0},
+    }  # fmt: skip
+    text = compare_markdown([report, report], ["fp32", "int8"], [], analysis)
+    assert "| a | +0.0028 [+0.0004, +0.0034] | 0.010 | **yes** |" in text
+    assert "| b | -0.09 [-0.12, -0.04] | 0.002 | **yes** |" in text
+    assert "| c | +1.2 [-0.4, +2.5] | 0.300 | no |" in text
+    assert "| **overall** | +0.0 [+0.0, +0.0] | 1.000 | no |" in text
+    # Without intervals (reports without confusions): the same rule for the plain gap.
+    small = {**report, "bins": [{**bins[0], "miou": 0.50003}]}
+    text = compare_markdown([{**report, "bins": bins[:1]}, small], ["fp32", "int8"], [])
+    assert "| a | 0.003 |" in text

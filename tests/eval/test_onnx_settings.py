@@ -150,3 +150,19 @@ def test_provider_flag(files, tmp_path, capsys):
     assert predict_main(argv) == 2
     _one_line(capsys, "claravid-predict", "provider tensorrt is not available here")
     assert predict_main([*argv[:-1], "cpu", "--no-progress"]) == 0
+
+
+def test_eval_report_gives_the_onnx_files_precision(files, claravid_root, tmp_path):
+    # An ONNX file runs at the precision it was exported in; the report said "fp32" (PyTorch's
+    # autocast setting on a CPU) for an int8 file.
+    int8 = tmp_path / "m-int8.onnx"
+    argv = [str(files["ckpt"]), "-o", str(int8), "--height", "14", "--width", "14",
+            "--precision", "int8", "--min-agreement", "0"]  # fmt: skip
+    assert export_main(argv) == 0
+    _eval.split = files["split"]
+    foreign = ["--palette", "uavid", "--window", "14"]
+    for path, flags, expected in ((int8, [], "int8"), (files["onnx"], [], "fp32"),
+                                  (files["foreign"], foreign, None)):  # fmt: skip
+        report, _ = _eval(tmp_path / path.stem, "--onnx", str(path), "--data",
+                          str(claravid_root), *flags)  # fmt: skip
+        assert report["source"]["precision"] == expected, path.name
