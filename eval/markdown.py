@@ -42,7 +42,8 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
 
 
 def bin_table(report: dict[str, Any]) -> str:
-    """The bins and the overall row as aligned plain text (what the command prints)."""
+    """The bins and the overall row as aligned plain text (what the command prints); with
+    tiles, the tile bins below."""
     lines = [f"{'bin':<16}{'delentropy':>18}{'images':>8}{'mIoU':>24}{'pix acc':>9}"]
     for row in [*report["bins"], {"name": "overall", **report["overall"]}]:
         span = _range(row) if row["name"] != "overall" else ""
@@ -50,6 +51,17 @@ def bin_table(report: dict[str, Any]) -> str:
         lines.append(
             f"{row['name']:<16}{span:>18}{row['num_images']:>8}{miou:>24}{_f(row['pixel_acc']):>9}"
         )
+    tiles = report.get("tiles")
+    if tiles:
+        lines += ["", f"{'tile bin':<16}{'delentropy':>18}{'tiles':>8}{'mIoU':>24}{'pix acc':>9}"]
+        for row in tiles["bins"]:
+            miou = with_ci(row["miou"], row.get("miou_ci"))
+            lines.append(f"{row['name']:<16}{_range(row):>18}{row['num_tiles']:>8}{miou:>24}"
+                         f"{_f(row['pixel_acc']):>9}")  # fmt: skip
+        c = tiles["correlation"]["delent"]
+        rho = with_ci(c["spearman"], c.get("spearman_ci"))
+        lines.append(f"tiles of about {tiles['size']} px: Spearman ρ (tile delentropy, tile "
+                     f"mIoU) {rho}, n = {c['n']}")  # fmt: skip
     return "\n".join(lines)
 
 

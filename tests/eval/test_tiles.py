@@ -12,6 +12,7 @@ from scipy import stats
 
 from claravid.eval.bootstrap import Bootstrap
 from claravid.eval.cli import main
+from claravid.eval.markdown import bin_table
 from claravid.eval.metrics import mean_iou
 from claravid.eval.tiles import TileTable, concat_tables, tile_confusions, tile_report
 from claravid.segmentation import ClaraVidSegmentation
@@ -187,6 +188,8 @@ def test_cli_tiles_values(tiled):
     assert corr["spearman"] == pytest.approx(expected)
     assert (tiled["out"] / "tiles.png").is_file()
     assert "## Tiles of about 30 px" in (tiled["out"] / "report.md").read_text()
+    printed = bin_table(report)
+    assert "tile bin" in printed and f"n = {corr['n']}" in printed
 
 
 def test_merge_rebins_tiles_without_data(tiled):
