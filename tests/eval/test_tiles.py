@@ -263,3 +263,18 @@ def test_tiles_do_nothing_with_merge(tiled, capsys):
     assert main(["--merge", str(tiled["out"]), "--tiles", "30",
                  "--output", str(tiled["tmp"] / "m2")]) == 2  # fmt: skip
     assert "--tiles does nothing with --merge" in capsys.readouterr().err
+
+
+def test_a_tile_grid_mismatch_names_the_image():
+    """Image tiles (delentropy) and label tiles (confusions) must be one grid; the datasets
+    refuse labels of another size first, this guard says which image broke it otherwise."""
+    from types import SimpleNamespace
+
+    from claravid.eval.collect import _check_tile_grids
+
+    data = SimpleNamespace(paths=["a.png", "b.png"])
+    ok = (np.zeros((2, 3)), np.zeros((2, 3, K, K), np.int64))
+    bad = (np.zeros((3, 2)), np.zeros((2, 3, K, K), np.int64))
+    _check_tile_grids(data, [0], [ok[0]], [ok[1]])
+    with pytest.raises(ValueError, match=r"b.png: the image gives a \(3, 2\) tile grid"):
+        _check_tile_grids(data, [1], [bad[0]], [bad[1]])
