@@ -6,6 +6,11 @@ traceback (``--debug`` or ``CLARAVID_DEBUG=1`` shows it). Output paths are check
 work starts and written atomically; nothing the tool did not write is replaced without
 ``--overwrite``.
 
+The same flag means the same thing on every command: a size is ``WxH`` (width x height) or ``N``
+for a square (`parse_size`); ``--no-progress`` (alias ``--quiet``) hides the progress bar;
+``--workers N`` runs the work in N worker processes, 0 (the default) in the calling one;
+``-o/--output`` names what the command writes; ``--checkpoint`` names a model checkpoint.
+
 A console script is a thin ``main`` over importable functions::
 
     def main(argv=None) -> int:
@@ -24,11 +29,14 @@ import traceback
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TypeVar
 
 EXIT_OK = 0
 EXIT_PARTIAL = 1  # the work ran, some inputs could not be used (listed)
 EXIT_FAILED = 1  # the work ran and its result failed a check (nothing written)
 EXIT_USAGE = 2
+
+T = TypeVar("T")
 
 
 class UsageError(Exception):
@@ -45,6 +53,82 @@ def add_debug_flag(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--debug", action="store_true", help="show the Python traceback of an error"
     )
+
+
+def add_progress_flag(parser: argparse.ArgumentParser) -> None:
+    """``--no-progress`` (``--quiet`` the same, an older spelling kept for scripts): no bar.
+
+    Sets ``args.no_progress``; ``claravid-train``'s flag means ``log.progress=false``.
+    """
+    parser.add_argument(
+        "--no-progress", "--quiet", dest="no_progress", action="store_true", help="no progress bar"
+    )
+
+
+def add_workers_flag(parser: argparse.ArgumentParser, work: str) -> None:
+    """``--workers N``: ``work`` in N worker processes; 0, the default, runs it in this one."""
+    parser.add_argument(
+        "--workers",
+        type=non_negative_int,
+        default=0,
+        metavar="N",
+        help=f"worker processes for {work} (default 0: all in this process)",
+    )
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """argparse type for every size flag: ``WxH`` (width x height, ``640x480``) or ``N`` (N x N).
+
+    Returns:
+        ``(width, height)``.
+    """
+    parts = text.strip().lower().split("x")
+    try:
+        values = [int(p) for p in parts]
+    except ValueError:
+        values = []
+    if len(values) not in (1, 2):
+        raise argparse.ArgumentTypeError(
+            f"expected WxH (width x height, e.g. 640x480) or N for N x N, got {text!r}"
+        )
+    if min(values) < 1:
+        raise argparse.ArgumentTypeError(f"width and height must be positive, got {text!r}")
+    return values[0], values[-1]
+
+
+def window_size(text: str) -> tuple[int, int]:
+    """`parse_size` for a sliding window or its stride, returned as ``(height, width)``, the
+    order of the tensors and of ``WindowConfig``.
+
+    ``--window`` of claravid-eval once read ``AxB`` as height x width: a non-square value warns
+    how it is read now, so an older script's window is never swapped unnoticed.
+    """
+    width, height = parse_size(text)
+    if width != height:
+        warnings.warn(
+            f"window size {text} is read as width {width} x height {height} (WxH, like every "
+            "size flag; claravid 0.1 read --window and --stride as HxW)",
+            UserWarning,
+            stacklevel=2,
+        )
+    return height, width
+
+
+def given_once(
+    flag_value: T | None, positional_value: T | None, *, flag: str, metavar: str, what: str
+) -> T:
+    """The value given as ``flag`` or positionally (an older spelling kept for scripts).
+
+    Raises:
+        UsageError: both spellings given, or neither.
+    """
+    if flag_value is not None:
+        if positional_value is not None:
+            raise UsageError(f"{what} given twice, as {metavar} and as {flag}: give it once")
+        return flag_value
+    if positional_value is None:
+        raise UsageError(f"give {what}: {flag} {metavar} (or {metavar} alone)")
+    return positional_value
 
 
 def positive_int(text: str) -> int:
@@ -156,9 +240,9 @@ def run_cli(
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     _one_line_usage_errors(parser)
-    args = parser.parse_args(argv)
     debug = _debug(argv)
     with short_warnings(prog):
+        args = parser.parse_args(argv)  # inside: a flag's warning reads like the others
         try:
             code = run(args)
         except KeyboardInterrupt:

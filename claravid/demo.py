@@ -18,8 +18,12 @@ from matplotlib.figure import Figure
 from claravid.cli import (
     UsageError,
     add_debug_flag,
+    add_progress_flag,
+    add_workers_flag,
     check_output_dir,
+    given_once,
     non_negative_int,
+    parse_size,
     positive_int,
     run_cli,
 )
@@ -29,7 +33,7 @@ from claravid.layout import ALTITUDES, DIRECTIONS, MISSIONS, MODALITIES, viewpoi
 from claravid.plot import save_sample_sheet
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.synth import MARKER as SYNTH_MARKER
-from claravid.synth import parse_size, synthesize
+from claravid.synth import synthesize
 
 #: Left in OUT: the folder is the demo's, so a later run may write there again.
 MARKER = ".claravid-demo"
@@ -38,7 +42,12 @@ STAMP = ".demo-complete"
 
 
 def prepare_data(
-    out: Path, size: tuple[int, int], frames: int, seed: int, overwrite: bool = False
+    out: Path,
+    size: tuple[int, int],
+    frames: int,
+    seed: int,
+    overwrite: bool = False,
+    progress: bool = True,
 ) -> Path:
     """Generate the demo scene unless a complete one with these settings is there.
 
@@ -56,7 +65,12 @@ def prepare_data(
         shutil.rmtree(data)
     print(f"demo scene: generating {data} ({settings})")
     synthesize(
-        data, seed=seed, frames_per_viewpoint=frames, size=size, progress=True, overwrite=overwrite
+        data,
+        seed=seed,
+        frames_per_viewpoint=frames,
+        size=size,
+        progress=progress,
+        overwrite=overwrite,
     )
     stamp.write_text(settings)
     return data
@@ -73,7 +87,7 @@ def check_demo_folder(out: Path, overwrite: bool = False) -> Path:
     return check_output_dir(out, marker=MARKER, overwrite=overwrite or ours)
 
 
-def print_summary(dataset: ClaraVidSegmentation) -> None:
+def print_summary(dataset: ClaraVidSegmentation, progress: bool = True) -> None:
     """Frames per mission and viewpoint, then the pixel share of each class."""
     counts = Counter((f.mission, f.viewpoint) for f in dataset.frames)
     views = [viewpoint_folder(a, d) for a in ALTITUDES for d in DIRECTIONS]
@@ -83,7 +97,7 @@ def print_summary(dataset: ClaraVidSegmentation) -> None:
         row = [counts.get((mission, v), 0) for v in views]
         if any(row):
             print(f"{mission:<14}" + "".join(f"{n:>13}" for n in row) + f"{sum(row):>8}")
-    pixels = dataset.class_frequencies()
+    pixels = dataset.class_frequencies(progress=progress)
     total = max(int(pixels.sum()), 1)
     print(f"\npixel share per class ({dataset.palette.name} palette)")
     for name, count in sorted(zip(dataset.classes, pixels, strict=True), key=lambda t: -t[1]):
@@ -118,6 +132,7 @@ def run(
     seed: int,
     workers: int = 0,
     overwrite: bool = False,
+    progress: bool = True,
 ) -> None:
     """Generate (or reuse) the scene, summarise it, save the sample sheet and the profiles."""
     if workers < 0:
@@ -125,9 +140,9 @@ def run(
     check_demo_folder(out, overwrite)
     out.mkdir(parents=True, exist_ok=True)
     (out / MARKER).write_text("Written by claravid-demo.\n")
-    data = prepare_data(out, size, frames, seed, overwrite)
+    data = prepare_data(out, size, frames, seed, overwrite, progress)
     dataset = ClaraVidSegmentation(data, split="all", palette="claravid")
-    print_summary(dataset)
+    print_summary(dataset, progress)
     # One frame per mission, in the UAVid taxonomy (moving and static cars apart).
     uavid = ClaraVidSegmentation(data, split="all", palette="uavid", altitude="mid", direction="h")
     firsts = {}
@@ -143,18 +158,21 @@ def run(
 def build_parser() -> argparse.ArgumentParser:
     """The ``claravid-demo`` argument parser."""
     parser = argparse.ArgumentParser(prog="claravid-demo", description=__doc__.split("\n")[0])
-    parser.add_argument("out", type=Path, help="output folder, e.g. runs/demo")
-    parser.add_argument("--size", type=parse_size, default=(640, 480), help="WIDTHxHEIGHT")
+    parser.add_argument(
+        "out", nargs="?", type=Path, metavar="OUT", help="output folder, e.g. runs/demo"
+    )
+    parser.add_argument("-o", "--output", type=Path, metavar="OUT", help="the same as OUT")
+    parser.add_argument("--size", type=parse_size, default=(640, 480), metavar="WxH",
+                        help="image size, width x height (default 640x480)")  # fmt: skip
     parser.add_argument("--frames-per-viewpoint", type=positive_int, default=3)
     parser.add_argument("--seed", type=non_negative_int, default=0)
-    parser.add_argument(
-        "--workers", type=int, default=0, help="processes for the profiles (0: none)"
-    )
+    add_workers_flag(parser, "the scene profiles")
     parser.add_argument(
         "--overwrite",
         action="store_true",
         help="write into a non-empty folder the demo did not write",
     )
+    add_progress_flag(parser)
     add_debug_flag(parser)
     return parser
 
@@ -164,12 +182,13 @@ def main(argv: list[str] | None = None) -> int:
 
     def _run(args: argparse.Namespace) -> None:
         run(
-            args.out,
+            given_once(args.output, args.out, flag="-o", metavar="OUT", what="the output folder"),
             args.size,
             args.frames_per_viewpoint,
             args.seed,
             args.workers,
             args.overwrite,
+            progress=not args.no_progress,
         )
 
     return run_cli("claravid-demo", _run, build_parser(), argv)

@@ -30,11 +30,14 @@ from claravid.cli import (
     EXIT_PARTIAL,
     UsageError,
     add_debug_flag,
+    add_progress_flag,
+    add_workers_flag,
     check_device,
     check_output_dir,
     non_negative_int,
     positive_int,
     run_cli,
+    window_size,
 )
 from claravid.eval.bins import parse_edges
 from claravid.eval.bootstrap import Bootstrap
@@ -47,18 +50,6 @@ from claravid.models.onnx_runtime import PROVIDERS
 
 PROG = "claravid-eval"
 SOURCES = ("checkpoint", "onnx", "predictions", "merge", "compare", "scores")
-
-
-def _size(text: str) -> tuple[int, int]:
-    """``630`` or ``630x840`` (height x width)."""
-    parts = text.lower().split("x")
-    try:
-        values = [int(p) for p in parts]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected N or HxW, got {text!r}") from None
-    if len(values) not in (1, 2) or min(values) < 1:
-        raise argparse.ArgumentTypeError(f"expected N or HxW with positive sizes, got {text!r}")
-    return (values[0], values[-1])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -98,8 +89,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     data.add_argument("--direction", help="ClaraVid directions h,v (default: the checkpoint's)")
     infer = p.add_argument_group("inference")
-    infer.add_argument("--window", type=_size, help="window N or HxW (default 630)")
-    infer.add_argument("--stride", type=_size, help="window step (default 2/3 of the window)")
+    infer.add_argument("--window", type=window_size, metavar="WxH",
+                       help="window, width x height or N for N x N (default 630)")  # fmt: skip
+    infer.add_argument("--stride", type=window_size, metavar="WxH",
+                       help="window step, WxH or N (default 2/3 of the window)")  # fmt: skip
     infer.add_argument("--scale", type=float, help="resize images first (default 1; paper 0.5)")
     infer.add_argument(
         "--batch-size", type=positive_int, help="windows per forward pass (default 4)"
@@ -130,11 +123,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rep.add_argument("--save-predictions", type=Path, metavar="DIR", help="write label maps")
     rep.add_argument("--allow-missing", action="store_true", help="skip images w/o prediction")
-    rep.add_argument(
-        "--workers", type=non_negative_int, default=0, help="processes (complexity, decoding)"
-    )
+    add_workers_flag(rep, "complexity and image decoding")
     rep.add_argument("--overwrite", action="store_true", help="replace a foreign output folder")
-    rep.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_flag(rep)
     _add_uncertainty(p)
     add_debug_flag(p)
     return p

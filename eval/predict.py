@@ -33,12 +33,14 @@ from claravid import modalities
 from claravid.cli import (
     UsageError,
     add_debug_flag,
+    add_progress_flag,
+    add_workers_flag,
     check_device,
     check_output_dir,
     positive_int,
     run_cli,
+    window_size,
 )
-from claravid.eval.cli import _size
 from claravid.eval.label_maps import MARKER, image_key, write_image, write_marker, write_prediction
 from claravid.eval.sources import RunSettings
 from claravid.eval.windows import flag_precision, predict_labels
@@ -143,8 +145,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--onnx", type=Path, help="ONNX model")
     p.add_argument("--output", "-o", type=Path, required=True, help="output folder")
     p.add_argument("--palette", help="palette for the colours (default: the checkpoint's)")
-    p.add_argument("--window", type=_size, help="window N or HxW (default: the model's, or 630)")
-    p.add_argument("--stride", type=_size, help="window step (default: the model's, or 2/3 window)")
+    p.add_argument("--window", type=window_size, metavar="WxH",
+                   help="window, width x height or N (default: the model's, or 630)")  # fmt: skip
+    p.add_argument("--stride", type=window_size, metavar="WxH",
+                   help="window step, WxH or N (default: the model's, or 2/3 window)")  # fmt: skip
     p.add_argument("--scale", type=float, help="resize images first (default: the model's, or 1)")
     p.add_argument("--batch-size", type=positive_int, help="windows per forward pass (default 4)")
     p.add_argument("--device", help="cpu or cuda (default: cuda when available)")
@@ -152,9 +156,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--precision", help="PyTorch model: fp32 or bf16 (default: fp32 on CPU, bf16/fp16 on CUDA)"
     )
     p.add_argument("--provider", choices=PROVIDERS, help="ONNX Runtime provider (--onnx)")
-    p.add_argument("--workers", type=int, default=0, help="image decoding processes")
+    add_workers_flag(p, "image decoding")
     p.add_argument("--no-overlays", action="store_true", help="label maps only")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_flag(p)
     p.add_argument("--overwrite", action="store_true", help="replace a foreign output folder")
     add_debug_flag(p)
     return p

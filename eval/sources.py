@@ -226,8 +226,8 @@ def resolve_settings(
     size = pick("window", _pair(window), fixed or _pair(recorded.get("window")), DEFAULT_WINDOW)
     if fixed is not None and tuple(size) != tuple(fixed):
         raise UsageError(
-            f"the ONNX model takes {fixed[0]}x{fixed[1]} inputs only: use --window "
-            f"{fixed[0]}x{fixed[1]} or re-export with --dynamic"
+            f"the ONNX model takes {fixed[1]}x{fixed[0]} (WxH) inputs only: use --window "
+            f"{fixed[1]}x{fixed[0]} or re-export with --dynamic"
         )
     # A recorded stride belongs to the recorded window: with --window the default follows it.
     record_stride = None if window is not None else _pair(recorded.get("stride"))

@@ -132,9 +132,10 @@ class WindowConfig:
         """Raise when the window is not a multiple of the model's patch size."""
         if any(s % patch_size for s in self.size):
             fit = tuple(max(patch_size, s // patch_size * patch_size) for s in self.size)
+            # Width x height, as --window takes it (size is height, width).
             raise ValueError(
-                f"window {self.size[0]}x{self.size[1]} is not a multiple of the model's patch "
-                f"size {patch_size}: use {fit[0]}x{fit[1]}"
+                f"window {self.size[1]}x{self.size[0]} (WxH) is not a multiple of the model's "
+                f"patch size {patch_size}: use {fit[1]}x{fit[0]}"
             )
 
 

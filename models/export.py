@@ -4,8 +4,11 @@ We use the dynamo exporter (``torch.onnx.export(..., dynamo=True)``, the default
 through onnxscript): it handles SDPA, bicubic and symbolic H/W. The batch is always dynamic; the
 example batch is 2 because a batch of 1 lets the exporter freeze that dimension.
 
-    claravid-export runs/exp/best.pt --output model.onnx --height 630 --width 630
-    claravid-export runs/exp/best.pt --output model-int8.onnx --precision int8
+    claravid-export --checkpoint runs/exp/best.pt --output model.onnx --size 630x630
+    claravid-export --checkpoint runs/exp/best.pt --output model-int8.onnx --precision int8
+
+(``claravid-export CHECKPOINT ...`` and ``--height H --width W``, the older spellings, still
+work.)
 
 The file carries what it takes to run the model as evaluated (`claravid.models.onnx_metadata`).
 The palette's colours come from the data layer, which ``models/`` never imports: the console
@@ -36,6 +39,8 @@ from claravid.cli import (
     UsageError,
     add_debug_flag,
     check_output_file,
+    given_once,
+    parse_size,
     positive_float,
     positive_int,
     run_cli,
@@ -57,6 +62,7 @@ OPSET = 23
 #: Largest max-abs logit difference accepted by default (int8 is judged by its agreement).
 DEFAULT_TOLERANCE: dict[str, float | None] = {"fp32": 1e-3, "fp16": 5e-2, "int8": None}
 DEFAULT_MIN_AGREEMENT = 0.97  # int8: fraction of pixels whose argmax equals PyTorch's
+DEFAULT_SIZE = 630  # input height and width of a fixed-size export (the paper's window)
 
 
 class ExportCheckError(RuntimeError):
@@ -356,12 +362,17 @@ def build_parser() -> argparse.ArgumentParser:
         "--min-agreement (nothing written); 2 a bad argument, an unreadable checkpoint or an "
         "unusable --output.",
     )
-    parser.add_argument("checkpoint", help="checkpoint written by models.save_checkpoint")
+    parser.add_argument("checkpoint_file", nargs="?", metavar="CHECKPOINT",
+                        help="the same as --checkpoint")  # fmt: skip
+    parser.add_argument("--checkpoint", help="checkpoint written by models.save_checkpoint")
     parser.add_argument("--output", "-o", required=True, help="output .onnx file")
-    parser.add_argument("--height", type=positive_int, default=630,
-                        help="input height, a patch multiple (default 630)")  # fmt: skip
-    parser.add_argument("--width", type=positive_int, default=630,
-                        help="input width, a patch multiple (default 630)")  # fmt: skip
+    parser.add_argument("--size", type=parse_size, metavar="WxH",
+                        help="input size, width x height or N for N x N, patch multiples "
+                        f"(default {DEFAULT_SIZE})")  # fmt: skip
+    parser.add_argument("--height", type=positive_int,
+                        help="input height (older spelling; --size WxH sets both)")  # fmt: skip
+    parser.add_argument("--width", type=positive_int,
+                        help="input width (older spelling; --size WxH sets both)")  # fmt: skip
     parser.add_argument("--dynamic", action="store_true", help="dynamic height and width")
     parser.add_argument("--precision", choices=PRECISIONS, default="fp32",
                         help="fp32 (default), fp16 (GPUs) or int8 (CPUs)")  # fmt: skip
@@ -405,6 +416,16 @@ PaletteResolver = Callable[[str], dict[str, Any]]
 CalibrationReader = Callable[[str, int, tuple[int, int], dict[str, Any]], Iterable[np.ndarray]]
 
 
+def input_size(args: argparse.Namespace) -> tuple[int, int]:
+    """``(width, height)`` from ``--size WxH``, or from the older ``--height``/``--width``
+    (either one alone leaves the other at the default)."""
+    if args.size is not None:
+        if args.height is not None or args.width is not None:
+            raise UsageError("give --size WxH or --height/--width, not both")
+        return args.size
+    return (args.width or DEFAULT_SIZE, args.height or DEFAULT_SIZE)
+
+
 def _run(
     args: argparse.Namespace,
     resolve_palette: PaletteResolver | None = None,
@@ -412,6 +433,15 @@ def _run(
 ) -> int:
     from claravid.models.checkpoint import model_from_checkpoint, read_checkpoint
 
+    given = given_once(
+        args.checkpoint,
+        args.checkpoint_file,
+        flag="--checkpoint",
+        metavar="CHECKPOINT",
+        what="the checkpoint",
+    )
+    checkpoint = Path(given)
+    width, height = input_size(args)
     output = check_output_file(args.output, what="--output")
     if output.suffix.lower() != ".onnx":
         # A typo here (the checkpoint's own name, an image) would replace a file of another kind.
@@ -422,11 +452,17 @@ def _run(
         raise UsageError("--calibration and --per-channel apply to --precision int8 only")
     if args.calibration is not None and not Path(args.calibration).is_dir():
         raise UsageError(f"--calibration {args.calibration} is not a folder of images")
-    checkpoint = Path(args.checkpoint)
     if output.exists() and checkpoint.exists() and output.samefile(checkpoint):
         raise UsageError(f"--output {output} is the checkpoint itself; choose another file")
     ckpt = read_checkpoint(checkpoint)
     model = model_from_checkpoint(ckpt, checkpoint)
+    patch = model.patch_size
+    if width % patch or height % patch:  # said in --size terms, not as a tensor shape
+        fit = [-(-v // patch) * patch for v in (width, height)]
+        raise UsageError(
+            f"input size {width}x{height} (WxH) is not a multiple of the model's patch size "
+            f"{patch}: use --size {fit[0]}x{fit[1]}"
+        )
     config = ckpt.get("config") if isinstance(ckpt.get("config"), dict) else None
     step = ckpt.get("step") if isinstance(ckpt.get("step"), int) else None
     del ckpt
@@ -440,7 +476,7 @@ def _run(
         if read_calibration is None:
             raise UsageError("--calibration needs the claravid-export console script")
         normalisation = normalisation_from_config(config)
-        size = (args.height, args.width)
+        size = (height, width)
         calibration = read_calibration(
             args.calibration, args.calibration_images, size, normalisation
         )
@@ -448,8 +484,8 @@ def _run(
         result = export_onnx(
             model,
             output,
-            height=args.height,
-            width=args.width,
+            height=height,
+            width=width,
             dynamic=args.dynamic,
             check=not args.no_check,
             tolerance=args.tolerance,
@@ -474,7 +510,7 @@ def main(
     resolve_palette: PaletteResolver | None = None,
     read_calibration: CalibrationReader | None = None,
 ) -> int:
-    """``claravid-export CHECKPOINT --output model.onnx [--height --width --dynamic]``.
+    """``claravid-export --checkpoint CKPT --output model.onnx [--size WxH | --dynamic]``.
 
     Args:
         argv: The arguments (default ``sys.argv[1:]``).

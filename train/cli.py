@@ -1,5 +1,8 @@
 """``claravid-train --config CONFIG [key=value ...] [--resume]`` (``python -m claravid.train``).
 
+``-o DIR`` is ``out_dir=DIR`` and ``--no-progress`` (or ``--quiet``) ``log.progress=false``, the
+flags every console script shares.
+
 CONFIG is a YAML file or the name of a shipped config (``demo``, ``claravid_dpt_vitl14``, ...).
 Multi-GPU: ``torchrun --nproc_per_node=N -m claravid.train --config ...``. The last lines say
 where the results are and how to evaluate and export them.
@@ -11,7 +14,7 @@ import argparse
 import shlex
 import sys
 
-from claravid.cli import add_debug_flag, run_cli
+from claravid.cli import UsageError, add_debug_flag, add_progress_flag, run_cli
 from claravid.resources import shipped_names
 
 PROG = "claravid-train"
@@ -32,6 +35,10 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="continue out_dir/last.pt (a fresh start when there is none)",
     )
+    parser.add_argument(
+        "-o", "--output", metavar="DIR", help="run folder (the same as out_dir=DIR)"
+    )
+    add_progress_flag(parser)
     add_debug_flag(parser)
     return parser
 
@@ -40,7 +47,7 @@ def _run(args: argparse.Namespace) -> int:
     from claravid.train.config import load_config  # heavy imports after argparse: --help stays fast
     from claravid.train.loop import TrainingDiverged, train
 
-    cfg = load_config(args.config, args.overrides)
+    cfg = load_config(args.config, overrides(args))
     try:
         result = train(cfg, resume=args.resume)
     except TrainingDiverged as exc:
@@ -65,8 +72,25 @@ def _run(args: argparse.Namespace) -> int:
     # Shell-quoted: a path with spaces is pasted back as one argument.
     q = shlex.quote
     print(f"evaluate: claravid-eval --checkpoint {q(str(best))} --output {q(str(out / 'report'))}")
-    print(f"export:   claravid-export {q(str(best))} --output {q(str(best.with_suffix('.onnx')))}")
+    onnx = q(str(best.with_suffix(".onnx")))
+    print(f"export:   claravid-export --checkpoint {q(str(best))} --output {onnx}")
     return 0
+
+
+def overrides(args: argparse.Namespace) -> list[str]:
+    """The ``key=value`` overrides with ``-o`` and ``--no-progress`` spelled as keys."""
+    given = list(args.overrides)
+    flags = []
+    if args.output is not None:
+        quoted = "'" + str(args.output).replace("'", "''") + "'"  # YAML: the path as given
+        flags.append(("-o/--output", "out_dir", quoted))
+    if args.no_progress:
+        flags.append(("--no-progress", "log.progress", "false"))
+    for flag, key, value in flags:
+        if any(o.split("=", 1)[0].strip() == key for o in given):
+            raise UsageError(f"{flag} and {key}= both given: give one")
+        given.append(f"{key}={value}")
+    return given
 
 
 def _num(value: float | None) -> str:

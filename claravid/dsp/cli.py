@@ -16,12 +16,18 @@ read, 2 for bad arguments or an input that names no image.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import warnings
 from pathlib import Path
 
-from claravid.cli import UsageError, add_debug_flag, check_output_file, run_cli
+from claravid.cli import (
+    UsageError,
+    add_debug_flag,
+    add_progress_flag,
+    add_workers_flag,
+    check_output_file,
+    run_cli,
+)
 from claravid.dsp.collection import (
     ProfileRun,
     find_images,
@@ -55,14 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--pattern", default="*.jpg", help="glob inside a folder; '**' recurses (default *.jpg)"
     )
     parser.add_argument("--metric", default="delent", choices=METRICS, help="default delent")
+    add_workers_flag(parser, "the measurement")
     parser.add_argument(
-        "--workers",
-        type=int,
-        default=min(8, os.cpu_count() or 1),
-        help="worker processes; 0 or 1 computes in this process (default: cores, at most 8)",
-    )
-    parser.add_argument(
-        "--output", type=Path, help=f"results JSON (default {DEFAULT_OUTPUT} when computing)"
+        "--output", "-o", type=Path, help=f"results JSON (default {DEFAULT_OUTPUT} when computing)"
     )
     parser.add_argument("--plot", type=Path, help="save the profile plot here (PNG)")
     parser.add_argument("--no-blur", action="store_true", help="skip the Gaussian blur")
@@ -73,7 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--shard", help="k/n: measure only every n-th sorted image from the k-th (0-based)"
     )
     parser.add_argument("--no-cache", action="store_true", help="neither read nor write the cache")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_progress_flag(parser)
     parser.add_argument(
         "--overwrite",
         action="store_true",
@@ -121,8 +122,6 @@ def _check_outputs(args: argparse.Namespace, output: Path | None) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    if args.workers < 0:
-        raise UsageError(f"--workers must be >= 0 (0 or 1: in this process), got {args.workers}")
     if args.compare:
         from claravid.dsp.compare import compare_table
 
@@ -174,7 +173,7 @@ def _run(args: argparse.Namespace) -> int:
             ksize=args.blur_ksize,
             workers=args.workers,
             cache=not args.no_cache,
-            progress=not args.quiet,
+            progress=not args.no_progress,
         )
         run.shard = shard
 

@@ -20,7 +20,15 @@ from pathlib import Path
 import numpy as np
 
 from claravid import modalities
-from claravid.cli import add_debug_flag, non_negative_int, positive_int, run_cli
+from claravid.cli import (
+    add_debug_flag,
+    add_progress_flag,
+    given_once,
+    non_negative_int,
+    parse_size,
+    positive_int,
+    run_cli,
+)
 from claravid.layout import (
     ALTITUDES,
     DIRECTIONS,
@@ -209,17 +217,6 @@ def _write(mission_dir: Path, viewpoint: str, stem: str, frame, pose: np.ndarray
     modalities.write_extrinsics(path("extrinsics"), pose)
 
 
-def parse_size(text: str) -> tuple[int, int]:
-    """argparse type for ``WIDTHxHEIGHT``."""
-    parts = text.lower().split("x")
-    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x480, got {text!r}")
-    width, height = int(parts[0]), int(parts[1])
-    if width <= 0 or height <= 0:
-        raise argparse.ArgumentTypeError(f"width and height must be positive, got {text!r}")
-    return width, height
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The ``claravid-synth`` argument parser."""
     parser = argparse.ArgumentParser(
@@ -227,12 +224,13 @@ def build_parser() -> argparse.ArgumentParser:
         description="Write a synthetic ClaraVid dataset tree.",
         epilog="Exit status: 0 ok; 2 a bad argument or an output folder that is not ours.",
     )
-    parser.add_argument("out", type=Path, help="root folder to write")
+    parser.add_argument("out", nargs="?", type=Path, metavar="OUT", help="root folder to write")
+    parser.add_argument("-o", "--output", type=Path, metavar="OUT", help="the same as OUT")
     parser.add_argument("--seed", type=non_negative_int, default=0, help="scene seed (default 0)")
     parser.add_argument("--frames-per-viewpoint", type=positive_int, default=4, metavar="N",
                         help="frames per altitude and direction (default 4)")  # fmt: skip
     parser.add_argument("--size", type=parse_size, default=IMAGE_SIZE, metavar="WxH",
-                        help="image size (default the native 4032x3024)")  # fmt: skip
+                        help="image size, width x height (default native 4032x3024)")  # fmt: skip
     parser.add_argument("--missions", nargs="+", metavar="MISSION",
                         help=f"default all: {' '.join(MISSIONS)}")  # fmt: skip
     # Singular, like the datasets' altitude= and direction= arguments.
@@ -241,22 +239,23 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--overwrite", action="store_true", help="write into a non-empty folder that is not ours"
     )
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_progress_flag(parser)
     add_debug_flag(parser)
     return parser
 
 
 def _run(args: argparse.Namespace) -> int:
     missions = [canonical_mission(m) for m in args.missions] if args.missions else None
+    out = given_once(args.output, args.out, flag="-o", metavar="OUT", what="the output folder")
     root = synthesize(
-        args.out,
+        out,
         seed=args.seed,
         frames_per_viewpoint=args.frames_per_viewpoint,
         size=args.size,
         missions=missions,
         altitude=args.altitude,
         direction=args.direction,
-        progress=not args.quiet,
+        progress=not args.no_progress,
         overwrite=args.overwrite,
     )
     print(root, file=sys.stdout)

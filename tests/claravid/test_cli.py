@@ -2,6 +2,7 @@
 
 import argparse
 import os
+import re
 import stat
 import subprocess
 import sys
@@ -12,13 +13,18 @@ import pytest
 from claravid.cli import (
     UsageError,
     add_debug_flag,
+    add_progress_flag,
+    add_workers_flag,
     atomic_save,
     atomic_write_text,
     check_output_dir,
     check_output_file,
+    given_once,
+    parse_size,
     positive_float,
     positive_int,
     run_cli,
+    window_size,
 )
 
 
@@ -172,3 +178,72 @@ def test_multi_line_messages_become_one_line(capsys):
 
     assert run_cli("tool", run, _parser(), []) == 2
     assert capsys.readouterr().err.strip() == "tool: error: first part; second part"
+
+
+@pytest.mark.parametrize(
+    ("text", "size"), [("640x480", (640, 480)), ("630", (630, 630)), (" 32X24", (32, 24))]
+)
+def test_a_size_is_width_x_height_or_one_number_for_a_square(text, size):
+    assert parse_size(text) == size
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("0x48", "width and height must be positive, got '0x48'"),
+        ("-14", "width and height must be positive"),
+        ("64x", "expected WxH (width x height, e.g. 640x480) or N for N x N, got '64x'"),
+        ("1x2x3", "expected WxH"),
+        ("64*48", "expected WxH"),
+        ("", "expected WxH"),
+    ],
+)
+def test_bad_sizes(text, match):
+    with pytest.raises(argparse.ArgumentTypeError, match=re.escape(match)):
+        parse_size(text)
+
+
+def test_a_window_is_given_width_x_height_and_a_non_square_one_says_how_it_reads(capsys):
+    parser = argparse.ArgumentParser(prog="tool")
+    parser.add_argument("--window", type=window_size)
+    seen = []
+    assert run_cli("tool", seen.append, parser, ["--window", "28"]) == 0
+    assert seen[0].window == (28, 28) and capsys.readouterr().err == ""
+    assert run_cli("tool", seen.append, parser, ["--window", "56x42"]) == 0
+    assert seen[1].window == (42, 56)  # (height, width), the order of the tensors
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        "tool: warning: window size 56x42 is read as width 56 x height 42 (WxH, like every size "
+        "flag; claravid 0.1 read --window and --stride as HxW)"
+    )
+
+
+def test_progress_switch_has_one_meaning_and_two_spellings():
+    parser = argparse.ArgumentParser()
+    add_progress_flag(parser)
+    assert parser.parse_args([]).no_progress is False
+    assert parser.parse_args(["--no-progress"]).no_progress is True
+    assert parser.parse_args(["--quiet"]).no_progress is True
+
+
+def test_workers_default_to_0_and_refuse_negatives(capsys):
+    parser = argparse.ArgumentParser(prog="tool")
+    add_workers_flag(parser, "decoding")
+    assert parser.parse_args([]).workers == 0
+    assert parser.parse_args(["--workers", "3"]).workers == 3
+    with pytest.raises(SystemExit) as info:
+        run_cli("tool", lambda a: 0, parser, ["--workers", "-1"])
+    assert info.value.code == 2
+    assert capsys.readouterr().err.strip() == (
+        "tool: error: argument --workers: expected an integer >= 0, got '-1' (see tool --help)"
+    )
+
+
+def test_given_once():
+    names = {"flag": "-o", "metavar": "OUT", "what": "the output folder"}
+    assert given_once("a", None, **names) == "a"
+    assert given_once(None, "b", **names) == "b"
+    with pytest.raises(UsageError, match="the output folder given twice, as OUT and as -o"):
+        given_once("a", "b", **names)
+    with pytest.raises(UsageError, match=re.escape("give the output folder: -o OUT (or OUT")):
+        given_once(None, None, **names)

@@ -2,6 +2,7 @@
 
 import json
 
+import pytest
 from PIL import Image
 
 from claravid.demo import main, prepare_data
@@ -33,8 +34,10 @@ def test_demo_refuses_a_folder_it_did_not_write(tmp_path, capsys):
     assert "claravid-demo: error:" in err and "--overwrite" in err and "Traceback" not in err
     assert (theirs / "samples.png").read_bytes() == b"my picture"
     assert sorted(p.name for p in theirs.iterdir()) == ["samples.png"]
-    assert main([str(tmp_path / "d"), "--workers", "-1"]) == 2
-    assert "--workers must be >= 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:
+        main([str(tmp_path / "d"), "--workers", "-1"])
+    assert info.value.code == 2
+    assert "argument --workers: expected an integer >= 0, got '-1'" in capsys.readouterr().err
 
 
 def test_new_settings_leave_no_frame_of_the_old_scene(tmp_path, monkeypatch):

@@ -266,6 +266,21 @@ def test_cli_end_to_end(tmp_path, capsys):
     assert len(files) == 7 and files[0] == Path(MARKER)  # 6 modalities + the marker
 
 
+def test_cli_output_flag_square_size_and_quiet_spellings(tmp_path, capsys):
+    out = tmp_path / "o"
+    argv = ["--frames-per-viewpoint", "1", "--missions", "nature_1", "--altitude", "mid",
+            "--direction", "v", "--no-progress"]  # fmt: skip
+    assert main(["-o", str(out), "--size", "16", *argv]) == 0  # N: a 16 x 16 square
+    captured = capsys.readouterr()
+    assert captured.out.strip() == str(out) and captured.err == ""  # no progress bar
+    rgb = modalities.read_rgb(out / "007_nature_1" / "left_rgb" / "55deg_mid_v" / "000000.jpg")
+    assert rgb.shape == (16, 16, 3)
+    assert main([str(out), "--output", str(out), *argv]) == 2
+    _one_error(capsys, "the output folder given twice, as OUT and as -o: give it once")
+    assert main(argv) == 2
+    _one_error(capsys, "give the output folder: -o OUT (or OUT alone)")
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
@@ -290,7 +305,8 @@ def test_bad_arguments_raise(tmp_path, kwargs, match):
 @pytest.mark.parametrize(
     ("args", "match"),
     [
-        (["--size", "64"], "expected WIDTHxHEIGHT"),
+        (["--size", "64x"], "expected WxH (width x height"),
+        (["--size", "64x48x3"], "expected WxH"),
         (["--size", "0x48"], "must be positive"),
         (["--frames-per-viewpoint", "0"], "expected a positive integer"),
         (["--seed", "-1"], "expected an integer >= 0"),

@@ -11,7 +11,8 @@ TINY = {
     "features": 8,
     "out_channels": [8, 8, 8, 8],
 }
-WINDOW = "42x56"  # the 48×64 fixture frames take 4 overlapping windows
+# Width x height: the 48 (high) × 64 (wide) fixture frames take 4 overlapping 42×56 windows.
+WINDOW = "56x42"
 
 
 def tiny_model(num_classes: int = 8, seed: int = 0) -> models.Segmenter:

@@ -6,6 +6,7 @@ export carries them; eval and predict, from either file, with no flags, run the 
 
 import hashlib
 import json
+import re
 
 import numpy as np
 import onnx
@@ -166,3 +167,18 @@ def test_eval_report_gives_the_onnx_files_precision(files, claravid_root, tmp_pa
         report, _ = _eval(tmp_path / path.stem, "--onnx", str(path), "--data",
                           str(claravid_root), *flags)  # fmt: skip
         assert report["source"]["precision"] == expected, path.name
+
+
+def test_a_fixed_size_onnx_file_names_its_size_as_a_window_flag():
+    """The message suggests a --window value: width x height, like the flag."""
+    from types import SimpleNamespace
+
+    from claravid.cli import UsageError
+    from claravid.eval.sources import ModelSource, resolve_settings
+
+    fixed = SimpleNamespace(input_size=(28, 42), metadata={})  # height 28, width 42
+    source = ModelSource(fixed, "onnx", "m.onnx", num_classes=8, patch_size=14)  # type: ignore[arg-type]
+    assert resolve_settings(source, window=(28, 42)).window.size == (28, 42)
+    message = "the ONNX model takes 42x28 (WxH) inputs only: use --window 42x28 or re-export"
+    with pytest.raises(UsageError, match=re.escape(message)):
+        resolve_settings(source, window=(42, 28))

@@ -34,7 +34,7 @@ def test_eval_in_bf16_agrees_with_float32(model_files, claravid_root, tmp_path):
     split.write_text("\n".join(FRAMES) + "\n")
     preds = tmp_path / "preds"
     argv = ["--checkpoint", str(model_files["checkpoint"]), "--split", str(split), "--window",
-            "42x56", "--bins", "1", "--no-progress", "--precision", "bf16",
+            "56x42", "--bins", "1", "--no-progress", "--precision", "bf16",
             "--save-predictions", str(preds), "--output", str(tmp_path / "rep")]  # fmt: skip
     assert eval_main(argv) == 0
     source = json.loads((tmp_path / "rep" / "report.json").read_text())["source"]
@@ -55,7 +55,7 @@ def test_eval_default_and_no_amp_are_float32_on_the_cpu(model_files, tmp_path, c
     split = tmp_path / "frames.txt"
     split.write_text(FRAMES[0] + "\n")
     argv = ["--checkpoint", str(model_files["checkpoint"]), "--split", str(split), "--window",
-            "42x56", "--bins", "1", "--no-progress"]  # fmt: skip
+            "56x42", "--bins", "1", "--no-progress"]  # fmt: skip
     assert eval_main([*argv, "--output", str(tmp_path / "a")]) == 0
     source = json.loads((tmp_path / "a" / "report.json").read_text())["source"]
     assert source["precision"] == "fp32"

@@ -1,5 +1,7 @@
 """Sliding-window inference: coverage, averaging, padding, scale, any model type."""
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -122,6 +124,10 @@ def test_bad_window_settings(kwargs, message):
 def test_window_not_a_patch_multiple_names_the_fix():
     with pytest.raises(ValueError, match="use 630x630"):
         WindowConfig(size=(640, 640)).check_patch(14)
+    # Said as --window takes it, width x height: size is (height 30, width 56).
+    message = "window 56x30 (WxH) is not a multiple of the model's patch size 14: use 56x28"
+    with pytest.raises(ValueError, match=re.escape(message)):
+        WindowConfig(size=(30, 56)).check_patch(14)
 
 
 def test_bad_image():

@@ -83,7 +83,10 @@ def test_cli_errors(tmp_path, capsys):
     assert "none.pt not found" in capsys.readouterr().err
     ckpt = save_checkpoint(_model("dinov2_vits14"), tmp_path / "m.pt")
     assert main([str(ckpt), "-o", str(tmp_path / "x.onnx"), "--height", "30"]) == 2
-    assert "pad or resize it to 42x630" in capsys.readouterr().err
+    # Said as a --size value, width x height: 30 rounds up to 42.
+    err = capsys.readouterr().err
+    assert "input size 630x30 (WxH) is not a multiple of the model's patch size 14" in err
+    assert "use --size 630x42" in err
     with pytest.raises(FileNotFoundError, match="claravid-export"):
         OnnxSegmenter(tmp_path / "x.onnx")
 
@@ -103,6 +106,8 @@ def _one_error_line(capsys, match):
         (["--tolerance", "0"], "expected a finite number > 0"),
         (["--height", "0"], "expected a positive integer, got '0'"),
         (["--width", "-14"], "expected a positive integer"),
+        (["--size", "0x28"], "width and height must be positive, got '0x28'"),
+        (["--size", "28by28"], "expected WxH (width x height, e.g. 640x480) or N"),
     ],
 )
 def test_cli_rejects_nonsense_numbers(tmp_path, capsys, args, match):
@@ -110,6 +115,28 @@ def test_cli_rejects_nonsense_numbers(tmp_path, capsys, args, match):
         main(["m.pt", "-o", str(tmp_path / "x.onnx"), *args])
     assert info.value.code == 2
     assert match in capsys.readouterr().err
+
+
+def test_cli_checkpoint_flag_and_size(tmp_path, capsys):
+    """``--checkpoint`` as on claravid-eval/predict, ``--size`` width x height as on every
+    command; the positional checkpoint and ``--height``/``--width`` stay as older spellings."""
+    ckpt = save_checkpoint(_model("dinov2_vits14"), tmp_path / "m.pt")
+    out = tmp_path / "m.onnx"
+    assert main(["--checkpoint", str(ckpt), "-o", str(out), "--size", "42x28", "--no-check"]) == 0
+    assert OnnxSegmenter(out).input_size == (28, 42)  # (height, width), as the tensors
+    x = str(tmp_path / "x.onnx")
+    for argv, match in [
+        ([str(ckpt), "--checkpoint", str(ckpt), "-o", x],
+         "the checkpoint given twice, as CHECKPOINT and as --checkpoint: give it once"),
+        (["-o", x], "give the checkpoint: --checkpoint CHECKPOINT (or CHECKPOINT alone)"),
+        (["--checkpoint", str(ckpt), "-o", x, "--size", "28", "--width", "28"],
+         "give --size WxH or --height/--width, not both"),
+        (["--checkpoint", str(ckpt), "-o", x, "--size", "28x20"],
+         "input size 28x20 (WxH) is not a multiple of the model's patch size 14: use --size 28x28"),
+    ]:  # fmt: skip
+        assert main(argv) == 2
+        _one_error_line(capsys, match)
+    assert not (tmp_path / "x.onnx").exists()
 
 
 def test_python_api_rejects_nonsense_numbers(tmp_path):

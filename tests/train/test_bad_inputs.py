@@ -73,8 +73,8 @@ def test_a_copied_run_folder_resumes_and_commands_are_shell_quoted(claravid_root
     text = capsys.readouterr().out
     best = first / "best.pt"
     assert f"claravid-eval --checkpoint {shlex.quote(str(best))} --output " in text
-    assert f"claravid-export {shlex.quote(str(best))} --output " in text
-    assert shlex.split(text.split("export:")[1].splitlines()[0])[1] == str(best)
+    assert f"claravid-export --checkpoint {shlex.quote(str(best))} --output " in text
+    assert shlex.split(text.split("export:")[1].splitlines()[0])[2] == str(best)
     copy = tmp_path / "elsewhere"
     shutil.copytree(first, copy)
     moved = tiny(claravid_root, copy, "train.steps=2", "val.every=0")

@@ -117,7 +117,7 @@ def test_out_dir_rules_and_resume_messages(claravid_root, tmp_path, capsys):
     text = capsys.readouterr().out
     assert "no " in text and "starting a new run" in text
     assert f"claravid-eval --checkpoint {out / 'best.pt'}" in text
-    assert f"claravid-export {out / 'best.pt'} --output {out / 'best.onnx'}" in text
+    assert f"claravid-export --checkpoint {out / 'best.pt'} --output {out / 'best.onnx'}" in text
     assert main([*args, "--resume"]) == 0
     assert "already finished" in capsys.readouterr().out
     assert main(args) == 2  # same config, no --resume

@@ -1,0 +1,78 @@
+"""Every console script spells the shared flags the same way (issue 12 §3, claravid.cli).
+
+Parsed, not run: what each flag then does is tested with its command.
+"""
+
+import pytest
+
+from claravid import demo, synth
+from claravid.dsp import cli as dsp
+from claravid.eval import cli as evaluate
+from claravid.eval import predict
+from claravid.models import export
+from claravid.train import cli as train
+
+# Each command's parser and the arguments it needs besides the ones under test.
+COMMANDS = {
+    "claravid-synth": (synth.build_parser, []),
+    "claravid-demo": (demo.build_parser, []),
+    "claravid-dsp": (dsp.build_parser, []),
+    "claravid-export": (export.build_parser, []),
+    "claravid-eval": (evaluate.build_parser, []),
+    "claravid-predict": (predict.build_parser, ["a.jpg"]),
+    "claravid-train": (train.build_parser, ["--config", "demo"]),
+}
+WITH_PROGRESS = [c for c in COMMANDS if c != "claravid-export"]  # export shows no bar
+WITH_WORKERS = ["claravid-demo", "claravid-dsp", "claravid-eval", "claravid-predict"]
+
+
+def _parse(command, *argv):
+    build, needed = COMMANDS[command]
+    return build().parse_args([*needed, *argv])
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_every_command_that_writes_takes_o_and_output(command):
+    short = _parse(command, "-o", "x y")
+    long = _parse(command, "--output", "x y")
+    assert str(short.output) == str(long.output) == "x y"
+
+
+@pytest.mark.parametrize("command", WITH_PROGRESS)
+def test_no_progress_and_quiet_are_one_switch(command):
+    assert _parse(command, "-o", "x").no_progress is False
+    assert _parse(command, "-o", "x", "--no-progress").no_progress is True
+    assert _parse(command, "-o", "x", "--quiet").no_progress is True
+
+
+@pytest.mark.parametrize("command", WITH_WORKERS)
+def test_workers_mean_the_same_everywhere(command):
+    assert _parse(command, "-o", "x").workers == 0
+    assert _parse(command, "-o", "x", "--workers", "3").workers == 3
+    action = next(a for a in COMMANDS[command][0]()._actions if a.dest == "workers")
+    assert action.help.startswith("worker processes for ")
+    assert action.help.endswith(" (default 0: all in this process)")
+
+
+@pytest.mark.parametrize(
+    ("command", "flag", "value", "parsed"),
+    [
+        ("claravid-synth", "--size", "64x48", (64, 48)),  # (width, height)
+        ("claravid-demo", "--size", "64x48", (64, 48)),
+        ("claravid-export", "--size", "64x48", (64, 48)),
+        ("claravid-export", "--size", "630", (630, 630)),
+        ("claravid-eval", "--window", "630", (630, 630)),
+        ("claravid-eval", "--window", "56x42", (42, 56)),  # (height, width) for the windows
+        ("claravid-eval", "--stride", "28x14", (14, 28)),
+        ("claravid-predict", "--window", "56x42", (42, 56)),
+        ("claravid-predict", "--stride", "28", (28, 28)),
+    ],
+)
+@pytest.mark.filterwarnings("ignore:window size")  # how a non-square window reads: test_cli.py
+def test_one_size_syntax(command, flag, value, parsed):
+    assert getattr(_parse(command, "-o", "x", flag, value), flag[2:]) == parsed
+
+
+@pytest.mark.parametrize("command", ["claravid-export", "claravid-eval", "claravid-predict"])
+def test_the_checkpoint_is_given_with_checkpoint(command):
+    assert str(_parse(command, "-o", "x", "--checkpoint", "m.pt").checkpoint) == "m.pt"
