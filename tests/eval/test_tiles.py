@@ -162,7 +162,7 @@ def test_cli_tiles_values(tiled):
         np.testing.assert_array_equal(saved["tile_confusions"][mine].sum(0), saved["confusions"][i])
         path = saved["paths"][i]
         gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        index = ds.paths.index(str(path)) if hasattr(ds, "paths") else i
+        index = [str(f.paths["rgb"]) for f in ds.frames].index(str(path))
         truth = ds.read_mask(index)
         pred = cv2.imread(str(tiled["preds"] / f"{saved['keys'][i]}.png"), cv2.IMREAD_UNCHANGED)
         for t in np.flatnonzero(mine):
