@@ -45,7 +45,7 @@ from claravid.eval.complexity import parse_measures
 from claravid.eval.data import DATASETS
 from claravid.eval.label_maps import MARKER, predictions_defaults, write_marker
 from claravid.eval.report import REPORT
-from claravid.eval.units import CLUSTER_UNITS, GROUP_BY
+from claravid.eval.units import CLUSTER_UNITS, GROUP_BY, check_unit
 from claravid.models.onnx_runtime import PROVIDERS
 
 PROG = "claravid-eval"
@@ -159,25 +159,20 @@ def _check_uncertainty(args: argparse.Namespace) -> None:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
 
 
-def bootstrap_settings(args: argparse.Namespace, units: list[str], default: str) -> Bootstrap:
-    """The interval settings of the command line, its ``--cluster`` checked against ``units``
-    (the cluster units the images carry); ``default`` when ``--cluster`` is not given."""
-    cluster = args.cluster or default
-    if cluster not in units:
-        extra = " (block needs ClaraVid extrinsics)" if cluster == "block" else ""
-        raise UsageError(
-            f"--cluster {cluster} is not available for these images{extra}; they have: "
-            f"{', '.join(units)}"
-        )
+def bootstrap_settings(
+    args: argparse.Namespace, attributes: dict[str, list[str]], default: str
+) -> Bootstrap:
+    """The interval settings of the command line, its ``--cluster`` checked against the units
+    images with these ``attributes`` carry; ``default`` when ``--cluster`` is not given."""
+    cluster = check_unit(attributes, args.cluster or default)
     return Bootstrap(resamples=args.bootstrap, level=args.ci_level, seed=args.seed, cluster=cluster)
 
 
 def data_bootstrap(args: argparse.Namespace, data: Any) -> Bootstrap:
     """:func:`bootstrap_settings` for opened data (:class:`claravid.eval.data.EvalData`)."""
-    from claravid.eval.units import available_units, default_cluster
+    from claravid.eval.units import default_cluster
 
-    units = available_units(data.attributes)
-    return bootstrap_settings(args, units, default_cluster(data.name, data.attributes))
+    return bootstrap_settings(args, data.attributes, default_cluster(data.name, data.attributes))
 
 
 def _check_args(args: argparse.Namespace) -> str:
@@ -288,7 +283,7 @@ def _run_merge(args: argparse.Namespace) -> int:
     result = merge_results(parts, [str(p) for p in args.merge])
     _warn_dropped_tiles(parts, result, args.merge)
     _check_bins(args, len(result.paths))
-    intervals = bootstrap_settings(args, result.units(), result.default_cluster())
+    intervals = bootstrap_settings(args, result.attributes, result.default_cluster())
     report = build_report(
         result, bins=args.bins or 3, edges=args.edges, group_by=args.group_by, bootstrap=intervals
     )

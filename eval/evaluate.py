@@ -17,8 +17,8 @@ from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm.auto import tqdm
 
 from claravid.eval.label_maps import image_key
-from claravid.eval.metrics import IGNORE_INDEX, confusion_matrix
-from claravid.eval.tiles import tile_confusions
+from claravid.eval.metrics import IGNORE_INDEX
+from claravid.eval.tiles import image_confusion
 from claravid.eval.windows import Model, WindowConfig, predict_labels
 
 
@@ -94,12 +94,7 @@ def evaluate_model(
         if prediction.device.type == "cpu" and num_classes <= 255:
             # Byte ids take metrics' fast CPU path (an int64 map would be checked and cast).
             prediction = prediction.to(torch.uint8)
-        tiles = None
-        if tile_size is None:
-            conf = confusion_matrix(prediction, target, num_classes, ignore_index).cpu().numpy()
-        else:  # the tiles cover every pixel once: their sum is the image's confusion
-            tiles = tile_confusions(prediction, target, num_classes, tile_size, ignore_index)
-            conf = tiles.sum(axis=(0, 1))
+        conf, tiles = image_confusion(prediction, target, num_classes, tile_size, ignore_index)
         score = ImageScore(str(sample["path"]), sample_key(sample), conf, tiles)
         results.append(score)
         if on_prediction is not None:

@@ -20,8 +20,7 @@ import numpy as np
 
 from claravid import modalities
 from claravid.cli import UsageError, atomic_save, atomic_write_text
-from claravid.eval.metrics import confusion_matrix
-from claravid.eval.tiles import tile_confusions
+from claravid.eval.tiles import image_confusion
 from claravid.masks import read_label_image
 from claravid.palettes import Palette, load_palette
 
@@ -215,10 +214,7 @@ def _score_one(
     mask = data.read_mask(index)
     k = data.palette.num_classes
     ids = read_prediction(prediction_file(directory, data.keys[index]), mask.shape, k)
-    if tile_size is None:
-        return confusion_matrix(ids, mask, k).numpy(), None
-    tiles = tile_confusions(ids, mask, k, tile_size)
-    return tiles.sum(axis=(0, 1)), tiles
+    return image_confusion(ids, mask, k, tile_size)
 
 
 def score_predictions(

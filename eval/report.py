@@ -119,6 +119,7 @@ def build_report(
     unit) sets the intervals; its ``cluster`` must be a unit the images carry.
     """
     settings = bootstrap or Bootstrap(cluster=result.default_cluster())
+    clusters = result.cluster_labels(settings.cluster)
     numbers = stratify(
         result.paths,
         result.confusions,
@@ -127,13 +128,13 @@ def build_report(
         bins=bins,
         edges=edges,
         groups=result.groups(group_by),
-        clusters=result.cluster_labels(settings.cluster),
+        clusters=clusters,
         bootstrap=settings,
     )
     if result.tiles is not None and len(result.tiles):
         numbers["tiles"] = tile_report(
             result.tiles, result.paths, result.classes, bins=bins, edges=edges,
-            clusters=result.cluster_labels(settings.cluster), bootstrap=settings,
+            clusters=clusters, bootstrap=settings,
         )  # fmt: skip
     source = dict(result.source)
     source["binning"] = {**numbers.pop("binning", {}), "group_by": group_by}

@@ -59,6 +59,24 @@ def tile_confusions(
     return out
 
 
+def image_confusion(
+    prediction: torch.Tensor | np.ndarray,
+    target: torch.Tensor | np.ndarray,
+    num_classes: int,
+    tile_size: int | None = None,
+    ignore_index: int = IGNORE_INDEX,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """An image's confusion (int64 [K, K]) and, with ``tile_size``, its tiles' confusions.
+
+    The tiles cover every pixel once, so their sum is the image's confusion: counted once.
+    """
+    if tile_size is None:
+        conf = confusion_matrix(prediction, target, num_classes, ignore_index)
+        return conf.cpu().numpy(), None
+    tiles = tile_confusions(prediction, target, num_classes, tile_size, ignore_index)
+    return tiles.sum(axis=(0, 1)), tiles
+
+
 @dataclass
 class TileTable:
     """One row per tile of every image of an :class:`~claravid.eval.report.EvalResult`.

@@ -37,6 +37,21 @@ def available_units(attributes: Mapping[str, Sequence[str]]) -> list[str]:
     return ["image", *(a for a in attributes if any(attributes[a]))]
 
 
+def check_unit(attributes: Mapping[str, Sequence[str]], unit: str, flag: str = "--cluster") -> str:
+    """Return ``unit`` if images with these ``attributes`` carry it.
+
+    Raises:
+        UnitError: they do not (e.g. ``block`` without extrinsics); the message lists theirs.
+    """
+    units = available_units(attributes)
+    if unit not in units:
+        where = f" ({_NEEDS[unit]} data)" if unit in _NEEDS else ""
+        raise UnitError(
+            f"{flag} {unit} is not available for these images{where}; they have: {', '.join(units)}"
+        )
+    return unit
+
+
 def unit_labels(
     paths: Sequence[str],
     attributes: Mapping[str, Sequence[str]],
@@ -51,18 +66,12 @@ def unit_labels(
     Raises:
         UnitError: these images have no such unit (e.g. ``block`` without extrinsics).
     """
-    if unit == "image":
+    if check_unit(attributes, unit, flag) == "image":
         return [str(p) for p in paths]
-    if unit == "viewpoint" and "mission" in attributes and "viewpoint" in attributes:
+    if unit == "viewpoint" and "mission" in attributes:
         pairs = zip(attributes["mission"], attributes["viewpoint"], strict=True)
         return [f"{m}/{v}" for m, v in pairs]
-    if unit != "viewpoint" and unit in attributes and any(attributes[unit]):
-        return list(attributes[unit])
-    where = f" ({_NEEDS[unit]} data)" if unit in _NEEDS else ""
-    raise UnitError(
-        f"{flag} {unit} is not available for these images{where}; they have: "
-        f"{', '.join(available_units(attributes))}"
-    )
+    return list(attributes[unit])
 
 
 def group_indices(
