@@ -21,7 +21,8 @@ On generated full-size 4032×3024 ClaraVid frames (uavid palette: panoptic PNG +
 3. GPU (only with CUDA): windows/s of dinov2_vitl14 + DPT head at 630×630, bf16 autocast.
 4. Bootstrap (one core: a child process pinned to one CPU, BLAS limited to one thread): 1000
    cluster resamples of mIoU and pixel accuracy for 20,000 images, 19 classes, overall + 3 bins
-   + 8 groups (what ``claravid.eval.stratify.add_intervals`` computes), with every image its own
+   + 8 groups (what ``claravid.eval.analysis.miou_bins.add_intervals`` computes), with every
+   image its own
    cluster (the worst case: 20,000 clusters) and with 400 blocks. Target <= 2 s. Baseline: the
    naive loop, one resample at a time (draw clusters, gather their images, sum the confusions,
    mIoU), timed on the first resamples and extrapolated to 1000 (said so in the output).
@@ -43,10 +44,10 @@ import torch
 
 from claravid import models
 from claravid.dsp import compute_complexities, compute_measures
-from claravid.eval.collect import collect
-from claravid.eval.data import open_data
-from claravid.eval.evaluate import evaluate_model
-from claravid.eval.windows import WindowConfig
+from claravid.eval.inference.collect import collect
+from claravid.eval.inference.data import open_data
+from claravid.eval.inference.run_model import evaluate_model
+from claravid.eval.inference.windows import WindowConfig
 from claravid.synth import synthesize
 
 
@@ -212,7 +213,7 @@ def _bootstrap_sets(n: int, rng: np.random.Generator) -> list[tuple[str, np.ndar
 
 def naive_bootstrap(conf, clusters, members, resamples, rng) -> np.ndarray:
     """The obvious loop: per resample, draw clusters, gather their members, sum, mIoU."""
-    from claravid.eval.metrics import mean_iou
+    from claravid.eval.analysis.metrics import mean_iou
 
     by_cluster: dict[int, list[int]] = {}
     for i in members:
@@ -227,7 +228,7 @@ def naive_bootstrap(conf, clusters, members, resamples, rng) -> np.ndarray:
 
 
 def section_bootstrap() -> None:
-    from claravid.eval.bootstrap import (
+    from claravid.eval.analysis.bootstrap import (
         Bootstrap,
         cluster_ids,
         confusion_features,

@@ -139,9 +139,9 @@ def bench_precisions(size: int, reps: int) -> None:
 
 def bench_demo(checkpoint: Path, data: Path, frames: int) -> None:
     """Argmax agreement of the fp16 / int8 exports of a trained checkpoint on val frames."""
-    from claravid.eval.data import open_data
-    from claravid.eval.sources import load_source, resolve_settings
-    from claravid.eval.windows import predict_labels
+    from claravid.eval.inference.data import open_data
+    from claravid.eval.inference.sources import load_source, resolve_settings
+    from claravid.eval.inference.windows import predict_labels
 
     source = load_source(checkpoint)
     settings = resolve_settings(source)

@@ -21,9 +21,11 @@ import numpy as np
 
 from claravid.errors import CorruptFileError
 from claravid.modalities import decode_bytes, describe_bytes, png_header, read_checked
-from claravid.palettes import Palette, color_indices
+from claravid.palettes import Palette, available_palettes, color_indices, load_palette
 
 _PALETTE_COLOR_TYPE = 3
+FIT_FILES = 3  # label files sampled by check_palette_fit
+FIT_MAX_UNKNOWN = 0.5  # more label pixels than this outside the palette: the wrong palette
 
 
 class UnknownLabelWarning(UserWarning):
@@ -126,3 +128,43 @@ def read_mask(path: str | Path, palette: Palette) -> np.ndarray:
             stacklevel=2,
         )
     return ids
+
+
+def _unknown_share(labels: list[np.ndarray], palette: Palette) -> float:
+    total = unknown = 0
+    for label in labels:
+        ids, count = mask_to_ids(label, palette)
+        total, unknown = total + ids.size, unknown + count
+    return unknown / max(total, 1)
+
+
+def check_palette_fit(label_files: list[Path], palette: Palette, flag: str = "--palette") -> None:
+    """Stop when most label pixels fall outside ``palette``, naming the palette that fits.
+
+    Reading UAVid's colour labels with the ClaraVid palette ignores ~90 % of the pixels (one
+    warning per file) and scores the rest: a number that means nothing. A few files, spread
+    over the set, are read once more here, before any work.
+
+    Raises:
+        ValueError: more than half of the sampled label pixels are outside ``palette``.
+    """
+    if not label_files:
+        return
+    step = max(1, len(label_files) // FIT_FILES)
+    files = label_files[::step][:FIT_FILES]
+    labels = [read_label_image(f) for f in files]
+    share = _unknown_share(labels, palette)
+    if share <= FIT_MAX_UNKNOWN:
+        return
+    fits = [
+        name
+        for name in available_palettes()
+        if name != palette.name and _unknown_share(labels, load_palette(name)) < 0.05
+    ]
+    hint = f"they fit palette {' or '.join(fits)}: pass {flag} {fits[0]}" if fits else (
+        f"pass {flag} with the palette they are written in"
+    )  # fmt: skip
+    raise ValueError(
+        f"{share:.0%} of the label pixels of {len(files)} file(s) such as {files[0]} hold "
+        f"values outside palette {palette.name}; {hint}"
+    )

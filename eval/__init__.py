@@ -1,4 +1,19 @@
-"""Evaluation: sliding-window inference, per-image confusion, mIoU per complexity bin, reports.
+"""Evaluation: mIoU per complexity bin from any model, with intervals, tiles and comparisons.
+
+Three layers, imports pointing one way (inference → analysis ← report):
+
+- :mod:`claravid.eval.inference` (torch): the data an evaluation reads, model and label-map
+  sources, sliding windows, the confusion of an image and of its tiles, and the per-image
+  collection with its background complexity job;
+- :mod:`claravid.eval.analysis` (numpy only, no torch, no files): the per-image table and its
+  merging, metrics, bins, units, the cluster bootstrap, mIoU per bin, tiles' bins, paired
+  comparisons and any per-image metric;
+- :mod:`claravid.eval.report`: the report's JSON and its folder (``report.json``,
+  ``confusions.npz``, ``report.md``, plots) and the comparison folder.
+
+The console scripts sit beside them: ``claravid-eval`` (:mod:`claravid.eval.cli`),
+``claravid-predict`` (:mod:`claravid.eval.predict`), ``claravid-export``
+(:mod:`claravid.eval.export_cli`).
 
 The core that training validates through::
 
@@ -8,60 +23,73 @@ The core that training validates through::
     report = stratify([s.path for s in scores], np.stack([s.confusion for s in scores]),
                       classes, {"delent": values}, bins=3)
 
-The product on top (``claravid-eval``, ``claravid-predict``; see :mod:`claravid.eval.cli`)::
+What ``claravid-eval`` does, step by step::
 
-    from claravid.eval.data import open_data            # ClaraVid / UAVid / folder: keys, labels
-    from claravid.eval.collect import collect
-    from claravid.eval.report import build_report, write_outputs
+    from claravid.eval import build_report, collect, open_data, write_outputs
 
     data = open_data("/data/claravid", split="val", palette="uavid")
-    collected = collect(data, predictions="preds/")    # or model=eval.sources.load_source(...)
+    collected = collect(data, predictions="preds/")    # or model=load_source(checkpoint=...)
     report = build_report(collected.result, bins=3)
     write_outputs("report/", report, collected.result)
 
-Modules: ``data`` (what is evaluated), ``units`` (groups and bootstrap clusters),
-``sources`` (checkpoint / ONNX), ``label_maps`` (label maps on disk, image keys),
-``complexity`` (delentropy beside inference), ``collect`` (one evaluation's per-image table,
-sharded under torchrun), ``tiles`` (tile-level complexity), ``hardest`` (the hardest images),
-``report`` (JSON, confusions, merge, the report folder), ``bootstrap`` (intervals),
-``markdown``, ``plots``, ``compare``, ``scores`` (any per-image metric), ``cli``, ``predict``.
+Every name below is imported on first use, so ``import claravid.eval`` (and the analysis and
+report layers) never loads torch unless a torch-side name is asked for.
 """
 
-from claravid.eval.bins import Bin, bin_names, fixed_bins, parse_edges, quantile_bins
-from claravid.eval.evaluate import ImageScore, evaluate_model, sample_key
-from claravid.eval.metrics import (
-    CONVENTION,
-    IGNORE_INDEX,
-    confusion_matrix,
-    iou_per_class,
-    mean_iou,
-    pixel_accuracy,
-    scores,
-)
-from claravid.eval.stratify import bin_mious, correlation, stratify
-from claravid.eval.windows import WindowConfig, predict_labels, sliding_window_logits, window_starts
+from __future__ import annotations
 
-__all__ = [
-    "CONVENTION",
-    "IGNORE_INDEX",
-    "Bin",
-    "ImageScore",
-    "WindowConfig",
-    "bin_mious",
-    "bin_names",
-    "confusion_matrix",
-    "correlation",
-    "evaluate_model",
-    "fixed_bins",
-    "iou_per_class",
-    "mean_iou",
-    "parse_edges",
-    "pixel_accuracy",
-    "predict_labels",
-    "quantile_bins",
-    "sample_key",
-    "scores",
-    "sliding_window_logits",
-    "stratify",
-    "window_starts",
-]
+import importlib
+from typing import Any
+
+# Public name -> (module, attribute), imported on first access (PEP 562).
+_LAZY: dict[str, tuple[str, str]] = {
+    # analysis (numpy)
+    "CONVENTION": ("claravid.eval.analysis.metrics", "CONVENTION"),
+    "IGNORE_INDEX": ("claravid.eval.analysis.metrics", "IGNORE_INDEX"),
+    "iou_per_class": ("claravid.eval.analysis.metrics", "iou_per_class"),
+    "mean_iou": ("claravid.eval.analysis.metrics", "mean_iou"),
+    "pixel_accuracy": ("claravid.eval.analysis.metrics", "pixel_accuracy"),
+    "confusion_scores": ("claravid.eval.analysis.metrics", "confusion_scores"),
+    "scores": ("claravid.eval.analysis.metrics", "confusion_scores"),  # its former name
+    "Bin": ("claravid.eval.analysis.bins", "Bin"),
+    "bin_names": ("claravid.eval.analysis.bins", "bin_names"),
+    "fixed_bins": ("claravid.eval.analysis.bins", "fixed_bins"),
+    "parse_edges": ("claravid.eval.analysis.bins", "parse_edges"),
+    "quantile_bins": ("claravid.eval.analysis.bins", "quantile_bins"),
+    "Bootstrap": ("claravid.eval.analysis.bootstrap", "Bootstrap"),
+    "correlation": ("claravid.eval.analysis.stats", "correlation"),
+    "stratify": ("claravid.eval.analysis.miou_bins", "stratify"),
+    "bin_mious": ("claravid.eval.analysis.miou_bins", "bin_mious"),
+    "EvalResult": ("claravid.eval.analysis.table", "EvalResult"),
+    "merge_results": ("claravid.eval.analysis.table", "merge_results"),
+    # report (numpy, files, matplotlib)
+    "build_report": ("claravid.eval.report.build", "build_report"),
+    "load_result": ("claravid.eval.report.files", "load_result"),
+    "write_outputs": ("claravid.eval.report.folder", "write_outputs"),
+    "compare_reports": ("claravid.eval.report.compare", "compare_reports"),
+    # inference (torch)
+    "WindowConfig": ("claravid.eval.inference.windows", "WindowConfig"),
+    "predict_labels": ("claravid.eval.inference.windows", "predict_labels"),
+    "sliding_window_logits": ("claravid.eval.inference.windows", "sliding_window_logits"),
+    "window_starts": ("claravid.eval.inference.windows", "window_starts"),
+    "confusion_matrix": ("claravid.eval.inference.confusion", "confusion_matrix"),
+    "ImageScore": ("claravid.eval.inference.run_model", "ImageScore"),
+    "evaluate_model": ("claravid.eval.inference.run_model", "evaluate_model"),
+    "sample_key": ("claravid.eval.inference.run_model", "sample_key"),
+    "open_data": ("claravid.eval.inference.data", "open_data"),
+    "load_source": ("claravid.eval.inference.sources", "load_source"),
+    "collect": ("claravid.eval.inference.collect", "collect"),
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str) -> Any:
+    target = _LAZY.get(name)
+    if target is None:
+        raise AttributeError(f"module 'claravid.eval' has no attribute {name!r}")
+    return getattr(importlib.import_module(target[0]), target[1])
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_LAZY])

@@ -39,13 +39,11 @@ from claravid.cli import (
     run_cli,
     window_size,
 )
-from claravid.eval.bins import parse_edges
-from claravid.eval.bootstrap import Bootstrap
-from claravid.eval.complexity import parse_measures
-from claravid.eval.data import DATASETS
-from claravid.eval.label_maps import MARKER, predictions_defaults, write_marker
-from claravid.eval.report import REPORT
-from claravid.eval.units import CLUSTER_UNITS, GROUP_BY, check_unit
+from claravid.eval.analysis.bins import parse_edges
+from claravid.eval.analysis.bootstrap import Bootstrap
+from claravid.eval.analysis.measures import parse_measures
+from claravid.eval.analysis.units import CLUSTER_UNITS, DATASETS, GROUP_BY, check_unit
+from claravid.eval.report.files import REPORT
 from claravid.models.onnx_runtime import PROVIDERS
 
 PROG = "claravid-eval"
@@ -169,8 +167,8 @@ def bootstrap_settings(
 
 
 def data_bootstrap(args: argparse.Namespace, data: Any) -> Bootstrap:
-    """:func:`bootstrap_settings` for opened data (:class:`claravid.eval.data.EvalData`)."""
-    from claravid.eval.units import default_cluster
+    """:func:`bootstrap_settings` for opened data (an ``EvalData`` of ``open_data``)."""
+    from claravid.eval.analysis.units import default_cluster
 
     return bootstrap_settings(args, data.attributes, default_cluster(data.name, data.attributes))
 
@@ -195,7 +193,7 @@ def _check_args(args: argparse.Namespace) -> str:
     source = given[0]
     _refuse_idle_options(args, source)
     args.measures = parse_measures(args.measures or "delent")
-    from claravid.eval.windows import flag_precision
+    from claravid.precision import flag_precision
 
     args.precision = flag_precision(args.precision, args.no_amp, pytorch=source == "checkpoint")
     if source != "compare" and args.output is None:
@@ -249,7 +247,7 @@ def _warn_outside_edges(report: dict[str, Any], result: Any) -> None:
 
 
 def _print_done(out: Path, report: dict[str, Any]) -> None:
-    from claravid.eval.markdown import bin_table
+    from claravid.eval.report.markdown import bin_table
 
     print(bin_table(report))
     for message in (report.get("uncertainty") or {}).get("warnings", []):
@@ -258,7 +256,7 @@ def _print_done(out: Path, report: dict[str, Any]) -> None:
 
 
 def _run_compare(args: argparse.Namespace) -> int:
-    from claravid.eval.compare import compare_reports
+    from claravid.eval.report.compare import compare_reports
 
     if args.output is not None:
         check_output_dir(args.output, marker="compare.md", overwrite=args.overwrite)
@@ -275,7 +273,10 @@ def _run_compare(args: argparse.Namespace) -> int:
 
 
 def _run_merge(args: argparse.Namespace) -> int:
-    from claravid.eval.report import build_report, load_result, merge_results, write_outputs
+    from claravid.eval.analysis.table import merge_results
+    from claravid.eval.report.build import build_report
+    from claravid.eval.report.files import load_result
+    from claravid.eval.report.folder import write_outputs
 
     check_output_dir(args.output, marker=REPORT, overwrite=args.overwrite)
     parts = [load_result(p) for p in args.merge]
@@ -381,13 +382,15 @@ def _resolve_data(args: argparse.Namespace, defaults: dict[str, Any]) -> dict[st
 def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     import torch
 
-    from claravid.eval import distributed
-    from claravid.eval.collect import collect
-    from claravid.eval.data import open_data
-    from claravid.eval.hardest import hardest_items
-    from claravid.eval.report import build_report, write_outputs
-    from claravid.eval.sources import load_source, resolve_settings
-    from claravid.eval.windows import autocast_dtype, precision_name
+    from claravid import distributed
+    from claravid.eval.inference.collect import collect
+    from claravid.eval.inference.data import open_data
+    from claravid.eval.inference.hardest import hardest_items
+    from claravid.eval.inference.label_maps import MARKER, predictions_defaults, write_marker
+    from claravid.eval.inference.sources import load_source, resolve_settings
+    from claravid.eval.report.build import build_report
+    from claravid.eval.report.folder import write_outputs
+    from claravid.precision import autocast_dtype, precision_name
 
     check_device(args.device)  # one line, not CUDA's traceback
     info = distributed.init_distributed(args.device)
@@ -514,15 +517,67 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     return 0
 
 
+def _run_scores(args: argparse.Namespace) -> int:
+    """``--scores CSV``: the complexity analysis of any per-image metric (no model, no labels)."""
+    from claravid.eval.analysis.metric_bins import metric_report
+    from claravid.eval.analysis.units import unit_labels
+    from claravid.eval.inference.complexity_job import ComplexityJob
+    from claravid.eval.inference.data import open_data
+    from claravid.eval.inference.metric_csv import match_images, read_metrics_csv
+    from claravid.eval.report.folder import write_metric_outputs
+
+    if args.data is None:
+        raise UsageError("--scores needs --data: the dataset root the CSV's paths belong to")
+    check_output_dir(args.output, marker=REPORT, overwrite=args.overwrite)
+    dataset = args.dataset or "claravid"
+    csv_paths, metrics = read_metrics_csv(args.scores, args.data)
+    data = open_data(
+        args.data,
+        dataset=dataset,
+        split=args.split or ("all" if dataset == "claravid" else "val"),
+        palette=args.palette,
+        masks=args.masks,
+        selection=selection_flags(args, dataset),
+        labels=False,
+    )
+    if args.group_by is not None:
+        data.groups(args.group_by)
+    settings = data_bootstrap(args, data)
+    order = match_images(csv_paths, data.paths, args.scores)
+    paths = [data.paths[i] for i in order]
+    if args.edges is None and (args.bins or 3) > len(paths):
+        raise UsageError(f"{args.bins or 3} bins for {len(paths)} images: use --bins {len(paths)}")
+    attributes = {a: [v[i] for i in order] for a, v in data.attributes.items()}
+    clusters = unit_labels(paths, attributes, settings.cluster)
+    groups = None
+    if args.group_by is not None:
+        groups = {}
+        for pos, label in enumerate(attributes[args.group_by]):
+            groups.setdefault(label, []).append(pos)
+        groups = dict(sorted(groups.items()))
+    values = ComplexityJob(paths, args.measures, threads=max(1, args.workers)).result()
+    complexity = {m: np.asarray(values[m], dtype=np.float64) for m in args.measures}
+    report = metric_report(paths, metrics, complexity, clusters, settings,
+                           bins=args.bins or 3, edges=args.edges, groups=groups)  # fmt: skip
+    binning = {**report.pop("binning", {}), "group_by": args.group_by}
+    report["source"] = {"kind": "scores", "scores": str(args.scores), **data.describe,
+                        "measures": list(args.measures), "binning": binning}  # fmt: skip
+    out = Path(args.output)
+    text = write_metric_outputs(out, report)
+    print(text.split("## Correlations")[0].rstrip())
+    for message in report["uncertainty"]["warnings"]:
+        print(f"{PROG}: warning: {message}", file=sys.stderr)
+    print(f"\nreport: {out / 'report.md'} ({out / REPORT} and plots beside)")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     """Dispatch on the source: evaluate, merge/re-bin, or compare."""
     source = _check_args(args)
     if source == "compare":
         return _run_compare(args)
     if source == "scores":
-        from claravid.eval.scores import run_scores
-
-        return run_scores(args)
+        return _run_scores(args)
     if source == "merge":
         return _run_merge(args)
     return _run_evaluation(args, source)

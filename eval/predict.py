@@ -6,7 +6,7 @@
     claravid-predict --onnx model.onnx a.jpg b.jpg --output pred --palette uavid --scale 0.5
 
 Window, stride, scale, batch size, palette and normalisation are decided as in
-``claravid-eval`` (`claravid.eval.sources.resolve_settings`): the flag, else what the
+``claravid-eval`` (`claravid.eval.inference.sources.resolve_settings`): the flag, else what the
 checkpoint's training config or the ONNX file's metadata records, else the default; so the
 label maps equal the ones ``claravid-eval --save-predictions`` writes for the same model.
 
@@ -41,11 +41,18 @@ from claravid.cli import (
     run_cli,
     window_size,
 )
-from claravid.eval.label_maps import MARKER, image_key, write_image, write_marker, write_prediction
-from claravid.eval.sources import RunSettings
-from claravid.eval.windows import flag_precision, predict_labels
+from claravid.eval.inference.label_maps import (
+    MARKER,
+    image_key,
+    write_image,
+    write_marker,
+    write_prediction,
+)
+from claravid.eval.inference.sources import RunSettings
+from claravid.eval.inference.windows import predict_labels
 from claravid.models.onnx_runtime import PROVIDERS
 from claravid.palettes import Palette, load_palette
+from claravid.precision import flag_precision
 from claravid.transforms import eval_transforms
 
 PROG = "claravid-predict"
@@ -166,7 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Predict every image and write its label map and overlay."""
-    from claravid.eval.sources import load_source, resolve_settings
+    from claravid.eval.inference.sources import load_source, resolve_settings
 
     if (args.checkpoint is None) == (args.onnx is None):
         raise UsageError("give exactly one of --checkpoint and --onnx")

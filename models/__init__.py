@@ -7,38 +7,47 @@ Public API::
     save_checkpoint / load_checkpoint        # weights_only-safe model files
     export_onnx(model, path, ...)            # ONNX + onnxruntime check
     OnnxSegmenter(path)                      # onnxruntime runner
+
+Names are imported on first use (PEP 562): a module that needs only the ONNX Runtime side
+(``claravid.models.onnx_runtime``, ``claravid.models.onnx_metadata``) does not load torch.
 """
 
-from claravid.models.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from claravid.models.dpt import DPT_DEFAULTS, DPTHead
-from claravid.models.export import ExportCheckError, export_onnx
-from claravid.models.onnx_runtime import OnnxSegmenter
-from claravid.models.segmenter import Segmenter, build_model
-from claravid.models.vit import (
-    BACKBONE_NAMES,
-    DinoVisionTransformer,
-    backbone_config,
-    build_backbone,
-)
-from claravid.models.weights import WeightsError, hf_to_official, official_to_hf, official_url
+from __future__ import annotations
 
-__all__ = [
-    "BACKBONE_NAMES",
-    "DPT_DEFAULTS",
-    "CheckpointError",
-    "DPTHead",
-    "DinoVisionTransformer",
-    "ExportCheckError",
-    "OnnxSegmenter",
-    "Segmenter",
-    "WeightsError",
-    "backbone_config",
-    "build_backbone",
-    "build_model",
-    "export_onnx",
-    "hf_to_official",
-    "load_checkpoint",
-    "official_to_hf",
-    "official_url",
-    "save_checkpoint",
-]
+import importlib
+from typing import Any
+
+# Public name -> module that defines it.
+_LAZY = {
+    "CheckpointError": "claravid.models.checkpoint",
+    "load_checkpoint": "claravid.models.checkpoint",
+    "save_checkpoint": "claravid.models.checkpoint",
+    "DPT_DEFAULTS": "claravid.models.dpt",
+    "DPTHead": "claravid.models.dpt",
+    "ExportCheckError": "claravid.models.export",
+    "export_onnx": "claravid.models.export",
+    "OnnxSegmenter": "claravid.models.onnx_runtime",
+    "Segmenter": "claravid.models.segmenter",
+    "build_model": "claravid.models.segmenter",
+    "BACKBONE_NAMES": "claravid.models.vit",
+    "DinoVisionTransformer": "claravid.models.vit",
+    "backbone_config": "claravid.models.vit",
+    "build_backbone": "claravid.models.vit",
+    "WeightsError": "claravid.models.weights",
+    "hf_to_official": "claravid.models.weights",
+    "official_to_hf": "claravid.models.weights",
+    "official_url": "claravid.models.weights",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'claravid.models' has no attribute {name!r}")
+    return getattr(importlib.import_module(module), name)
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_LAZY])

@@ -12,7 +12,7 @@ work.)
 
 The file carries what it takes to run the model as evaluated (`claravid.models.onnx_metadata`).
 The palette's colours come from the data layer, which ``models/`` never imports: the console
-script (``claravid.eval.export``) passes a resolver into :func:`main`.
+script (``claravid.eval.export_cli``) passes a resolver into :func:`main`.
 """
 
 from __future__ import annotations

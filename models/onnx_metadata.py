@@ -15,7 +15,7 @@ file alone says how the model was evaluated::
      "training": {"step", "config_sha256"} (known keys only)}
 
 Everything here is plain data: the models never import the data layer, so the caller passes the
-palette already resolved (see ``claravid.eval.export``).
+palette already resolved (see ``claravid.eval.export_cli``).
 """
 
 from __future__ import annotations

@@ -40,12 +40,11 @@ from tqdm.auto import tqdm
 
 from claravid import models
 from claravid.cli import check_device
-from claravid.eval import WindowConfig
-from claravid.eval.data import check_palette_fit
-from claravid.eval.distributed import DistInfo, barrier, init_distributed
-from claravid.eval.metrics import IGNORE_INDEX
-from claravid.eval.windows import autocast_dtype, precision_name
+from claravid.distributed import DistInfo, barrier, init_distributed
+from claravid.eval import IGNORE_INDEX, WindowConfig
+from claravid.masks import check_palette_fit
 from claravid.palettes import load_palette
+from claravid.precision import autocast_dtype, precision_name
 from claravid.train import config as C
 from claravid.train.checkpoint import (
     load_training_checkpoint,

@@ -18,9 +18,9 @@ import numpy as np
 import torch
 from torch.utils.data import Sampler
 
+from claravid.distributed import gather_in_order, shard_indices
 from claravid.dsp import compute_complexities
-from claravid.eval.bins import quantile_bins
-from claravid.eval.distributed import gather_in_order, shard_indices
+from claravid.eval import quantile_bins
 
 
 def sample_seed(seed: int, position: int) -> int:

@@ -9,10 +9,11 @@ import pytest
 import torch
 from PIL import Image
 
-import claravid.eval.collect as collect_module
+import claravid.eval.inference.collect as collect_module
 from claravid.eval.cli import main
 from claravid.eval.predict import main as predict_main
-from claravid.eval.report import build_report, load_result
+from claravid.eval.report.build import build_report
+from claravid.eval.report.files import load_result
 from claravid.palettes import load_palette
 from tests.eval.conftest import WINDOW
 
@@ -272,7 +273,7 @@ def test_an_exif_rotated_photo_is_explained(tmp_path):
 
 
 def test_hardest_images_have_a_legend_of_the_class_colours(tmp_path):
-    from claravid.eval.plots import hardest_figure, plot_hardest
+    from claravid.eval.report.plots import hardest_figure, plot_hardest
 
     palette = load_palette("uavid")
     mask = np.array([[0, 1], [255, 1]], np.uint8)

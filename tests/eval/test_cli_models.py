@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from claravid.eval.cli import main
-from claravid.eval.sources import checkpoint_defaults
-from claravid.eval.windows import WindowConfig, predict_labels
+from claravid.eval.inference.sources import checkpoint_defaults
+from claravid.eval.inference.windows import WindowConfig, predict_labels
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.transforms import eval_transforms
 from tests.eval.conftest import WINDOW

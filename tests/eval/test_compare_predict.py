@@ -8,8 +8,8 @@ import pytest
 
 from claravid import modalities
 from claravid.eval.cli import main
+from claravid.eval.inference.windows import WindowConfig, predict_labels
 from claravid.eval.predict import main as predict_main
-from claravid.eval.windows import WindowConfig, predict_labels
 from claravid.transforms import eval_transforms
 from tests.eval.conftest import tiny_model
 
@@ -116,7 +116,7 @@ def test_predict_refuses_a_missing_image(tmp_path, capsys):
 def test_compare_markdown_shows_gaps_smaller_than_a_tenth_of_a_point():
     # The demo's int8 export: a gap of 2.8e-5 mIoU whose interval excludes 0 was written
     # "+0.0 [+0.0, +0.0]" next to "**yes**". Decimals now follow the smallest non-zero value.
-    from claravid.eval.markdown import compare_markdown
+    from claravid.eval.report.markdown import compare_markdown
 
     def row(name, gap, ci, p):
         return {"name": name, "paired": True, "gap": gap, "gap_ci": ci, "p_value": p}

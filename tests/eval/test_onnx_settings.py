@@ -14,7 +14,7 @@ import pytest
 
 from claravid import models
 from claravid.eval.cli import main as eval_main
-from claravid.eval.export import main as export_main
+from claravid.eval.export_cli import main as export_main
 from claravid.eval.predict import main as predict_main
 from claravid.modalities import read_dynamic_mask as read_label  # any 8-bit grey PNG
 from claravid.palettes import load_palette
@@ -174,7 +174,7 @@ def test_a_fixed_size_onnx_file_names_its_size_as_a_window_flag():
     from types import SimpleNamespace
 
     from claravid.cli import UsageError
-    from claravid.eval.sources import ModelSource, resolve_settings
+    from claravid.eval.inference.sources import ModelSource, resolve_settings
 
     fixed = SimpleNamespace(input_size=(28, 42), metadata={})  # height 28, width 42
     source = ModelSource(fixed, "onnx", "m.onnx", num_classes=8, patch_size=14)  # type: ignore[arg-type]

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from claravid.eval.bootstrap import Bootstrap
+from claravid.eval.analysis.bootstrap import Bootstrap
+from claravid.eval.analysis.metrics import mean_iou
+from claravid.eval.analysis.tile_bins import TileTable, concat_tables, tile_report
 from claravid.eval.cli import main
-from claravid.eval.markdown import bin_table
-from claravid.eval.metrics import mean_iou
-from claravid.eval.tiles import TileTable, concat_tables, tile_confusions, tile_report
+from claravid.eval.inference.confusion import tile_confusions
+from claravid.eval.report.markdown import bin_table
 from claravid.segmentation import ClaraVidSegmentation
 from tests.claravid.dsp.reference import official_delentropy
 
@@ -270,7 +271,7 @@ def test_a_tile_grid_mismatch_names_the_image():
     refuse labels of another size first, this guard says which image broke it otherwise."""
     from types import SimpleNamespace
 
-    from claravid.eval.collect import _check_tile_grids
+    from claravid.eval.inference.collect import _check_tile_grids
 
     data = SimpleNamespace(paths=["a.png", "b.png"])
     ok = (np.zeros((2, 3)), np.zeros((2, 3, K, K), np.int64))

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from claravid import modalities
-from claravid.eval.bootstrap import Bootstrap, cluster_ids, confusion_interval
+from claravid.eval.analysis.bootstrap import Bootstrap, cluster_ids, confusion_interval
 from claravid.eval.cli import main
 from claravid.layout import MISSIONS, frame_file
 from claravid.segmentation import ClaraVidSegmentation
@@ -180,8 +180,8 @@ def test_block_without_extrinsics_is_refused(writable_root, tmp_path, capsys):
 
 def test_paired_compare_aligns_images_by_path():
     """B lists the same images as A in another order: the pairs follow the paths."""
-    from claravid.eval.compare import gap_analysis
-    from claravid.eval.report import EvalResult
+    from claravid.eval.analysis.compare import gap_analysis
+    from claravid.eval.analysis.table import EvalResult
 
     rng = np.random.default_rng(0)
     conf = rng.integers(0, 50, size=(12, 3, 3)) + np.eye(3, dtype=np.int64) * 400

@@ -1,0 +1,72 @@
+"""The precision policy shared by training, evaluation and prediction.
+
+``auto`` runs float32 on a CPU and autocast on CUDA (bf16 where the GPU supports it, else
+fp16); ``fp32`` never autocasts; ``bf16`` and ``fp16`` autocast to that type on any device
+(bf16 is fast on CPUs with AVX512-BF16 or AMX). ``train.amp``, ``WindowConfig.precision`` and
+the ``--precision`` flags of ``claravid-eval`` / ``claravid-predict`` all resolve through
+:func:`autocast_dtype`, so a report and a training log name the same precision the same way.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import warnings
+from typing import Any
+
+import torch
+
+#: The values of ``WindowConfig.precision``.
+PRECISIONS = ("auto", "fp32", "bf16", "fp16")
+
+
+def autocast_dtype(precision: str, device: torch.device | str) -> torch.dtype | None:
+    """The autocast type a precision setting means on ``device`` (None: float32, no autocast).
+
+    ``auto``: bf16 on a GPU that supports it, fp16 on an older GPU, float32 on a CPU.
+
+    Raises:
+        ValueError: ``precision`` is not one of `PRECISIONS`.
+    """
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    device = torch.device(device)
+    if precision == "auto":
+        if device.type != "cuda":
+            return None
+        return torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
+    return {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}[precision]
+
+
+def precision_name(dtype: torch.dtype | None) -> str:
+    """``fp32``, ``bf16`` or ``fp16``: what `autocast_dtype` resolved to, for reports and logs."""
+    return {None: "fp32", torch.bfloat16: "bf16", torch.float16: "fp16"}[dtype]
+
+
+#: What ``--precision`` of ``claravid-eval`` / ``claravid-predict`` takes (unset: ``auto``).
+FLAG_PRECISIONS = ("fp32", "bf16")
+
+
+def flag_precision(precision: str | None, no_amp: bool = False, *, pytorch: bool = True) -> str:
+    """``--precision`` (or the deprecated ``--no-amp``) as a `WindowConfig` precision.
+
+    Raises:
+        ValueError: an unknown value, a contradiction with ``--no-amp``, or bf16 for a model
+            that is not PyTorch (an ONNX file runs at the precision it was exported in).
+    """
+    if precision is not None and precision not in FLAG_PRECISIONS:
+        raise ValueError(f"--precision must be fp32 or bf16, got {precision!r}")
+    if no_amp:
+        if precision not in (None, "fp32"):
+            raise ValueError("--no-amp means --precision fp32: drop --no-amp or --precision")
+        warnings.warn("--no-amp is deprecated: use --precision fp32", UserWarning, stacklevel=2)
+        precision = "fp32"
+    if precision == "bf16" and not pytorch:
+        raise ValueError("--precision bf16 applies to a PyTorch model (--checkpoint) only")
+    return precision or "auto"
+
+
+def autocast(dtype: torch.dtype | None, device: torch.device | str) -> Any:
+    """An autocast context to ``dtype`` on ``device``'s type (a no-op context for None)."""
+    if dtype is None:
+        return contextlib.nullcontext()
+    return torch.autocast(torch.device(device).type, dtype=dtype)

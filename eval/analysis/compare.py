@@ -1,0 +1,155 @@
+"""The mIoU gap of reports against a baseline, with cluster bootstrap intervals.
+
+Each report B after the first (the baseline A) gets its mIoU gap B − A, overall and per bin
+(matched by position), with a cluster bootstrap interval and a two-sided p-value. *Paired* when
+A and B cover the same images (same paths): the same clusters are resampled for both and the gap
+is taken per resample, which removes the spread between images. *Unpaired* otherwise: each
+report resamples its own clusters independently (a wider interval), and the comparison says so.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from claravid.cli import UsageError
+from claravid.eval.analysis.bins import Bin, fixed_bins, quantile_bins
+from claravid.eval.analysis.bootstrap import Bootstrap, paired_gap, unpaired_gap
+from claravid.eval.analysis.table import EvalResult
+
+
+def _edges(report: dict[str, Any]) -> list[tuple[Any, Any]]:
+    return [(b.get("lo"), b.get("hi")) for b in report["bins"]]
+
+
+def comparison_warnings(reports: Sequence[dict[str, Any]], names: Sequence[str]) -> list[str]:
+    """What makes the side-by-side rows not comparable: palettes, binning, bin ranges."""
+    out = []
+    first, name0 = reports[0], names[0]
+    for report, name in itertools.islice(zip(reports, names, strict=True), 1, None):
+        if report["palette"] != first["palette"] or report["classes"] != first["classes"]:
+            out.append(
+                f"palettes differ: {name0} uses {first['palette']}, {name} uses "
+                f"{report['palette']}; mIoUs average different classes"
+            )
+        b0 = first["source"].get("binning", {})
+        b1 = report["source"].get("binning", {})
+        if b0.get("method") != b1.get("method") or b0.get("edges") != b1.get("edges"):
+            out.append(
+                f"bin edges differ: {name0} {b0.get('method')} {b0.get('edges') or ''} vs "
+                f"{name} {b1.get('method')} {b1.get('edges') or ''}; evaluate both with the same "
+                "--edges to compare bin by bin"
+            )
+        elif b0.get("method") != "fixed" and _edges(first) != _edges(report):
+            out.append(
+                f"bin edges differ: quantile bins of {name0} and {name} cover different "
+                "delentropy ranges; use the same --edges to compare bin by bin"
+            )
+    return out
+
+
+def report_bins(result: EvalResult, report: dict[str, Any]) -> list[Bin]:
+    """The bins of a report, re-derived from its per-image table and its recorded binning."""
+    binning = report["source"].get("binning", {})
+    values = result.complexity.get(binning.get("measure", ""))
+    if values is None or not binning.get("method"):
+        return []
+    if binning["method"] == "fixed":
+        return fixed_bins(values, binning["edges"])[0]
+    return quantile_bins(values, result.paths, int(binning["bins"]))
+
+
+def cluster_unit(results: Sequence[EvalResult], names: Sequence[str], wanted: str | None) -> str:
+    """The cluster unit every report carries: ``wanted``, else the baseline's default."""
+    unit = wanted or results[0].default_cluster()
+    for result, name in zip(results, names, strict=True):
+        if unit not in result.units():
+            raise UsageError(
+                f"--cluster {unit} is not available for {name} (it has: "
+                f"{', '.join(result.units())}); pick a unit every report has"
+            )
+    return unit
+
+
+def gap_analysis(
+    results: Sequence[EvalResult],
+    reports: Sequence[dict[str, Any]],
+    names: Sequence[str],
+    settings: Bootstrap,
+) -> dict[str, Any]:
+    """``compare.json``: the mIoU gap of each report against the first, with intervals.
+
+    Args:
+        results: per-image tables (:func:`claravid.eval.report.files.load_result`), baseline first.
+        reports: their ``report.json`` (for the binning and the bin names).
+        names: how each report is named in the output.
+        settings: resamples, level, seed and the cluster unit.
+    """
+    base, base_report = results[0], reports[0]
+    base_ids = _ids(base, settings.cluster)
+    base_bins = report_bins(base, base_report)
+    comparisons = []
+    for j, (result, report, name) in enumerate(
+        zip(results[1:], reports[1:], names[1:], strict=True), 1
+    ):
+        pair = _Pair(base, result, base_ids, settings)
+        other_bins = report_bins(result, report)
+        entry: dict[str, Any] = {
+            "report": name,
+            "paired": pair.paired,
+            "overall": pair.gap(
+                range(len(base.paths)), range(len(result.paths)), f"compare:{j}:overall"
+            ),
+            "bins": [],
+        }
+        for a, b in zip(base_bins, other_bins, strict=False):
+            row = pair.gap(a.indices, b.indices, f"compare:{j}:bin:{a.name}")
+            entry["bins"].append({"name": a.name, **row})
+        if not pair.paired:
+            entry["note"] = (
+                f"{name} and {names[0]} cover different images: unpaired comparison, each "
+                "resampled independently"
+            )
+        comparisons.append(entry)
+    return {
+        "baseline": names[0],
+        "comparisons": comparisons,
+        "uncertainty": settings.describe(int(base_ids.max()) + 1 if base_ids.size else 0),
+    }
+
+
+class _Pair:
+    """Baseline A and report B: paired (same images) or not, and the gap of two image sets."""
+
+    def __init__(self, a: EvalResult, b: EvalResult, a_ids: np.ndarray, settings: Bootstrap):
+        self.a, self.b, self.a_ids, self.settings = a, b, a_ids, settings
+        self.paired = sorted(b.paths) == sorted(a.paths) and b.classes == a.classes
+        if self.paired:
+            # B's rows in A's image order; both resample A's clusters.
+            where = {p: i for i, p in enumerate(b.paths)}
+            order = np.asarray([where[p] for p in a.paths], dtype=np.int64)
+            self.b_conf = b.confusions[order]
+            self.b_to_a = np.argsort(order)
+        else:
+            self.b_ids = _ids(b, settings.cluster)
+
+    def gap(self, members_a: Sequence[int], members_b: Sequence[int], stream: str) -> dict:
+        """The gap B − A of A's ``members_a`` and B's ``members_b``; paired when the two
+        reports cover the same images and the two sets are the same images."""
+        if self.paired and sorted(members_a) == sorted(int(self.b_to_a[i]) for i in members_b):
+            out = paired_gap(self.a.confusions, self.b_conf, self.a_ids, members_a,
+                             self.settings, stream=stream)  # fmt: skip
+            return {"paired": True, **out}
+        b_ids = _ids(self.b, self.settings.cluster) if self.paired else self.b_ids
+        out = unpaired_gap(self.a.confusions, self.a_ids, members_a, self.b.confusions, b_ids,
+                           members_b, self.settings, stream=stream)  # fmt: skip
+        return {"paired": False, **out}
+
+
+def _ids(result: EvalResult, unit: str) -> np.ndarray:
+    from claravid.eval.analysis.bootstrap import cluster_ids
+
+    return cluster_ids(result.cluster_labels(unit))

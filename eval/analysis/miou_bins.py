@@ -1,0 +1,193 @@
+"""From per-image confusions and complexities to the report's numbers.
+
+Overall, per complexity bin and per group (mission or viewpoint): number of images, range, mIoU,
+per-class IoU and pixel accuracy, each from the group's summed confusion (FORMAT.md §8); per
+image: its own mIoU and pixel accuracy; Pearson and Spearman correlations between each
+complexity measure and per-image mIoU, with n. With a
+:class:`~claravid.eval.analysis.bootstrap.Bootstrap` and a cluster label per image, every mIoU,
+pixel accuracy and correlation also gets its cluster percentile bootstrap interval (``miou_ci``,
+``pixel_acc_ci``, ``pearson_ci``, ``spearman_ci``; ``ci_note`` says why one is null). Everything
+here is numpy on finished results, so a report can be re-binned or merged from saved confusions
+without running a model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from claravid.eval.analysis.bins import Bin, fixed_bins, quantile_bins
+from claravid.eval.analysis.bootstrap import (
+    Bootstrap,
+    cluster_ids,
+    confusion_features,
+    confusion_interval,
+    correlation_interval,
+)
+from claravid.eval.analysis.measures import PRIMARY_MEASURE
+from claravid.eval.analysis.metrics import (
+    CONVENTION,
+    IGNORE_INDEX,
+    confusion_scores,
+    finite_or_none,
+    mean_iou,
+    pixel_accuracy,
+)
+from claravid.eval.analysis.stats import correlation, group_profile, order_warnings
+
+
+def _group_row(
+    name: str,
+    members: Sequence[int],
+    confusions: np.ndarray,
+    classes: Sequence[str],
+    values: np.ndarray | None,
+) -> dict[str, Any]:
+    conf = confusions[list(members)].sum(axis=0) if len(members) else np.zeros_like(confusions[0])
+    row: dict[str, Any] = {"name": name, "num_images": len(members)}
+    if values is not None:
+        vals = values[list(members)]
+        row["lo"] = finite_or_none(float(vals.min())) if len(vals) else None
+        row["hi"] = finite_or_none(float(vals.max())) if len(vals) else None
+    row.update(confusion_scores(conf, classes))
+    return row
+
+
+def stratify(
+    paths: Sequence[str],
+    confusions: np.ndarray,
+    classes: Sequence[str],
+    complexity: Mapping[str, Sequence[float]] | None = None,
+    *,
+    bins: int = 3,
+    edges: Sequence[float] | None = None,
+    groups: Mapping[str, Sequence[int]] | None = None,
+    clusters: Sequence[str] | None = None,
+    bootstrap: Bootstrap | None = None,
+) -> dict[str, Any]:
+    """The report's numbers (everything but the ``source`` and palette name).
+
+    Args:
+        paths: one per image (the RGB file), in the order of ``confusions``.
+        confusions: int64 [N,K,K], one confusion per image.
+        classes: the K class names.
+        complexity: measure name (``delent``, ``glcment``, ``pixent``) -> one value per image;
+            bins use ``delent`` (or the first measure given).
+        bins: K quantile bins (ignored when ``edges`` is given).
+        edges: fixed bin edges, for comparing models and datasets.
+        groups: group name -> image indices (missions or viewpoints), each reported with the
+            DSP profile (μ, σ, α, β) of its complexity values.
+        clusters: the bootstrap cluster label of each image (default: each image its own).
+        bootstrap: interval settings; None: no intervals and no ``uncertainty`` entry.
+
+    Returns:
+        ``{"overall", "bins", "groups", "images", "correlation", "classes", "ignore_index",
+        "convention", "binning"}``, and ``"uncertainty"`` with ``bootstrap``.
+    """
+    confusions = np.asarray(confusions, dtype=np.int64)
+    n = len(paths)
+    if confusions.shape[0] != n or confusions.shape[1:] != (len(classes), len(classes)):
+        raise ValueError(
+            f"confusions {confusions.shape} do not match {n} images and {len(classes)} classes"
+        )
+    if n == 0:
+        raise ValueError("no image to report on")
+    complexity = {k: np.asarray(v, dtype=np.float64) for k, v in (complexity or {}).items()}
+    for measure, values in complexity.items():
+        if len(values) != n:
+            raise ValueError(f"{len(values)} {measure} values for {n} images")
+    measure = PRIMARY_MEASURE if PRIMARY_MEASURE in complexity else next(iter(complexity), None)
+    values = complexity.get(measure) if measure else None
+
+    report: dict[str, Any] = {
+        "overall": {"num_images": n, **confusion_scores(confusions.sum(axis=0), classes)},
+        "classes": list(classes),
+        "ignore_index": IGNORE_INDEX,
+        "convention": CONVENTION,
+    }
+    bin_list: list[Bin] = []
+    outside: list[int] = []
+    if values is not None:
+        if edges is not None:
+            bin_list, outside = fixed_bins(values, edges)
+            binning = {"measure": measure, "method": "fixed", "edges": [float(e) for e in edges]}
+        else:
+            bin_list = quantile_bins(values, paths, bins)
+            binning = {"measure": measure, "method": "quantile", "bins": bins}
+        binning["outside"] = [paths[i] for i in outside]
+        report["binning"] = binning
+    report["bins"] = []
+    for b in bin_list:
+        row = _group_row(b.name, b.indices, confusions, classes, values)
+        if edges is not None:  # a fixed bin's range is its edges, even when empty
+            row["lo"], row["hi"] = b.lo, b.hi
+        report["bins"].append(row)
+
+    report["groups"] = []
+    for name, members in (groups or {}).items():
+        row = _group_row(name, members, confusions, classes, values)
+        if values is not None and len(members):
+            row["profile"] = group_profile(values[list(members)])
+        report["groups"].append(row)
+
+    per_image_miou = np.array([mean_iou(c) for c in confusions])
+    images = []
+    for i, path in enumerate(paths):
+        row = {"path": path}
+        row.update({m: finite_or_none(float(v[i])) for m, v in complexity.items()})
+        row["miou"] = finite_or_none(per_image_miou[i])
+        row["pixel_acc"] = finite_or_none(pixel_accuracy(confusions[i]))
+        images.append(row)
+    report["images"] = images
+    report["correlation"] = {m: correlation(v, per_image_miou) for m, v in complexity.items()}
+    if bootstrap is not None:
+        add_intervals(report, confusions, bin_list, groups or {}, complexity, per_image_miou,
+                      list(paths) if clusters is None else clusters, bootstrap)  # fmt: skip
+    return report
+
+
+def add_intervals(
+    report: dict[str, Any],
+    confusions: np.ndarray,
+    bin_list: Sequence[Bin],
+    groups: Mapping[str, Sequence[int]],
+    complexity: Mapping[str, np.ndarray],
+    per_image_miou: np.ndarray,
+    clusters: Sequence[str],
+    settings: Bootstrap,
+) -> None:
+    """Add the bootstrap intervals and the ``uncertainty`` entry to ``report`` in place.
+
+    Each set draws from its own generator (named ``overall``, ``bin:<name>``,
+    ``group:<name>``, ``correlation:<measure>``), so its interval does not depend on the others.
+    """
+    if len(clusters) != len(confusions):
+        raise ValueError(f"{len(clusters)} cluster labels for {len(confusions)} images")
+    ids = cluster_ids(clusters)
+    features = confusion_features(confusions)  # once, not once per bin and group
+
+    def interval(members: Sequence[int], stream: str) -> dict[str, Any]:
+        return confusion_interval(confusions, ids, members, settings, stream=stream,
+                                  features=features)  # fmt: skip
+
+    report["overall"].update(interval(np.arange(len(confusions)), "overall"))
+    for b, row in zip(bin_list, report["bins"], strict=True):
+        row.update(interval(b.indices, f"bin:{b.name}"))
+    for (name, members), row in zip(groups.items(), report["groups"], strict=True):
+        row.update(interval(members, f"group:{name}"))
+    for measure, values in complexity.items():
+        report["correlation"][measure].update(
+            correlation_interval(
+                values, per_image_miou, ids, settings, stream=f"correlation:{measure}"
+            )
+        )
+    uncertainty = settings.describe(int(ids.max()) + 1 if ids.size else 0)
+    uncertainty["warnings"] = order_warnings(report["bins"], "miou_ci", "miou")
+    report["uncertainty"] = uncertainty
+
+
+def bin_mious(report: Mapping[str, Any]) -> dict[str, float | None]:
+    """``{bin name: mIoU}`` of a report (what a training log row carries as ``miou_bins``)."""
+    return {row["name"]: row["miou"] for row in report.get("bins", [])}

@@ -1,0 +1,226 @@
+"""One evaluation's per-image table: images -> per-image confusions and complexity.
+
+:func:`collect` produces the per-image table (:class:`~claravid.eval.analysis.table.EvalResult`)
+from a model or from saved label maps, on one process or sharded over ``torchrun`` ranks (each rank
+evaluates every ``world_size``-th image and measures its complexity meanwhile; rank 0 gathers
+everything in dataset order, so the table is the same as one process's). The report folder is
+then :func:`claravid.eval.report.folder.write_outputs`; the command line
+(:mod:`claravid.eval.cli`) is a thin layer over both.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from claravid import distributed
+from claravid.cli import USER_ERRORS, UsageError
+from claravid.eval.analysis.metrics import mean_iou
+from claravid.eval.analysis.table import EvalResult
+from claravid.eval.analysis.tile_bins import TileTable
+from claravid.eval.inference.complexity_job import ComplexityJob
+from claravid.eval.inference.data import EvalData
+from claravid.eval.inference.hardest import Hardest
+from claravid.eval.inference.label_maps import check_missing, label_map_confusions, write_marker
+from claravid.eval.inference.label_maps import write_prediction as save_label_map
+from claravid.eval.inference.run_model import ImageScore, evaluate_model
+from claravid.eval.inference.sources import ModelSource
+from claravid.eval.inference.windows import WindowConfig
+
+
+@dataclass
+class Collected:
+    """What :func:`collect` returns: the table, the skipped images, kept hardest predictions."""
+
+    result: EvalResult
+    skipped: list[str]
+    hardest: dict[int, np.ndarray]
+
+
+def _from_worker(exc: Exception) -> Exception:
+    """A DataLoader worker's data error (an unreadable image) as the one-line error it was.
+
+    The DataLoader re-raises it with the worker's traceback in the message (or, when the
+    exception cannot be rebuilt from one string, as a RuntimeError); its last line is
+    ``module.ErrorType: message``.
+    """
+    text = str(exc)
+    if "DataLoader worker" not in text.split("\n", 1)[0]:
+        return exc
+    last = text.rstrip().splitlines()[-1]
+    name, _, message = last.partition(": ")
+    if name.rsplit(".", 1)[-1].endswith(("Error", "Exception")) and message:
+        return ValueError(message)
+    return exc
+
+
+def _raise_any(error: BaseException | None) -> None:
+    """Raise on every rank when any rank failed (the others would wait forever otherwise)."""
+    me = distributed.current().rank
+    summary = None if error is None else (isinstance(error, USER_ERRORS), str(error))
+    failures = distributed.gather_in_order([summary], [me])
+    if error is not None:
+        raise error
+    for failure in failures:
+        if failure is not None:
+            user, message = failure
+            raise (UsageError if user else RuntimeError)(f"another rank failed: {message}")
+
+
+def collect(
+    data: EvalData,
+    *,
+    model: ModelSource | None = None,
+    predictions: str | Path | None = None,
+    window: WindowConfig | None = None,
+    measures: Sequence[str] = ("delent",),
+    workers: int = 0,
+    device: torch.device | str = "cpu",
+    save_predictions: str | Path | None = None,
+    allow_missing: bool = False,
+    hardest: int = 4,
+    tile_size: int | None = None,
+    progress: bool = False,
+    source: dict[str, Any] | None = None,
+) -> Collected:
+    """Per-image confusions and complexities of ``data`` from a model or saved predictions.
+
+    Under ``torchrun`` (an initialised process group) each rank takes its shard; every rank
+    returns the full, gathered table.
+
+    Args:
+        data: the images (:func:`claravid.eval.inference.data.open_data`).
+        model: a loaded model (exclusive with ``predictions``).
+        predictions: the folder of saved label maps.
+        window: sliding windows (model only).
+        measures: complexity measures, ``delent`` first.
+        workers: processes for complexity and for decoding images (0: threads only).
+        device: where the model runs.
+        save_predictions: also write the model's label maps here.
+        allow_missing: skip images without a prediction instead of failing.
+        hardest: how many of the hardest images' predictions to keep for overlays.
+        tile_size: also each tile's delentropy and confusion (see
+            :mod:`claravid.eval.analysis.tile_bins`).
+        progress: show a progress bar.
+        source: the report's ``source`` entries.
+    """
+    if (model is None) == (predictions is None):
+        raise ValueError("give exactly one of a model and a predictions folder")
+    k = data.palette.num_classes
+    skipped: list[int] = []
+    present = list(range(len(data)))
+    if predictions is not None:
+        present, skipped = check_missing(predictions, data, allow_missing)
+    mine = [present[i] for i in distributed.shard_indices(len(present))]
+    keeper = Hardest(hardest if model is not None and save_predictions is None else 0)
+    error: BaseException | None = None
+    confusions: list[np.ndarray] = []
+    tile_confs: list[np.ndarray | None] = []
+    tile_values: list[np.ndarray | None] = []
+    values: dict[str, list[float]] = {}
+    if save_predictions is not None and distributed.current().is_main:
+        # The marker first: an interrupted run's partial label maps are still this tool's, so
+        # the same command can be run again without --overwrite.
+        write_marker(save_predictions, data.palette, source or {}, complete=False)
+    job: ComplexityJob | None = None
+    try:
+        # Complexity starts first and runs while the model (or the PNG reader) works: in
+        # worker processes beside a model (a long run), in threads beside the PNG reader.
+        job = ComplexityJob(
+            [data.paths[i] for i in mine],
+            measures,
+            workers=workers if model is not None else 0,
+            threads=max(1, workers),
+            tile_size=tile_size,
+        )
+        if model is not None:
+
+            def on_score(sample: dict[str, Any], pred: torch.Tensor, score: ImageScore) -> None:
+                if save_predictions is not None:
+                    save_label_map(save_predictions, score.key, pred.to("cpu", torch.uint8).numpy())
+                keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
+
+            scores = evaluate_model(
+                model.model,
+                data.dataset,
+                k,
+                window,
+                device=device,
+                indices=mine,
+                num_workers=workers,
+                tile_size=tile_size,
+                progress=progress,
+                on_score=on_score,
+            )
+            confusions = [s.confusion for s in scores]
+            tile_confs = [s.tiles for s in scores]
+        else:
+            threads = max(1, workers)
+            scored = label_map_confusions(
+                data, predictions, mine, threads=threads, tile_size=tile_size, progress=progress
+            )
+            confusions, tile_confs = [c for c, _ in scored], [t for _, t in scored]
+        values = job.result()
+        tile_values = job.tiles()
+        if tile_size is not None:
+            _check_tile_grids(data, mine, tile_values, tile_confs)
+    except BaseException as exc:
+        if job is not None:
+            job.stop()  # join the threads before the error ends the process
+        if not isinstance(exc, Exception):  # Ctrl-C: no rank exchange, just stop
+            raise
+        error = _from_worker(exc)
+    _raise_any(error)
+
+    rows = [
+        (confusions[j], {m: values[m][j] for m in values},
+         (tile_values[j], tile_confs[j]) if tile_size is not None else None)
+        for j in range(len(mine))
+    ]  # fmt: skip
+    rows = distributed.gather_in_order(rows, mine)
+    kept = distributed.gather_in_order([keeper.heap], [distributed.current().rank])
+    order = sorted(present)
+    # Entries are (-mIoU, -index, prediction): the hardest are the largest.
+    entries = [e for part in kept for e in part]
+    heap = heapq.nlargest(max(0, hardest), entries, key=lambda e: e[:2])
+    result = EvalResult(
+        paths=[data.paths[i] for i in order],
+        keys=[data.keys[i] for i in order],
+        confusions=np.stack([r[0] for r in rows]).astype(np.int64),
+        complexity={m: np.asarray([r[1][m] for r in rows], dtype=np.float64) for m in measures},
+        attributes={a: [v[i] for i in order] for a, v in data.attributes.items()},
+        classes=list(data.palette.names),
+        palette=data.palette.name,
+        source={**(source or {}), "skipped": [data.paths[i] for i in skipped]},
+        tiles=None
+        if tile_size is None
+        else TileTable.from_images(tile_size, [r[2] for r in rows], k),
+    )
+    # Table rows are positions in `present`; hardest predictions are keyed by those too.
+    position = {index: pos for pos, index in enumerate(order)}
+    return Collected(
+        result, [data.paths[i] for i in skipped], {position[-i]: p for _, i, p in heap}
+    )
+
+
+def _check_tile_grids(
+    data: EvalData,
+    indices: Sequence[int],
+    values: Sequence[np.ndarray | None],
+    confusions: Sequence[np.ndarray | None],
+) -> None:
+    """The image's tile grid (its delentropy) must be the labels' grid (their confusions)."""
+    for index, value, conf in zip(indices, values, confusions, strict=True):
+        if value is None or conf is None or value.shape != conf.shape[:2]:
+            got = None if value is None else value.shape
+            want = None if conf is None else conf.shape[:2]
+            raise ValueError(
+                f"{data.paths[index]}: the image gives a {got} tile grid and its labels a {want} "
+                "one: --tiles needs labels at the image's resolution"
+            )

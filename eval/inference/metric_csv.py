@@ -1,0 +1,129 @@
+"""Per-image metrics from a CSV file: the input of ``claravid-eval --scores FILE.csv``.
+
+The CSV holds a ``path`` column (relative to the data root, or absolute) and one or more numeric
+columns (PSNR, SSIM, a depth error...). Rows are numbered as in a spreadsheet: the header is
+row 1. Every error names the rows it is about.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from claravid.cli import UsageError
+
+PATH_COLUMN = "path"
+_SHOWN = 5  # rows named in an error
+
+
+def _rows(numbers: Sequence[int]) -> str:
+    shown = ", ".join(str(n) for n in numbers[:_SHOWN])
+    more = f" and {len(numbers) - _SHOWN} more" if len(numbers) > _SHOWN else ""
+    return f"row{'s' if len(numbers) > 1 else ''} {shown}{more}"
+
+
+def read_metrics_csv(path: str | Path, root: str | Path) -> tuple[list[str], dict[str, np.ndarray]]:
+    """Read a scores CSV.
+
+    Rows are numbered as in a spreadsheet: the header is row 1.
+
+    Args:
+        path: the CSV file.
+        root: the data root relative paths are taken from.
+
+    Returns:
+        ``(paths, metrics)``: absolute, normalised image paths in CSV order, and metric
+        column -> float64 [N].
+
+    Raises:
+        UsageError: unreadable file, no ``path`` column, no metric column, an empty path,
+            a non-numeric or non-finite value, or a path listed twice (the rows are named).
+    """
+    path, root = Path(path), Path(root).absolute()
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            reader = csv.DictReader(f)
+            header = [h.strip() for h in (reader.fieldnames or [])]
+            records = list(reader)
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise UsageError(f"cannot read the scores CSV {path} ({exc})") from None
+    if PATH_COLUMN not in header:
+        raise UsageError(
+            f"{path} has no '{PATH_COLUMN}' column (header: {', '.join(header) or 'none'}); "
+            f"write a header like path,psnr,ssim"
+        )
+    raw_names = reader.fieldnames or []
+    columns = [(raw, h) for raw, h in zip(raw_names, header, strict=True) if h != PATH_COLUMN]
+    if not columns:
+        raise UsageError(f"{path} has no metric column beside '{PATH_COLUMN}' (e.g. psnr)")
+    if not records:
+        raise UsageError(f"{path} lists no image")
+    path_key = raw_names[header.index(PATH_COLUMN)]
+    paths: list[str] = []
+    metrics = {name: np.empty(len(records)) for _, name in columns}
+    empty, bad, extra = [], [], []
+    for i, record in enumerate(records):
+        row = i + 2
+        if None in record:  # more cells than header columns
+            extra.append(row)
+        text = (record.get(path_key) or "").strip()
+        if not text:
+            empty.append(row)
+        file = Path(text).expanduser()
+        paths.append(str(Path(_normal(file if file.is_absolute() else root / file))))
+        for raw, name in columns:
+            cell = (record.get(raw) or "").strip()
+            try:
+                value = float(cell)
+            except ValueError:
+                value = math.nan
+            if not math.isfinite(value):
+                bad.append(f"row {row} {name}={cell!r}")
+            metrics[name][i] = value
+    if extra:
+        raise UsageError(f"{path}: more cells than header columns in {_rows(extra)}")
+    if empty:
+        raise UsageError(f"{path}: empty '{PATH_COLUMN}' in {_rows(empty)}")
+    if bad:
+        more = f" and {len(bad) - _SHOWN} more" if len(bad) > _SHOWN else ""
+        raise UsageError(
+            f"{path}: values that are not finite numbers: {', '.join(bad[:_SHOWN])}{more}"
+        )
+    seen: dict[str, int] = {}
+    duplicates = []
+    for i, p in enumerate(paths):
+        if p in seen:
+            duplicates.append(f"row {i + 2} repeats row {seen[p] + 2}")
+        seen.setdefault(p, i)
+    if duplicates:
+        raise UsageError(
+            f"{path}: duplicate paths: {', '.join(duplicates[:_SHOWN])}; give each image once"
+        )
+    return paths, metrics
+
+
+def _normal(path: Path) -> str:
+    """One spelling per file: absolute, ``..`` and ``.`` resolved, symlinks kept."""
+    return os.path.normpath(str(path))
+
+
+def match_images(csv_paths: Sequence[str], data_paths: Sequence[str], csv_file: Path) -> list[int]:
+    """The data index of each CSV image.
+
+    Raises:
+        UsageError: CSV images that are not in the data (selected split), rows named.
+    """
+    index = {_normal(Path(p).absolute()): i for i, p in enumerate(data_paths)}
+    missing = [i for i, p in enumerate(csv_paths) if p not in index]
+    if missing:
+        shown = ", ".join(f"row {i + 2} {csv_paths[i]}" for i in missing[:3])
+        raise UsageError(
+            f"{csv_file}: {len(missing)} image(s) are not in the data (root, --dataset, "
+            f"--split): {_rows([i + 2 for i in missing])}, e.g. {shown}"
+        )
+    return [index[p] for p in csv_paths]

@@ -1,0 +1,104 @@
+"""Run a model over a dataset: one confusion matrix per image (the input of every report).
+
+Training validates through this function and ``claravid-eval`` reports from it, so windows,
+confusions and mIoU have one implementation. Under DDP each rank passes its own ``indices``
+and the per-image results are gathered afterwards (``claravid.distributed``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset, Subset
+from tqdm.auto import tqdm
+
+from claravid.eval.analysis.metrics import IGNORE_INDEX
+from claravid.eval.inference.confusion import image_confusion
+from claravid.eval.inference.label_maps import image_key
+from claravid.eval.inference.windows import Model, WindowConfig, predict_labels
+
+
+@dataclass
+class ImageScore:
+    """One image's result: where it came from, its confusion (int64 [K,K]) and, with a tile
+    size, the confusion of each tile (int64 [rows, cols, K, K], summing to ``confusion``)."""
+
+    path: str
+    key: str
+    confusion: np.ndarray
+    tiles: np.ndarray | None = None
+
+
+def sample_key(sample: dict[str, Any]) -> str:
+    """The name a sample's prediction is saved under: its ``key``, else
+    :func:`claravid.eval.inference.label_maps.image_key` of its path (the stem)."""
+    key = sample.get("key")
+    return str(key) if key else image_key(str(sample["path"]))
+
+
+def evaluate_model(
+    model: Model,
+    dataset: Dataset,
+    num_classes: int,
+    config: WindowConfig | None = None,
+    *,
+    device: torch.device | str = "cpu",
+    indices: Sequence[int] | None = None,
+    num_workers: int = 0,
+    ignore_index: int = IGNORE_INDEX,
+    tile_size: int | None = None,
+    progress: bool = False,
+    on_prediction: Callable[[dict[str, Any], torch.Tensor], None] | None = None,
+    on_score: Callable[[dict[str, Any], torch.Tensor, ImageScore], None] | None = None,
+) -> list[ImageScore]:
+    """Predict every image of ``dataset`` with sliding windows and count its confusion.
+
+    Args:
+        model: a module already on ``device`` (in eval mode) or any callable (ONNX Runtime).
+        dataset: samples with a normalised ``image`` [3,H,W], ``mask`` [H,W] and ``path``
+            (e.g. ``ClaraVidSegmentation(..., transforms=eval_transforms())``).
+        num_classes: K, the palette's classes.
+        config: windows, stride, scale, batch size, precision.
+        device: where images go and confusions are counted.
+        indices: evaluate only these dataset indices (a rank's shard).
+        num_workers: DataLoader workers decoding the next images while the model runs.
+        ignore_index: ground-truth value left out of the confusion.
+        tile_size: also count each tile's confusion (:mod:`claravid.eval.analysis.tile_bins`).
+        progress: show a progress bar.
+        on_prediction: called with each sample and its predicted ids [H,W] (to save them).
+        on_score: called with each sample, its predicted ids and its `ImageScore` (e.g. to
+            keep the hardest images' predictions for a report).
+
+    Returns:
+        One `ImageScore` per image, in dataset order.
+    """
+    config = config or WindowConfig()
+    patch_size = getattr(model, "patch_size", None)
+    if patch_size:
+        config.check_patch(int(patch_size))
+    device = torch.device(device)
+    subset = Subset(dataset, list(indices)) if indices is not None else dataset
+    loader = DataLoader(subset, batch_size=None, num_workers=num_workers)
+    results = []
+    for sample in tqdm(
+        loader, total=len(subset), desc="evaluate", unit="img", disable=not progress
+    ):
+        if "mask" not in sample:
+            raise ValueError(f"{sample['path']} has no ground truth: evaluation needs labels")
+        prediction = predict_labels(model, sample["image"].to(device), config)
+        target = torch.as_tensor(sample["mask"]).to(device)
+        if prediction.device.type == "cpu" and num_classes <= 255:
+            # Byte ids take metrics' fast CPU path (an int64 map would be checked and cast).
+            prediction = prediction.to(torch.uint8)
+        conf, tiles = image_confusion(prediction, target, num_classes, tile_size, ignore_index)
+        score = ImageScore(str(sample["path"]), sample_key(sample), conf, tiles)
+        results.append(score)
+        if on_prediction is not None:
+            on_prediction(sample, prediction)
+        if on_score is not None:
+            on_score(sample, prediction, score)
+    return results

@@ -1,0 +1,295 @@
+"""Where predictions come from (a PyTorch checkpoint or an ONNX file), and how they are run.
+
+:func:`resolve_settings` is the one place that decides how a model is run, for
+``claravid-eval`` and ``claravid-predict`` alike: window, stride, scale, batch size, palette
+and input normalisation, each from the command line, else from what the model file records (a
+checkpoint's training config, or an ONNX file's ``claravid`` metadata), else the default; the
+report records each value and where it came from.
+
+A training checkpoint (``claravid.models.save_checkpoint`` with the resolved training ``config``
+as an extra entry) also says which data and palette it was trained for; :func:`checkpoint_defaults`
+reads those defensively, so an older or plain model checkpoint still works when the command
+line gives ``--data`` and ``--palette``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from claravid.cli import UsageError
+from claravid.eval.inference.windows import Model, WindowConfig
+from claravid.models.onnx_metadata import (
+    config_get,
+    normalisation_from_config,
+    window_from_config,
+)
+
+DEFAULT_WINDOW = (630, 630)
+DEFAULT_SCALE = 1.0
+DEFAULT_BATCH = 4
+
+
+@dataclass
+class ModelSource:
+    """A loaded model and what the report says about it."""
+
+    model: Model
+    kind: str  # "checkpoint" or "onnx"
+    path: str
+    num_classes: int | None
+    patch_size: int | None
+    defaults: dict[str, Any] = field(default_factory=dict)
+
+    def describe(self) -> dict[str, Any]:
+        """The report's ``source`` entries for the model."""
+        return {"kind": self.kind, "path": self.path}
+
+
+#: Every training-config key :func:`checkpoint_defaults` reads, by the name it gives it. eval
+#: cannot import the training schema (train imports eval), so tests/train checks each path
+#: against ``claravid.train.config``: renaming a key there fails a test instead of silently
+#: dropping a default here.
+TRAINING_KEYS: dict[str, tuple[str, ...]] = {
+    "val_dataset": ("data", "val_dataset"),
+    "dataset": ("data", "dataset"),
+    "val_root": ("data", "val_root"),
+    "root": ("data", "root"),
+    "palette": ("data", "palette"),
+    "val_split": ("data", "val_split"),
+    "split": ("data", "split"),
+    "missions": ("data", "missions"),
+    "altitude": ("data", "altitude"),
+    "direction": ("data", "direction"),
+    "augment": ("data", "augment"),
+}
+#: The fields of ``data.split`` that make ``--split val`` the split training held out.
+SPLIT_FIELDS = ("block_size", "fractions", "seed", "val_missions", "test_missions")
+
+
+def checkpoint_defaults(checkpoint: Mapping[str, Any]) -> dict[str, Any]:
+    """What a training checkpoint says about evaluating it: its validation data and windows.
+
+    Reads the resolved training config (``checkpoint["config"]``) at :data:`TRAINING_KEYS`:
+    the validation dataset (``data.val_dataset``, ``data.val_root`` or ``data.root``,
+    ``data.val_split``), the palette, the ClaraVid selection and split settings (so ``--split
+    val`` is the very split training held out), and the validation windows (``val.window``,
+    ``val.stride``, ``val.scale``, ``val.batch_size``). Anything missing or of the wrong type
+    is left out, so the command line's values or the defaults apply.
+    """
+    config = checkpoint.get("config")
+
+    def read(name: str) -> Any:
+        return config_get(config, *TRAINING_KEYS[name])
+
+    out: dict[str, Any] = {}
+    dataset = read("val_dataset") or read("dataset")
+    if dataset in ("claravid", "uavid", "folder"):
+        out["dataset"] = dataset
+    for name, value in {
+        "data": read("val_root") or read("root"),
+        "palette": read("palette"),
+        "split": read("val_split"),
+    }.items():
+        if isinstance(value, str) and value:
+            out[name] = value
+    split = read("split")
+    if isinstance(split, Mapping):
+        out["split_config"] = {k: split[k] for k in SPLIT_FIELDS if k in split}
+    for name in ("missions", "altitude", "direction"):
+        value = read(name)
+        if isinstance(value, list | tuple | str):
+            out[name] = value
+    window = window_from_config(config)  # the same reading as the ONNX metadata's
+    for name, key in (("window", "size"), ("stride", "stride")):
+        if key in window:
+            h, w = window[key]
+            out[name] = h if h == w else (h, w)
+    for name in ("scale", "batch_size"):
+        if name in window:
+            out[name] = window[name]
+    augment = read("augment")
+    if isinstance(augment, Mapping) and ("mean" in augment or "std" in augment):
+        out["normalisation"] = normalisation_from_config(config)
+    return out
+
+
+def onnx_defaults(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
+    """What an ONNX file's ``claravid`` metadata says about running it (as
+    :func:`checkpoint_defaults` for a checkpoint); empty for a file exported elsewhere."""
+    if not metadata:
+        return {}
+    out: dict[str, Any] = {}
+    window = metadata.get("window") or {}
+    for name, key in (("window", "size"), ("stride", "stride")):
+        if key in window:
+            out[name] = tuple(window[key])
+    for name in ("scale", "batch_size"):
+        if name in window:
+            out[name] = window[name]
+    palette = metadata.get("palette")
+    if palette:
+        out["palette"] = palette.get("name") or None
+        out["palette_info"] = palette
+    if metadata.get("normalisation"):
+        out["normalisation"] = metadata["normalisation"]
+    return {k: v for k, v in out.items() if v is not None}
+
+
+@dataclass
+class RunSettings:
+    """How a model is run, each value with where it came from.
+
+    Attributes:
+        window: the sliding windows (size, stride, scale, batch size).
+        palette: a palette name or YAML path (None: the data's default, or none at all).
+        palette_info: the palette recorded in an ONNX file (names, colours), when any.
+        normalisation: ``{"mean", "std", ...}`` of the input.
+        origins: ``{setting: "flag" | "checkpoint" | "onnx" | "default"}``.
+    """
+
+    window: WindowConfig
+    palette: str | None
+    palette_info: dict[str, Any] | None
+    normalisation: dict[str, Any]
+    origins: dict[str, str]
+
+    @property
+    def transforms_config(self) -> dict[str, Any]:
+        """The ``eval_transforms`` overrides that apply this normalisation."""
+        return {"mean": list(self.normalisation["mean"]), "std": list(self.normalisation["std"])}
+
+    def describe(self) -> dict[str, Any]:
+        """The report's ``source["settings"]``: every value used and where it came from."""
+        w = self.window
+        return {
+            "window": list(w.size),
+            "stride": list(w.stride),  # type: ignore[arg-type]
+            "scale": w.scale,
+            "batch_size": w.batch_size,
+            "palette": self.palette,
+            "normalisation": {k: self.normalisation[k] for k in ("mean", "std")},
+            "from": dict(self.origins),
+        }
+
+
+def _pair(value: Any) -> tuple[int, int] | None:
+    if value is None:
+        return None
+    return (value, value) if isinstance(value, int) else (int(value[0]), int(value[-1]))
+
+
+def resolve_settings(
+    source: ModelSource,
+    *,
+    window: int | tuple[int, int] | None = None,
+    stride: int | tuple[int, int] | None = None,
+    scale: float | None = None,
+    batch_size: int | None = None,
+    palette: str | None = None,
+    precision: str = "auto",
+) -> RunSettings:
+    """Window, stride, scale, batch size, palette and normalisation: flag, else the model
+    file's record, else the default. A ``--stride`` recorded for another window is dropped
+    when ``--window`` is given (the default stride follows the window).
+
+    Raises:
+        UsageError: a window other than a fixed-size ONNX file's input size; an ONNX file
+            without claravid metadata and no ``--palette``/``--window`` (the message names what
+            is missing); a window that is not a multiple of the patch size.
+    """
+    recorded = source.defaults
+    kind = source.kind
+    fixed = getattr(source.model, "input_size", None)
+    if kind == "onnx" and getattr(source.model, "metadata", None) is None:
+        missing = [f"--{n}" for n, v in (("palette", palette), ("window", window or fixed))
+                   if v is None]  # fmt: skip
+        if missing:
+            raise UsageError(
+                f"{source.path} carries no claravid metadata (exported elsewhere): pass "
+                f"{' and '.join(missing)} to say how to run it"
+            )
+    origins: dict[str, str] = {}
+
+    def pick(name: str, flag: Any, record: Any, default: Any) -> Any:
+        for value, origin in ((flag, "flag"), (record, kind), (default, "default")):
+            if value is not None:
+                origins[name] = origin
+                return value
+        origins[name] = "default"
+        return None
+
+    size = pick("window", _pair(window), fixed or _pair(recorded.get("window")), DEFAULT_WINDOW)
+    if fixed is not None and tuple(size) != tuple(fixed):
+        raise UsageError(
+            f"the ONNX model takes {fixed[1]}x{fixed[0]} (WxH) inputs only: use --window "
+            f"{fixed[1]}x{fixed[0]} or re-export with --dynamic"
+        )
+    # A recorded stride belongs to the recorded window: with --window the default follows it.
+    record_stride = None if window is not None else _pair(recorded.get("stride"))
+    step = pick("stride", _pair(stride), record_stride, None)
+    config = WindowConfig(
+        size=size,
+        stride=step,
+        scale=pick("scale", scale, recorded.get("scale"), DEFAULT_SCALE),
+        batch_size=pick("batch_size", batch_size, recorded.get("batch_size"), DEFAULT_BATCH),
+        precision=precision,
+    )
+    if source.patch_size:
+        config.check_patch(source.patch_size)
+    name = pick("palette", palette, recorded.get("palette"), None)
+    info = recorded.get("palette_info") if palette is None else None
+    default_norm = normalisation_from_config(None)
+    normalisation = pick("normalisation", None, recorded.get("normalisation"), default_norm)
+    return RunSettings(config, name, info, normalisation, origins)
+
+
+def load_source(
+    checkpoint: str | Path | None = None,
+    onnx: str | Path | None = None,
+    *,
+    device: torch.device | str = "cpu",
+    threads: int | None = None,
+    provider: str | None = None,
+) -> ModelSource:
+    """Load exactly one of ``checkpoint`` / ``onnx``.
+
+    Args:
+        checkpoint: A PyTorch checkpoint.
+        onnx: An ONNX file.
+        device: Where a checkpoint runs (and, for ONNX without ``provider``, CUDA or CPU).
+        threads: ONNX Runtime intra-op threads.
+        provider: ONNX Runtime provider: ``cpu``, ``cuda`` or ``tensorrt`` (default: CUDA
+            when ``device`` is CUDA and onnxruntime has it, else CPU).
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        models.CheckpointError: the file is not a claravid checkpoint.
+    """
+    if (checkpoint is None) == (onnx is None):
+        raise ValueError("give exactly one of a checkpoint and an ONNX file")
+    if checkpoint is not None:
+        from claravid.models.checkpoint import model_from_checkpoint, read_checkpoint
+
+        ckpt = read_checkpoint(checkpoint)  # read once: the model and the training config
+        defaults = checkpoint_defaults(ckpt)
+        model = model_from_checkpoint(ckpt, checkpoint, map_location=device).eval()
+        del ckpt  # the model holds its own copy of the weights now
+        return ModelSource(
+            model, "checkpoint", str(checkpoint), model.num_classes, model.patch_size, defaults
+        )
+    from claravid.models.onnx_runtime import OnnxSegmenter, resolve_providers
+
+    device = torch.device(device)
+    if provider is None and device.type != "cuda":
+        provider = "cpu"
+    providers = resolve_providers(provider)  # one line naming what is missing, before loading
+    segmenter = OnnxSegmenter(onnx, providers=providers, threads=threads)  # type: ignore[arg-type]
+    defaults = onnx_defaults(segmenter.metadata)
+    return ModelSource(
+        segmenter, "onnx", str(onnx), segmenter.num_classes, segmenter.patch_size, defaults
+    )

@@ -1,0 +1,164 @@
+"""Sliding-window inference: full-size logits from a model that sees fixed-size windows.
+
+The image (normalised float [3,H,W]) is optionally resized by ``scale``, cut into windows of
+``window`` pixels (630×630 by default, the paper's crop) every ``stride`` pixels, the last window
+of a row or column flush with the border; windows go through the model in batches, their logits
+are summed into a full-size buffer and divided by how many windows covered each pixel. An image
+smaller than a window is padded at the bottom/right with zeros (the mean colour after
+normalisation) and the padding is cut off the logits. With ``scale != 1`` the logits are resized
+back (bilinear) to the input size, so scores are always against the native-resolution labels.
+
+Precision (``WindowConfig.precision``): ``auto`` runs float32 on a CPU and autocast on CUDA
+(bf16 where the GPU supports it, else fp16), as before; ``fp32`` never autocasts; ``bf16`` and
+``fp16`` autocast to that type on any device (bf16 is fast on CPUs with AVX512-BF16 or AMX).
+The logits are float32 whatever the precision.
+
+Any model works: a ``torch.nn.Module`` or a callable returning numpy
+(``claravid.models.OnnxSegmenter``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from claravid.precision import PRECISIONS, autocast, autocast_dtype
+
+Model = Callable[[torch.Tensor], Any]
+
+
+@dataclass(frozen=True)
+class WindowConfig:
+    """How an image is cut into windows.
+
+    Attributes:
+        size: window height and width (multiples of the model's patch size).
+        stride: step between windows; default two thirds of the window (overlap 1/3).
+        scale: resize factor applied to the image first (the paper reports at 0.5).
+        batch_size: windows per forward pass.
+        precision: ``auto``, ``fp32``, ``bf16`` or ``fp16`` (see the module docstring). The
+            former boolean ``amp`` reads as ``True`` → ``auto``, ``False`` → ``fp32``.
+    """
+
+    size: tuple[int, int] = (630, 630)
+    stride: tuple[int, int] | None = None
+    scale: float = 1.0
+    batch_size: int = 4
+    precision: str = "auto"
+
+    def __post_init__(self) -> None:
+        if isinstance(self.precision, bool):  # the former `amp: bool` in this position
+            object.__setattr__(self, "precision", "auto" if self.precision else "fp32")
+        if self.precision not in PRECISIONS:
+            raise ValueError(
+                f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}"
+            )
+        size = _pair(self.size, "window size")
+        stride = _pair(self.stride, "stride") if self.stride is not None else None
+        object.__setattr__(self, "size", size)
+        object.__setattr__(self, "stride", stride or tuple(max(1, s * 2 // 3) for s in size))
+        if not (math.isfinite(self.scale) and 0 < self.scale <= 8):
+            raise ValueError(f"scale must be in (0, 8], got {self.scale}")
+        if self.batch_size < 1:
+            raise ValueError(f"batch size must be at least 1, got {self.batch_size}")
+        if any(s > w for s, w in zip(self.stride, self.size, strict=True)):  # type: ignore[arg-type]
+            raise ValueError(
+                f"stride {self.stride} larger than the window {self.size} would skip pixels"
+            )
+
+    def check_patch(self, patch_size: int) -> None:
+        """Raise when the window is not a multiple of the model's patch size."""
+        if any(s % patch_size for s in self.size):
+            fit = tuple(max(patch_size, s // patch_size * patch_size) for s in self.size)
+            # Width x height, as --window takes it (size is height, width).
+            raise ValueError(
+                f"window {self.size[1]}x{self.size[0]} (WxH) is not a multiple of the model's "
+                f"patch size {patch_size}: use {fit[1]}x{fit[0]}"
+            )
+
+
+def _pair(value: Any, what: str) -> tuple[int, int]:
+    pair = (value, value) if isinstance(value, int) else tuple(value)
+    if len(pair) != 2 or any(int(v) != v or v < 1 for v in pair):
+        raise ValueError(f"{what} must be a positive integer or a pair of them, got {value!r}")
+    return int(pair[0]), int(pair[1])
+
+
+def window_starts(length: int, window: int, stride: int) -> list[int]:
+    """Start offsets along one axis: every ``stride``, the last window flush with the end."""
+    if length <= window:
+        return [0]
+    starts = list(range(0, length - window + 1, stride))
+    if starts[-1] != length - window:
+        starts.append(length - window)
+    return starts
+
+
+def _forward(model: Model, batch: torch.Tensor, config: WindowConfig) -> torch.Tensor:
+    # (An ONNX Runtime session runs at its file's precision: autocast does not reach it.)
+    dtype = autocast_dtype(config.precision, batch.device)
+    with torch.inference_mode(), autocast(dtype, batch.device):
+        out = model(batch)
+    if not isinstance(out, torch.Tensor):
+        out = torch.from_numpy(np.asarray(out))
+    return out.to(batch.device, torch.float32)
+
+
+def sliding_window_logits(
+    model: Model, image: torch.Tensor, config: WindowConfig | None = None
+) -> torch.Tensor:
+    """Logits [K,H,W] (float32, on the image's device) of a normalised image [3,H,W].
+
+    Args:
+        model: maps [B,3,h,w] float to [B,K,h,w] logits (tensor or numpy).
+        image: the normalised image, on the device the model runs on.
+        config: window size, stride, scale, batch size, precision.
+    """
+    config = config or WindowConfig()
+    if image.ndim != 3 or image.shape[0] != 3 or not image.is_floating_point():
+        raise ValueError(
+            f"expected a normalised float image [3,H,W], got {tuple(image.shape)} {image.dtype}"
+        )
+    full_h, full_w = image.shape[-2:]
+    if config.scale != 1.0:
+        size = (max(1, round(full_h * config.scale)), max(1, round(full_w * config.scale)))
+        image = F.interpolate(
+            image[None], size=size, mode="bilinear", align_corners=False, antialias=True
+        )[0]
+    h, w = image.shape[-2:]
+    (wh, ww), (sh, sw) = config.size, config.stride
+    if h < wh or w < ww:  # pad to one window; the padding is cut off below
+        image = F.pad(image, (0, max(0, ww - w), 0, max(0, wh - h)))
+    ph, pw = image.shape[-2:]
+    boxes = [(y, x) for y in window_starts(ph, wh, sh) for x in window_starts(pw, ww, sw)]
+    logits: torch.Tensor | None = None
+    hits = torch.zeros((ph, pw), dtype=torch.float32, device=image.device)
+    for i in range(0, len(boxes), config.batch_size):
+        chunk = boxes[i : i + config.batch_size]
+        batch = torch.stack([image[:, y : y + wh, x : x + ww] for y, x in chunk])
+        out = _forward(model, batch.contiguous(), config)
+        if logits is None:
+            logits = torch.zeros((out.shape[1], ph, pw), dtype=torch.float32, device=image.device)
+        for (y, x), window_logits in zip(chunk, out, strict=True):
+            logits[:, y : y + wh, x : x + ww] += window_logits
+            hits[y : y + wh, x : x + ww] += 1
+    assert logits is not None  # at least one window always exists
+    logits = (logits / hits)[:, :h, :w]
+    if (h, w) != (full_h, full_w):
+        logits = F.interpolate(
+            logits[None], size=(full_h, full_w), mode="bilinear", align_corners=False
+        )[0]
+    return logits
+
+
+def predict_labels(
+    model: Model, image: torch.Tensor, config: WindowConfig | None = None
+) -> torch.Tensor:
+    """Train ids [H,W] (int64) of a normalised image [3,H,W]: argmax of the window logits."""
+    return sliding_window_logits(model, image, config).argmax(0)

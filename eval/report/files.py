@@ -1,0 +1,167 @@
+"""The report's two files, written atomically and read back checked.
+
+- ``report.json``: ``overall``, ``bins``, ``groups``, ``images``, ``correlation``, ``classes``,
+  ``palette``, ``ignore_index``, ``convention``, ``source`` (how the numbers were made: model
+  or predictions, data, windows, binning, skipped images), and ``uncertainty`` / ``tiles``
+  when computed;
+- ``confusions.npz`` (compressed, no pickles): per-image confusions with their paths, keys,
+  complexity values and units (mission, viewpoint, block, sequence, folder), and with
+  ``--tiles`` every tile's image, place, delentropy and confusion (``tile_*``): everything
+  needed to re-bin, merge or bootstrap (any ``--cluster`` unit stored there) without the data.
+
+:func:`load_result` reads a folder back into the per-image table
+(:class:`claravid.eval.analysis.table.EvalResult`).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from claravid.cli import UsageError, atomic_save, atomic_write_text
+from claravid.eval.analysis.table import EvalResult
+from claravid.eval.analysis.tile_bins import TileTable
+
+REPORT = "report.json"
+CONFUSIONS = "confusions.npz"
+KEYS = (
+    "overall",
+    "bins",
+    "groups",
+    "images",
+    "correlation",
+    "classes",
+    "palette",
+    "ignore_index",
+    "convention",
+    "source",
+    "uncertainty",
+    "tiles",
+)
+#: Keys every report of this tool has (``uncertainty`` came with intervals; ``tiles`` is there
+#: with ``--tiles``).
+REQUIRED_KEYS = KEYS[:-2]
+
+
+def save_confusions(path: str | Path, result: EvalResult) -> Path:
+    """Write the per-image table as a compressed npz (no pickles), atomically."""
+    arrays: dict[str, np.ndarray] = {
+        "paths": np.asarray(result.paths, dtype=str),
+        "keys": np.asarray(result.keys, dtype=str),
+        "confusions": np.asarray(result.confusions, dtype=np.int64),
+        "classes": np.asarray(result.classes, dtype=str),
+        "palette": np.asarray(result.palette, dtype=str),
+    }
+    for measure, values in result.complexity.items():
+        arrays[f"complexity_{measure}"] = np.asarray(values, dtype=np.float64)
+    for name, values in result.attributes.items():
+        arrays[f"attribute_{name}"] = np.asarray(values, dtype=str)
+    if result.tiles is not None:
+        tiles = result.tiles
+        arrays.update(
+            tile_size=np.asarray(tiles.size, dtype=np.int64),
+            tile_image=tiles.image.astype(np.int64),
+            tile_row=tiles.row.astype(np.int32),
+            tile_col=tiles.col.astype(np.int32),
+            tile_delent=tiles.delent.astype(np.float64),
+            # A tile holds far fewer than 2**31 pixels: int32 halves the file and the memory.
+            tile_confusions=tiles.confusions.astype(np.int32),
+        )
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **arrays)
+
+    return atomic_save(path, write)
+
+
+def load_result(path: str | Path) -> EvalResult:
+    """Read a report folder (or its ``report.json``) back into an :class:`EvalResult`.
+
+    Raises:
+        UsageError: not a report folder of this tool, or its files do not agree.
+    """
+    path = Path(path)
+    folder = path.parent if path.name == REPORT or path.suffix == ".json" else path
+    report_file, npz_file = folder / REPORT, folder / CONFUSIONS
+    if not report_file.is_file() or not npz_file.is_file():
+        raise UsageError(
+            f"{path} is not a claravid-eval report folder (needs {REPORT} and {CONFUSIONS})"
+        )
+    report = read_report(report_file)
+    try:
+        with np.load(npz_file, allow_pickle=False) as npz:
+            data = {k: npz[k] for k in npz.files}
+        confusions = data["confusions"].astype(np.int64)
+        classes = [str(c) for c in data["classes"]]
+        result = EvalResult(
+            paths=[str(p) for p in data["paths"]],
+            keys=[str(k) for k in data["keys"]],
+            confusions=confusions,
+            complexity={
+                k.removeprefix("complexity_"): v.astype(np.float64)
+                for k, v in data.items()
+                if k.startswith("complexity_")
+            },
+            attributes={
+                k.removeprefix("attribute_"): [str(s) for s in v]
+                for k, v in data.items()
+                if k.startswith("attribute_")
+            },
+            classes=classes,
+            palette=str(data["palette"]),
+            source={k: v for k, v in report["source"].items() if k != "binning"},
+            tiles=_load_tiles(data),
+        )
+    except (KeyError, ValueError, OSError) as exc:
+        raise UsageError(f"{npz_file} is damaged or not written by claravid-eval ({exc})") from None
+    n, k = len(result.paths), len(classes)
+    if confusions.shape != (n, k, k) or classes != list(report["classes"]):
+        raise UsageError(f"{npz_file} does not match {report_file} (classes or image count)")
+    tiles = result.tiles
+    if tiles is not None:
+        inside = len(tiles) == 0 or (tiles.image.min() >= 0 and tiles.image.max() < n)
+        if tiles.confusions.shape[1:] != (k, k) or not inside:
+            raise UsageError(f"{npz_file}: its tiles do not match its images or classes")
+    return result
+
+
+def _load_tiles(data: dict[str, np.ndarray]) -> TileTable | None:
+    """The tile table stored in a ``confusions.npz`` (None when it was written without tiles)."""
+    if "tile_size" not in data:
+        return None
+    return TileTable(
+        size=int(data["tile_size"]),
+        image=data["tile_image"].astype(np.int64),
+        row=data["tile_row"].astype(np.int64),
+        col=data["tile_col"].astype(np.int64),
+        delent=data["tile_delent"].astype(np.float64),
+        confusions=data["tile_confusions"].astype(np.int64),
+    )
+
+
+def read_report(path: str | Path) -> dict[str, Any]:
+    """Read a ``report.json`` of this tool.
+
+    Raises:
+        UsageError: unreadable, not JSON, or JSON of another tool (one line for the user).
+    """
+    path = Path(path)
+    try:
+        report = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UsageError(f"cannot read {path} as a claravid-eval report ({exc})") from None
+    if not isinstance(report, dict) or not set(REQUIRED_KEYS) <= set(report):
+        raise UsageError(
+            f"{path} is not a claravid-eval report.json (expected the keys "
+            f"{', '.join(REQUIRED_KEYS)})"
+        )
+    return report
+
+
+def write_json(path: str | Path, report: dict[str, Any]) -> Path:
+    """``report.json``, strict JSON (NaN already written as null), atomically."""
+    return atomic_write_text(path, json.dumps(report, indent=2, allow_nan=False) + "\n")

@@ -1,0 +1,37 @@
+"""The evaluation loop over a real (generated) ClaraVid split."""
+
+import numpy as np
+import torch
+
+from claravid.eval.inference.run_model import evaluate_model
+from claravid.eval.inference.windows import WindowConfig
+from claravid.segmentation import ClaraVidSegmentation
+from claravid.transforms import eval_transforms
+
+
+def test_per_image_confusions_match_a_direct_count(claravid_root):
+    dataset = ClaraVidSegmentation(
+        claravid_root, split="all", palette="uavid", transforms=eval_transforms()
+    )
+    weight = torch.randn(8, 3, generator=torch.Generator().manual_seed(0))
+
+    def model(x):  # pointwise: windows cannot change its answer
+        return torch.einsum("kc,bchw->bkhw", weight, x)
+
+    saved = {}
+    scores = evaluate_model(
+        model, dataset, 8, WindowConfig(size=(28, 28)), indices=[0, 5],
+        on_prediction=lambda s, p: saved.setdefault(s["key"], p.numpy()),
+    )  # fmt: skip
+    assert [s.path for s in scores] == [str(dataset.frames[i].paths["rgb"]) for i in (0, 5)]
+    assert len(saved) == 2
+    for index, score in zip((0, 5), scores, strict=True):
+        sample = dataset[index]
+        pred = model(sample["image"][None])[0].argmax(0).numpy()
+        mask = sample["mask"].numpy()
+        valid = mask != 255
+        expected = np.zeros((8, 8), dtype=np.int64)
+        np.add.at(expected, (mask[valid], pred[valid]), 1)
+        np.testing.assert_array_equal(score.confusion, expected)
+        np.testing.assert_array_equal(saved[score.key], pred)
+        assert score.key == sample["key"]

@@ -1,0 +1,233 @@
+"""Sliding-window inference: coverage, averaging, padding, scale, any model type."""
+
+import re
+
+import numpy as np
+import pytest
+import torch
+
+from claravid.eval.inference.windows import (
+    WindowConfig,
+    predict_labels,
+    sliding_window_logits,
+    window_starts,
+)
+from claravid.precision import flag_precision
+
+
+def test_window_starts_cover_the_axis_with_the_last_flush():
+    assert window_starts(10, 4, 3) == [0, 3, 6]
+    assert window_starts(11, 4, 3) == [0, 3, 6, 7]
+    assert window_starts(4, 4, 3) == [0]
+    assert window_starts(3, 4, 3) == [0]
+
+
+def _pointwise(weight: torch.Tensor):
+    """A 1×1-conv model: its logits at a pixel depend on that pixel only."""
+    return lambda x: torch.einsum("kc,bchw->bkhw", weight, x)
+
+
+def test_pointwise_model_equals_the_full_image_forward():
+    torch.manual_seed(0)
+    weight = torch.randn(5, 3)
+    image = torch.randn(3, 37, 53)
+    config = WindowConfig(size=(14, 14), stride=(9, 9), batch_size=3)
+    out = sliding_window_logits(_pointwise(weight), image, config)
+    np.testing.assert_allclose(out, _pointwise(weight)(image[None])[0], atol=1e-5)
+
+
+def test_overlapping_windows_are_averaged():
+    """A model that returns the window's index as its logit: overlaps give the mean index."""
+    seen = []
+
+    def counter(x):
+        out = torch.empty(x.shape[0], 1, *x.shape[-2:])
+        for i in range(x.shape[0]):
+            out[i] = len(seen)
+            seen.append(1)
+        return out
+
+    # One row of width 10, windows of 4 every 3: starts 0, 3, 6 -> indices 0, 1, 2.
+    out = sliding_window_logits(
+        counter, torch.zeros(3, 4, 10), WindowConfig(size=(4, 4), stride=(3, 3), batch_size=2)
+    )[0, 0]
+    # columns 0-2: window 0 only; 3: windows 0,1; 4-5: 1; 6: 1,2; 7-9: 2.
+    expected = [0, 0, 0, 0.5, 1, 1, 1.5, 2, 2, 2]
+    np.testing.assert_allclose(out, expected)
+
+
+def test_small_images_are_padded_and_cut_back():
+    shapes = []
+
+    def model(x):
+        shapes.append(tuple(x.shape))
+        return x[:, :2]
+
+    image = torch.randn(3, 5, 7)
+    out = sliding_window_logits(model, image, WindowConfig(size=(14, 14)))
+    assert shapes == [(1, 3, 14, 14)]  # the model always sees a full window
+    np.testing.assert_allclose(out, image[:2])
+
+
+def test_scale_resizes_and_logits_come_back_at_full_size():
+    sizes = []
+
+    def model(x):
+        sizes.extend([tuple(x.shape[-2:])] * x.shape[0])
+        return x[:, :1] * 0 + 1
+
+    out = sliding_window_logits(model, torch.randn(3, 40, 60), WindowConfig(size=14, scale=0.5))
+    assert all(s == (14, 14) for s in sizes)
+    assert out.shape == (1, 40, 60)
+    # The image the windows cut was 20×30: windows of 14 every 9 -> 2 rows × 3 columns.
+    assert len(sizes) == 2 * 3
+    np.testing.assert_allclose(out, 1.0)
+
+
+def test_numpy_models_work_and_labels_are_the_argmax():
+    weight = torch.tensor([[1.0, 0, 0], [0, 1.0, 0]])
+    image = torch.randn(3, 20, 20)
+    labels = predict_labels(
+        lambda x: _pointwise(weight)(x).numpy(), image, WindowConfig(size=(14, 14))
+    )
+    np.testing.assert_array_equal(labels, (image[1] > image[0]).long())
+
+
+def test_matches_a_real_segmenter_within_one_window():
+    """Inside one window, the windowed logits are the segmenter's own forward."""
+    from claravid import models
+
+    model = models.build_model(
+        "dinov2_vits14",
+        num_classes=3,
+        backbone_kwargs={"embed_dim": 32, "depth": 4, "num_heads": 2},
+        layers=[0, 1, 2, 3],
+        features=8,
+        out_channels=[8, 8, 8, 8],
+    ).eval()
+    image = torch.randn(3, 28, 42)
+    out = sliding_window_logits(model, image, WindowConfig(size=(28, 42)))
+    with torch.no_grad():
+        np.testing.assert_allclose(out, model(image[None])[0], atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [({"size": 0}, "positive integer"), ({"size": (14, 14), "stride": (20, 20)}, "skip pixels"),
+     ({"scale": 0}, "scale"), ({"scale": float("nan")}, "scale"), ({"batch_size": 0}, "batch")],
+)  # fmt: skip
+def test_bad_window_settings(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        WindowConfig(**kwargs)
+
+
+def test_window_not_a_patch_multiple_names_the_fix():
+    with pytest.raises(ValueError, match="use 630x630"):
+        WindowConfig(size=(640, 640)).check_patch(14)
+    # Said as --window takes it, width x height: size is (height 30, width 56).
+    message = "window 56x30 (WxH) is not a multiple of the model's patch size 14: use 56x28"
+    with pytest.raises(ValueError, match=re.escape(message)):
+        WindowConfig(size=(30, 56)).check_patch(14)
+
+
+def test_bad_image():
+    with pytest.raises(ValueError, match=r"\[3,H,W\]"):
+        sliding_window_logits(lambda x: x, torch.zeros(3, 8, 8, dtype=torch.uint8))
+
+
+def _reference_at_scale(model, image, scale):
+    """The spec restated: resize the image (bilinear, antialiased), run the model on all of it,
+    resize the logits back to the input size (bilinear)."""
+    h, w = image.shape[-2:]
+    small = torch.nn.functional.interpolate(
+        image[None], size=(round(h * scale), round(w * scale)), mode="bilinear",
+        align_corners=False, antialias=True,
+    )  # fmt: skip
+    logits = model(small)
+    return torch.nn.functional.interpolate(logits, size=(h, w), mode="bilinear")[0]
+
+
+@pytest.mark.parametrize("scale", [0.5, 0.7, 1.6])
+def test_scale_resizes_logits_back_bilinearly(scale):
+    """Non-constant logits (a pointwise model on a random image, so windows equal the whole
+    image's forward): nearest-neighbour resizing back would be off by the logits' gradients."""
+    torch.manual_seed(1)
+    weight = torch.randn(4, 3)
+    image = torch.randn(3, 40, 60)
+    config = WindowConfig(size=(14, 14), stride=(9, 9), scale=scale, batch_size=5)
+    out = sliding_window_logits(_pointwise(weight), image, config)
+    expected = _reference_at_scale(_pointwise(weight), image, scale)
+    assert out.shape == (4, 40, 60)
+    np.testing.assert_allclose(out, expected, atol=1e-5)
+    # The check has teeth: these logits vary enough for nearest to be far off.
+    nearest = torch.nn.functional.interpolate(
+        _pointwise(weight)(
+            torch.nn.functional.interpolate(image[None], scale_factor=scale, mode="bilinear")
+        ),
+        size=(40, 60),
+        mode="nearest",
+    )[0]
+    assert (nearest - expected).abs().max() > 0.1
+
+
+def _tiny_segmenter(num_classes=5):
+    from claravid import models
+
+    torch.manual_seed(0)
+    return models.build_model(
+        "dinov2_vits14", num_classes=num_classes, layers=[0, 1, 2, 3], features=8,
+        out_channels=[8, 8, 8, 8], backbone_kwargs={"embed_dim": 32, "depth": 4, "num_heads": 2},
+    ).eval()  # fmt: skip
+
+
+def _smooth_image(h, w, seed=0):
+    """A normalised image of smooth blobs (a real-looking input, not white noise)."""
+    g = torch.Generator().manual_seed(seed)
+    coarse = torch.randn(1, 3, h // 8 + 1, w // 8 + 1, generator=g) * 1.5
+    return torch.nn.functional.interpolate(coarse, size=(h, w), mode="bicubic")[0]
+
+
+def test_bf16_windows_agree_with_float32_on_the_cpu():
+    model = _tiny_segmenter()
+    image = _smooth_image(42, 56)
+    with torch.no_grad():  # the float32 reference: the model's own forward, no windows
+        ref = model(image[None])[0]
+    assert WindowConfig().precision == "auto"
+    auto = sliding_window_logits(model, image, WindowConfig(size=(42, 56)))
+    np.testing.assert_allclose(auto, ref, atol=1e-5)  # auto is float32 on a CPU
+    low = sliding_window_logits(model, image, WindowConfig(size=(42, 56), precision="bf16"))
+    assert low.dtype == torch.float32 and not torch.equal(low, ref)  # autocast did run
+    agreement = (low.argmax(0) == ref.argmax(0)).float().mean().item()
+    assert agreement >= 0.97, agreement
+
+
+def test_precision_settings_and_the_old_boolean():
+    assert WindowConfig((14, 14), None, 1.0, 4, True).precision == "auto"  # former amp=True
+    assert WindowConfig((14, 14), None, 1.0, 4, False).precision == "fp32"
+    with pytest.raises(ValueError, match="precision must be one of auto, fp32, bf16, fp16"):
+        WindowConfig(precision="fp8")
+    assert flag_precision(None) == "auto" and flag_precision("bf16") == "bf16"
+    with pytest.warns(UserWarning, match="--precision fp32"):
+        assert flag_precision(None, no_amp=True) == "fp32"
+    for args, message in [(("half",), "must be fp32 or bf16, got 'half'"),
+                          (("bf16", True), "--no-amp means --precision fp32"),
+                          (("fp16",), "must be fp32 or bf16")]:  # fmt: skip
+        with pytest.raises(ValueError, match=message):
+            flag_precision(*args)
+    with pytest.raises(ValueError, match="PyTorch model"):
+        flag_precision("bf16", pytorch=False)
+
+
+def test_onnx_windows_equal_pytorch_windows(model_files):
+    """The fast ONNX-vs-PyTorch numeric check of the default run (the export tests are slow):
+    the session fixture's dynamic export, through the same windows as its checkpoint."""
+    from claravid.models import OnnxSegmenter, load_checkpoint
+
+    model = load_checkpoint(model_files["checkpoint"]).eval()
+    runner = OnnxSegmenter(model_files["onnx"])
+    image = _smooth_image(48, 64, seed=3)
+    config = WindowConfig(size=(28, 42), stride=(14, 14))
+    torch_logits = sliding_window_logits(model, image, config)
+    onnx_logits = sliding_window_logits(runner, image, config)
+    assert torch_logits.std() > 0
+    np.testing.assert_allclose(onnx_logits, torch_logits, atol=1e-4)
