@@ -17,7 +17,7 @@ import numpy as np
 
 from claravid.cli import UsageError
 from claravid.eval.analysis.bins import Bin, fixed_bins, quantile_bins
-from claravid.eval.analysis.bootstrap import Bootstrap, paired_gap, unpaired_gap
+from claravid.eval.analysis.bootstrap import Bootstrap, cluster_ids, paired_gap, unpaired_gap
 from claravid.eval.analysis.table import EvalResult
 
 
@@ -150,6 +150,4 @@ class _Pair:
 
 
 def _ids(result: EvalResult, unit: str) -> np.ndarray:
-    from claravid.eval.analysis.bootstrap import cluster_ids
-
     return cluster_ids(result.cluster_labels(unit))
