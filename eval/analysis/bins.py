@@ -1,4 +1,4 @@
-"""Complexity bins: which images fall in which delentropy range (FORMAT.md §8).
+"""Complexity bins: which images fall in which delentropy range (docs/evaluation.md).
 
 - Quantile bins: sort images by (complexity, path) and split the order into K contiguous groups
   the way ``numpy.array_split`` does (the first ``n % K`` groups get one more image). Ties are

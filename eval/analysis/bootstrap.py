@@ -1,4 +1,4 @@
-"""Cluster percentile bootstrap for the report's numbers (FORMAT.md §8, "Uncertainty").
+"""Cluster percentile bootstrap for the report's numbers (docs/evaluation.md).
 
 Neighbouring ClaraVid frames overlap, so images are not independent samples: the resampled
 unit is a *cluster* of dependent images (a spatial block, a UAVid sequence, a folder, or the

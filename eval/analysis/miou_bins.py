@@ -1,9 +1,9 @@
 """From per-image confusions and complexities to the report's numbers.
 
 Overall, per complexity bin and per group (mission or viewpoint): number of images, range, mIoU,
-per-class IoU and pixel accuracy, each from the group's summed confusion (FORMAT.md §8); per
-image: its own mIoU and pixel accuracy; Pearson and Spearman correlations between each
-complexity measure and per-image mIoU, with n. With a
+per-class IoU and pixel accuracy, each from the group's summed confusion (see
+docs/report-format.md); per image: its own mIoU and pixel accuracy; Pearson and Spearman
+correlations between each complexity measure and per-image mIoU, with n. With a
 :class:`~claravid.eval.analysis.bootstrap.Bootstrap` and a cluster label per image, every mIoU,
 pixel accuracy and correlation also gets its cluster percentile bootstrap interval (``miou_ci``,
 ``pixel_acc_ci``, ``pearson_ci``, ``spearman_ci``; ``ci_note`` says why one is null). Everything

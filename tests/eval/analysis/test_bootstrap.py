@@ -1,4 +1,4 @@
-"""Cluster bootstrap (FORMAT.md §8): intervals checked against hand computations."""
+"""Cluster bootstrap (docs/evaluation.md): intervals checked against hand computations."""
 
 from __future__ import annotations
 
