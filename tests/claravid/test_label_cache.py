@@ -14,6 +14,7 @@ import tifffile
 
 from claravid import label_tiff
 from claravid import modalities as m
+from claravid.cache_cli import main
 from claravid.index import list_frames
 from claravid.label_cache import CacheWriteError, LabelCache, LabelCacheWarning
 from claravid.labels import read_label_codes
@@ -390,3 +391,50 @@ def test_prepare_lists_unreadable_frames_and_goes_on(writable_root, tmp_path):
     assert summary.built == 1 and [p for p, _ in summary.failed] == [
         str(sources[0][0]), str(sources[1][0])
     ]  # fmt: skip
+
+
+def test_cli_prepares_then_has_nothing_to_do(claravid_root, tmp_path, capsys):
+    argv = [str(claravid_root), "--missions", "urban_1", "--altitude", "low,mid",
+            "--cache-dir", str(tmp_path), "--no-progress"]  # fmt: skip
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "built 12 entries" in out and f"in {tmp_path / 'label_codes'}" in out
+    assert "per frame" in out
+    assert main(argv) == 0
+    assert "nothing to do: all 12 frames are already cached" in capsys.readouterr().out
+    assert main([*argv, "--no-dynamic-mask"]) == 0  # other entries: the codes differ
+    assert "built 12 entries" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["{missing}"], "ClaraVid root not found"),
+        (["{tmp}"], "ClaraVid mission folders not found"),
+        (["{root}", "--shard", "2/2"], "out of range"),
+        (["{root}", "--shard", "x"], "k/n"),
+        (["{root}", "--missions", "nowhere"], "unknown ClaraVid mission"),
+        (["{root}", "--workers", "-1"], "integer >= 0"),
+    ],
+)
+def test_cli_user_errors_are_one_line_exit_2(claravid_root, tmp_path, capsys, argv, message):
+    names = {"missing": tmp_path / "nope", "tmp": tmp_path, "root": claravid_root}
+    argv = [a.format(**names) for a in argv]
+    code = 2
+    try:
+        code = main([*argv, "--cache-dir", str(tmp_path / "c")])
+    except SystemExit as exc:  # argparse's own errors
+        code = exc.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+
+
+def test_cli_full_disk_is_a_one_line_error(claravid_root, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(
+        os, "write", lambda fd, data: (_ for _ in ()).throw(OSError(errno.ENOSPC, "full"))
+    )
+    argv = [str(claravid_root), "--missions", "urban_1", "--cache-dir", str(tmp_path)]
+    assert main([*argv, "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "disk is full" in err[0] and str(tmp_path) in err[0]
