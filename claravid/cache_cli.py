@@ -6,10 +6,11 @@ Examples::
     claravid-cache /data/ClaraVid --missions urban_1,urban_2 --altitude low --cache-dir /fast/c
     claravid-cache /data/ClaraVid --shard $SLURM_ARRAY_TASK_ID/16 --no-progress
 
-Label codes are palette-independent, so one preparation serves every palette. By default each
-frame's codes include the dynamic flag (what ``ClaraVidSegmentation`` reads for palettes that
-split moving objects, e.g. uavid); ``--no-dynamic-mask`` prepares the entries it reads for the
-others (e.g. claravid). Running it again builds only what is missing or invalid.
+Label codes are palette-independent, so one preparation serves every palette: a frame's codes
+carry the dynamic flag whenever the frame has a dynamic mask, the entries every
+``ClaraVidSegmentation`` with a label cache reads (the frames are chosen by the same rule,
+:meth:`ClaraVidSegmentation.prepare_label_cache`). Running it again builds only what is missing
+or invalid.
 
 Exit status: 0 ok, 1 some frames' label files could not be read (listed), 2 bad arguments,
 a root that is not ClaraVid, or a cache that cannot be written (full disk, read-only).
@@ -49,11 +50,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--altitude", nargs="+", metavar="ALT", help="low, mid, high (default all)")
     parser.add_argument("--direction", nargs="+", metavar="DIR", help="h, v (default both)")
-    parser.add_argument(
-        "--no-dynamic-mask",
-        action="store_true",
-        help="codes without the dynamic flag (for palettes that do not split moving objects)",
-    )
     add_workers_flag(parser, "building the cache")
     parser.add_argument(
         "--shard", help="k/n: prepare only every n-th frame from the k-th (0-based)"
@@ -93,21 +89,24 @@ def _size(n: float) -> str:
 
 def _run(args: argparse.Namespace) -> int:
     from claravid.dsp.collection import parse_shard
-    from claravid.index import list_frames
-    from claravid.label_cache import LabelCache
+    from claravid.segmentation import ClaraVidSegmentation
 
     shard = parse_shard(args.shard) if args.shard else (0, 1)  # cheap errors first
     if args.output is not None and args.output.exists() and not args.output.is_dir():
         raise UsageError(f"--cache-dir {args.output} is a file; give a folder")
-    fields = ["pan_seg"] if args.no_dynamic_mask else ["pan_seg", "dynamic_mask"]
-    frames = list_frames(
-        args.root, _keys(args.missions), _keys(args.altitude), _keys(args.direction), fields
+    dataset = ClaraVidSegmentation(
+        args.root,
+        split="all",
+        missions=_keys(args.missions),
+        altitude=_keys(args.altitude),
+        direction=_keys(args.direction),
+        label_cache=args.output or True,
     )
-    sources = [(f.paths["pan_seg"], f.paths.get("dynamic_mask")) for f in frames]
-    cache = LabelCache(args.output)
-    summary = cache.prepare(
-        sources, workers=args.workers, progress=not args.no_progress, shard=shard
+    summary = dataset.prepare_label_cache(
+        workers=args.workers, progress=not args.no_progress, shard=shard
     )
+    cache = dataset.label_cache
+    sources = dataset.frames
     for pan, reason in summary.failed:
         print(f"skipped {pan}: {reason}", file=sys.stderr)
     part = f" (shard {shard[0]}/{shard[1]} of {len(sources)})" if args.shard else ""

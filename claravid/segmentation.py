@@ -228,9 +228,12 @@ class ClaraVidSegmentation(Dataset):
             self._size_mismatch(frame, rgb.shape[:2], mask.shape)
         return finish_sample(self._sample(index, rgb, mask), self.transforms)
 
-    def prepare_label_cache(self, workers: int = 0, progress: bool = False) -> PrepareSummary:
+    def prepare_label_cache(
+        self, workers: int = 0, progress: bool = False, shard: tuple[int, int] = (0, 1)
+    ) -> PrepareSummary:
         """Build the label-cache entries this dataset's frames are missing (in ``workers``
-        processes), so that no read decodes a panoptic PNG; a second call does nothing.
+        processes; only every n-th frame from the k-th with ``shard=(k, n)``), so that no read
+        decodes a panoptic PNG; a second call does nothing (``claravid-cache`` calls this).
 
         Raises:
             ValueError: the dataset was made without ``label_cache``.
@@ -238,7 +241,7 @@ class ClaraVidSegmentation(Dataset):
         if self.label_cache is None:
             raise ValueError("this dataset has no label cache (label_cache=False)")
         sources = [self._label_sources(frame) for frame in self.frames]
-        return self.label_cache.prepare(sources, workers=workers, progress=progress)
+        return self.label_cache.prepare(sources, workers=workers, progress=progress, shard=shard)
 
     def class_frequencies(self, progress: bool = True) -> np.ndarray:
         """Pixels of each train id over this split (int64 [K]), computed once and cached.

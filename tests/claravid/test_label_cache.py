@@ -18,6 +18,7 @@ from claravid.cache_cli import main
 from claravid.index import list_frames
 from claravid.label_cache import CacheWriteError, LabelCache, LabelCacheWarning
 from claravid.labels import read_label_codes
+from claravid.segmentation import ClaraVidSegmentation
 
 # 70×50 with 16-pixel tiles: 5×4 tiles, the last column 6 wide and the last row 2 high.
 W, H, TILE = 70, 50, 16
@@ -402,8 +403,17 @@ def test_cli_prepares_then_has_nothing_to_do(claravid_root, tmp_path, capsys):
     assert "per frame" in out
     assert main(argv) == 0
     assert "nothing to do: all 12 frames are already cached" in capsys.readouterr().out
-    assert main([*argv, "--no-dynamic-mask"]) == 0  # other entries: the codes differ
-    assert "built 12 entries" in capsys.readouterr().out
+    # The entries every palette's dataset reads: nothing to build for either.
+    for palette in ("claravid", "uavid"):
+        ds = ClaraVidSegmentation(
+            claravid_root,
+            split="all",
+            missions=["urban_1"],
+            altitude=["low", "mid"],
+            palette=palette,
+            label_cache=tmp_path,
+        )
+        assert ds.prepare_label_cache().built == 0  # fmt: skip
 
 
 @pytest.mark.parametrize(
