@@ -423,7 +423,6 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     try:
         data = open_data(
             spec["root"],
-            normalisation=settings.transforms_config if model is not None else None,
             dataset=spec["dataset"],
             split=spec["split"],
             palette=spec["palette"],

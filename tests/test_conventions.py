@@ -5,7 +5,7 @@ Parsed, not run: what each flag then does is tested with its command.
 
 import pytest
 
-from claravid import demo, synth
+from claravid import cache_cli, demo, synth
 from claravid.dsp import cli as dsp
 from claravid.eval import cli as evaluate
 from claravid.eval import predict
@@ -15,6 +15,7 @@ from claravid.train import cli as train
 # Each command's parser and the arguments it needs besides the ones under test.
 COMMANDS = {
     "claravid-synth": (synth.build_parser, []),
+    "claravid-cache": (cache_cli.build_parser, ["ROOT"]),
     "claravid-demo": (demo.build_parser, []),
     "claravid-dsp": (dsp.build_parser, []),
     "claravid-export": (export.build_parser, []),
@@ -23,7 +24,13 @@ COMMANDS = {
     "claravid-train": (train.build_parser, ["--config", "demo"]),
 }
 WITH_PROGRESS = [c for c in COMMANDS if c != "claravid-export"]  # export shows no bar
-WITH_WORKERS = ["claravid-demo", "claravid-dsp", "claravid-eval", "claravid-predict"]
+WITH_WORKERS = [
+    "claravid-cache",
+    "claravid-demo",
+    "claravid-dsp",
+    "claravid-eval",
+    "claravid-predict",
+]
 
 
 def _parse(command, *argv):

@@ -64,7 +64,9 @@ class DataConfig:
     val_dataset: str = "claravid"  # claravid | uavid (synthetic-to-real validation)
     val_root: str | None = None  # null: data.root
     val_limit: int | None = None  # validate on the first N images only (null: all)
-    label_cache: bool = True  # decoded labels kept as small PNGs under $CLARAVID_CACHE
+    label_cache: bool = (
+        True  # label codes kept as tiled TIFFs under $CLARAVID_CACHE, read by region
+    )
     num_workers: int = 4  # DataLoader processes per rank (0: in the training process)
     crops_per_frame: int = 1  # k random crops from each decoded frame (1: the paper)
     class_weights: str = "none"  # none | inverse | median_frequency | log_inverse

@@ -17,7 +17,7 @@ from claravid.segmentation import ClaraVidSegmentation
 from claravid.splits import SPLITS
 from claravid.targets import UAVidSegmentation
 from claravid.train.sampler import StepSampler
-from claravid.transforms import AugmentConfig, eval_transforms, train_transforms
+from claravid.transforms import AugmentConfig, train_transforms
 
 
 class EmptySplitError(ValueError):
@@ -83,20 +83,34 @@ def build_train_dataset(cfg: DictConfig) -> Dataset:
 
 
 def build_val_dataset(cfg: DictConfig) -> Dataset:
-    """The validation split with evaluation transforms (normalisation only)."""
+    """The validation split, uint8 frames without transforms: the validation windows normalise
+    them on the model's device (``val_window``'s mean and std are ``data.augment``'s)."""
     key = "data.val_root" if cfg.data.val_root is not None else "data.root"
     root = _check_root(cfg.data.val_root or cfg.data.root, key)
-    transforms = eval_transforms(_augment(cfg))
     if cfg.data.val_dataset == "uavid":
-        ds = _uavid(root, cfg.data.val_split, cfg.data.palette, transforms)
+        ds = _uavid(root, cfg.data.val_split, cfg.data.palette, None)
     else:
-        ds = _claravid(cfg, root, cfg.data.val_split, transforms)
+        ds = _claravid(cfg, root, cfg.data.val_split, None)
     if len(ds) == 0:
         raise EmptySplitError(
             f"the {cfg.data.val_split!r} split of {root} holds no frame with this selection; "
             "widen the selection or change data.split (validation needs images)"
         )
     return ds
+
+
+def prepare_label_caches(datasets: list[Dataset], workers: int, say: Any = print) -> None:
+    """Build the label-cache entries the ClaraVid datasets miss, before the first step, so no
+    epoch decodes a panoptic PNG (``claravid-cache`` does the same ahead of time). Says what
+    was built and how large the cache is."""
+    for dataset in datasets:
+        if isinstance(dataset, ClaraVidSegmentation) and dataset.label_cache is not None:
+            summary = dataset.prepare_label_cache(workers=workers)
+            if summary.built:
+                say(
+                    f"label cache: {summary.built} frame(s) prepared in {summary.seconds:.1f} s, "
+                    f"{summary.bytes_per_frame / 1e3:.0f} kB per frame, in {summary.directory}"
+                )
 
 
 def split_table(dataset: Dataset) -> str | None:
@@ -114,10 +128,14 @@ def image_paths(dataset: Dataset) -> list[str]:
 
 
 class CropDataset(Dataset):
-    """k augmented crops of one decoded frame per item, each crop from its own seed.
+    """k augmented crops of one frame per item, each crop from its own seed.
 
-    Decoding a full frame costs far more than cropping and augmenting it (a 4032×3024 JPEG is
-    ~95 ms, a 630² crop's augmentations a few ms), so k > 1 multiplies images per decode.
+    A dataset that reads windows (``ClaraVidSegmentation.read_window``) decodes each crop's
+    window alone: the window is drawn from the frame's size in its headers, then only those
+    pixels of the JPEG and of the label cache are read (same pixels as a full decode). Other
+    datasets decode the frame once per item and every crop is cut from it. Either way the
+    window and the augmentations after it come from the crop's seed alone, so a resumed run
+    draws exactly the crops an uninterrupted one does.
 
     Args:
         base: a dataset of uint8 samples (no transforms).
@@ -129,18 +147,25 @@ class CropDataset(Dataset):
         self.base = base
         self.transform = train_transforms(augment)
         self.k = crops_per_frame
+        self.by_window = hasattr(base, "read_window") and hasattr(base, "frame_size")
 
     def __len__(self) -> int:
         return len(self.base)  # type: ignore[arg-type]
 
     def __getitem__(self, item: tuple[int, int]) -> dict[str, torch.Tensor]:
         index, seed = item
-        sample = self.base[index]
+        size = self.base.frame_size(index) if self.by_window else None  # type: ignore[attr-defined]
+        frame = None if self.by_window else self.base[index]
         images, masks = [], []
         for j in range(self.k):
             # Seeding the pipeline per crop makes the crop a function of (position, j) alone.
             self.transform.pipeline.set_random_seed((seed + j) % 2**32)
-            out = self.transform({"image": sample["image"], "mask": sample["mask"]})
+            if size is not None:
+                window = self.transform.draw_window(*size)
+                sample = self.base.read_window(index, window)  # type: ignore[attr-defined]
+            else:
+                sample = {"image": frame["image"], "mask": frame["mask"]}
+            out = self.transform({k: sample[k] for k in ("image", "mask", "crop") if k in sample})
             images.append(out["image"])
             masks.append(out["mask"].long())
         return {"image": torch.stack(images), "mask": torch.stack(masks)}

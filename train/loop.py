@@ -38,7 +38,7 @@ from omegaconf import DictConfig
 from torch import nn
 from tqdm.auto import tqdm
 
-from claravid import models
+from claravid import jpeg_region, models
 from claravid.cli import check_device
 from claravid.distributed import DistInfo, barrier, init_distributed
 from claravid.eval import IGNORE_INDEX, WindowConfig
@@ -60,6 +60,7 @@ from claravid.train.data import (
     class_frequencies,
     class_weights,
     image_paths,
+    prepare_label_caches,
     split_table,
 )
 from claravid.train.logs import RunLog, plot_curves, read_metrics
@@ -240,6 +241,10 @@ def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
         return RunResult(out, start, total, ckpt.get("best_miou"), ckpt.get("best_step"),
                          ckpt.get("metrics") or {}, already_finished=True)  # fmt: skip
     val_set = build_val_dataset(cfg)
+    if main:  # one process builds the label cache; the others wait and then read it
+        prepare_label_caches([train_set, val_set], cfg.data.num_workers, say)
+        say(f"RGB crops: {jpeg_region.decoder()}")
+    barrier()
     if (shares := split_table(train_set)) is not None:
         say(shares)
     palette = load_palette(cfg.data.palette)
@@ -409,7 +414,9 @@ def _val_window(cfg: DictConfig, patch_size: int, precision: str) -> WindowConfi
     """
     v = cfg.val
     try:
-        window = WindowConfig(v.window, v.stride, v.scale, v.batch_size, precision)
+        augment = cfg.data.augment  # the normalisation the training crops get
+        window = WindowConfig(v.window, v.stride, v.scale, v.batch_size, precision,
+                              mean=tuple(augment.mean), std=tuple(augment.std))  # fmt: skip
         window.check_patch(patch_size)
     except ValueError as exc:
         raise ValueError(

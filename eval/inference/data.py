@@ -11,7 +11,6 @@ sequence, and every image's parent folder. :class:`EvalData` gathers these behin
 from __future__ import annotations
 
 import contextlib
-import copy
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -29,7 +28,6 @@ from claravid.masks import check_palette_fit
 from claravid.masks import read_mask as read_label_mask
 from claravid.palettes import Palette, load_palette
 from claravid.segmentation import ClaraVidSegmentation
-from claravid.transforms import eval_transforms
 
 
 class KeyedDataset(Dataset):
@@ -56,8 +54,8 @@ class EvalData:
     Attributes:
         name: ``claravid``, ``uavid`` or ``folder``.
         palette: the label palette (train ids, names, colours).
-        dataset: samples with normalised images (``eval_transforms``), ``key`` and ``index``.
-        raw: the same samples without transforms (uint8 image), for overlays.
+        dataset: samples with uint8 images [3,H,W] (normalised on the model's device, see
+            :mod:`claravid.eval.inference.windows`), ``mask``, ``key`` and ``index``.
         paths: the RGB file of each index.
         keys: the prediction name of each index.
         attributes: per-index unit labels (:mod:`claravid.eval.analysis.units`): ``mission``,
@@ -68,7 +66,6 @@ class EvalData:
     name: str
     palette: Palette
     dataset: Dataset
-    raw: Dataset
     paths: list[str]
     keys: list[str]
     read_mask_fn: Callable[[int], Any]
@@ -98,29 +95,17 @@ def folder_labels(paths: list[str], root: Path) -> list[str]:
 
 @dataclass
 class _Opened:
-    raw: Any
-    transformed: Dataset
+    dataset: Any
     paths: list[str]
     keys: list[str]
     read_mask: Callable[[int], Any]
     attributes: dict[str, list[str]] = field(default_factory=dict)
 
 
-def _with_transforms(dataset: Any, transforms: Any) -> Any:
-    """The same dataset (frame list shared, nothing listed or read again) with ``transforms``.
-
-    Building it a second time would list the tree and, for ClaraVid splits, read every
-    extrinsics file again.
-    """
-    view = copy.copy(dataset)
-    view.transforms = transforms
-    return view
-
-
-def _claravid(
-    root: Path, split: str, pal: Palette, selection: dict[str, Any], norm: Any = None
-) -> _Opened:
-    raw = ClaraVidSegmentation(root, split=split, palette=pal, **selection)
+def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -> _Opened:
+    # Labels through the label cache (prepared by claravid-cache, else built on first read):
+    # a whole-frame read of its tiles costs a fraction of decoding the panoptic PNG.
+    raw = ClaraVidSegmentation(root, split=split, palette=pal, label_cache=True, **selection)
     attributes = {
         "mission": [f.mission for f in raw.frames],
         "viewpoint": [f.viewpoint for f in raw.frames],
@@ -129,7 +114,6 @@ def _claravid(
         attributes["block"] = raw.block_ids()
     return _Opened(
         raw,
-        _with_transforms(raw, eval_transforms(norm)),
         [str(f.paths["rgb"]) for f in raw.frames],
         [f.key for f in raw.frames],
         raw.read_mask,
@@ -154,7 +138,7 @@ def _as_list(value: Any) -> list[str] | None:
     return [value] if isinstance(value, str) else [str(v) for v in value]
 
 
-def _uavid(root: Path, split: str, pal: Palette, norm: Any = None, labels: bool = True) -> _Opened:
+def _uavid(root: Path, split: str, pal: Palette, labels: bool = True) -> _Opened:
     raw = targets.UAVidSegmentation(root, split=split, palette=pal)
     if labels:
         if not raw.has_labels:
@@ -162,7 +146,6 @@ def _uavid(root: Path, split: str, pal: Palette, norm: Any = None, labels: bool 
         check_palette_fit([raw.label_path(p) for p in raw.images], pal)
     return _Opened(
         raw,
-        _with_transforms(raw, eval_transforms(norm)),
         [str(p) for p in raw.images],
         [image_key(p, root) for p in raw.images],  # as the samples' "key"
         lambda i: read_label_mask(raw.label_path(raw.images[i]), pal),
@@ -175,7 +158,6 @@ def _folder(
     masks: Path | None,
     palette: Any,
     pal: Palette,
-    norm: Any = None,
     labels: bool = True,
 ) -> _Opened:
     if labels and masks is None:
@@ -188,7 +170,6 @@ def _folder(
         check_palette_fit(list(raw.masks or []), pal)
     return _Opened(
         raw,
-        _with_transforms(raw, eval_transforms(norm)),
         [str(p) for p in raw.images],
         list(raw.keys),
         lambda i: read_label_mask(raw.masks[i], pal),
@@ -203,7 +184,6 @@ def open_data(
     palette: str | Path | None = None,
     masks: str | Path | None = None,
     selection: dict[str, Any] | None = None,
-    normalisation: dict[str, Any] | None = None,
     labels: bool = True,
 ) -> EvalData:
     """Open the images to evaluate.
@@ -218,7 +198,6 @@ def open_data(
         masks: the folder of label images mirroring ``root`` (``folder`` only).
         selection: ClaraVid ``missions``, ``altitude``, ``direction`` and ``split_config``
             (e.g. what a training checkpoint used).
-        normalisation: ``{"mean", "std"}`` of the model's input (default ImageNet's).
         labels: False opens the images alone (``--scores``: no labels, no masks needed).
 
     Raises:
@@ -230,13 +209,13 @@ def open_data(
     pal = load_palette(palette or ("claravid" if dataset == "claravid" else "uavid"))
     describe: dict[str, Any] = {"dataset": dataset, "data": str(root), "split": str(split)}
     if dataset == "claravid":
-        opened = _claravid(root, split, pal, selection or {}, normalisation)
-        describe["selection"] = _selection_used(opened.raw, selection or {})
+        opened = _claravid(root, split, pal, selection or {})
+        describe["selection"] = _selection_used(opened.dataset, selection or {})
     elif dataset == "uavid":
-        opened = _uavid(root, split, pal, normalisation, labels)
+        opened = _uavid(root, split, pal, labels)
     else:
         mask_root = None if masks is None else Path(masks).absolute()
-        opened = _folder(root, mask_root, palette, pal, normalisation, labels)
+        opened = _folder(root, mask_root, palette, pal, labels)
         describe.update(split=None, masks=None if mask_root is None else str(mask_root))
     if not opened.paths:
         raise ValueError(f"no images to evaluate in {root} (split {split})")
@@ -244,8 +223,7 @@ def open_data(
     return EvalData(
         name=dataset,
         palette=pal,
-        dataset=KeyedDataset(opened.transformed, opened.keys),
-        raw=KeyedDataset(opened.raw, opened.keys),
+        dataset=KeyedDataset(opened.dataset, opened.keys),
         paths=opened.paths,
         keys=opened.keys,
         read_mask_fn=opened.read_mask,

@@ -80,7 +80,7 @@ def hardest_items(
     for pos in order:
         key = result.keys[pos]
         pred = kept.get(int(pos))
-        sample = data.raw[index_of[key]]
+        sample = data.dataset[index_of[key]]
         mask = np.asarray(sample["mask"], dtype=np.uint8)
         if pred is None:
             for folder in prediction_dirs:
