@@ -158,6 +158,11 @@ def main() -> None:
         evaluation = per_item(data.dataset.__getitem__, range(len(data)), repeats=2)
         print(f"4. evaluation sample (uint8 frame + labels): {evaluation * 1e3:6.1f} ms, "
               f"× {evaluation / decode:.2f} the baseline time (target ≤ 1.5)")  # fmt: skip
+        half = per_item(lambda p: cv2.imread(p, cv2.IMREAD_REDUCED_COLOR_2), rgb, repeats=2)
+        print(
+            f"   for --scale 0.5: the decoder's own 2× scaling {half * 1e3:6.1f} ms, "
+            f"× {half / decode:.2f} the full decode (not offered: see docs/evaluation.md)"
+        )
 
         one = loader_rate(train, 1, n)
         two = loader_rate(train, 2, n)
