@@ -12,6 +12,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.data import DataLoader, Dataset
 
+from claravid import jpeg_region
 from claravid.masks import read_mask
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.splits import SPLITS
@@ -133,21 +134,33 @@ class CropDataset(Dataset):
     A dataset that reads windows (``ClaraVidSegmentation.read_window``) decodes each crop's
     window alone: the window is drawn from the frame's size in its headers, then only those
     pixels of the JPEG and of the label cache are read (same pixels as a full decode). Other
-    datasets decode the frame once per item and every crop is cut from it. Either way the
-    window and the augmentations after it come from the crop's seed alone, so a resumed run
-    draws exactly the crops an uninterrupted one does.
+    datasets, or any dataset when the window decoder is not built, decode the frame once per
+    item and every crop is cut from it. Either way the window and the augmentations after it
+    come from the crop's seed alone, so both give the same crops, and a resumed run draws
+    exactly the crops an uninterrupted one does.
 
     Args:
         base: a dataset of uint8 samples (no transforms).
         augment: the augmentation config (crop size, probabilities ...).
         crops_per_frame: k.
+        by_window: read windows (True) or cut crops from full frames (False); None: windows
+            when the dataset reads them and the JPEG window decoder is built.
     """
 
-    def __init__(self, base: Dataset, augment: AugmentConfig, crops_per_frame: int = 1) -> None:
+    def __init__(
+        self,
+        base: Dataset,
+        augment: AugmentConfig,
+        crops_per_frame: int = 1,
+        by_window: bool | None = None,
+    ) -> None:
         self.base = base
         self.transform = train_transforms(augment)
         self.k = crops_per_frame
-        self.by_window = hasattr(base, "read_window") and hasattr(base, "frame_size")
+        if by_window is None:
+            fast = jpeg_region.decoder() == jpeg_region.REGION_DECODE
+            by_window = fast and hasattr(base, "read_window")
+        self.by_window = by_window
 
     def __len__(self) -> int:
         return len(self.base)  # type: ignore[arg-type]

@@ -85,8 +85,9 @@ def test_window_reads_give_the_crops_of_full_frames(odd_root, k, crop):
     # also when the frame (141 rows) is shorter than the crop (160) and is padded at random.
     augment = AugmentConfig(crop_height=crop[0], crop_width=crop[1])
     base = ClaraVidSegmentation(odd_root, split="all", palette="uavid")
-    by_window, by_frame = CropDataset(base, augment, k), CropDataset(_FullFrames(base), augment, k)
-    assert by_window.by_window and not by_frame.by_window
+    by_window = CropDataset(base, augment, k, by_window=True)
+    by_frame = CropDataset(base, augment, k, by_window=False)
+    assert CropDataset(_FullFrames(base), augment, k).by_window is False  # cannot read windows
     for item in [(0, 11), (1, 12345), (3, 2**31)]:
         a, b = by_window[item], by_frame[item]
         torch.testing.assert_close(a["image"], b["image"], rtol=0, atol=0)
