@@ -96,14 +96,27 @@ def folder_labels(paths: list[str], root: Path) -> list[str]:
     return [Path(image_key(Path(p), root)).parent.as_posix() or "." for p in paths]
 
 
-@dataclass
-class _Opened:
-    raw: Any
-    transformed: Dataset
-    paths: list[str]
-    keys: list[str]
-    read_mask: Callable[[int], Any]
-    attributes: dict[str, list[str]] = field(default_factory=dict)
+def _keyed(
+    name: str,
+    pal: Palette,
+    raw: Any,
+    norm: Any,
+    paths: list[str],
+    keys: list[str],
+    read_mask: Callable[[int], Any],
+    attributes: dict[str, list[str]] | None = None,
+) -> EvalData:
+    """The opened dataset as :class:`EvalData`: raw and normalised samples, both keyed."""
+    return EvalData(
+        name=name,
+        palette=pal,
+        dataset=KeyedDataset(_with_transforms(raw, eval_transforms(norm)), keys),
+        raw=KeyedDataset(raw, keys),
+        paths=paths,
+        keys=keys,
+        read_mask_fn=read_mask,
+        attributes=attributes or {},
+    )
 
 
 def _with_transforms(dataset: Any, transforms: Any) -> Any:
@@ -119,7 +132,7 @@ def _with_transforms(dataset: Any, transforms: Any) -> Any:
 
 def _claravid(
     root: Path, split: str, pal: Palette, selection: dict[str, Any], norm: Any = None
-) -> _Opened:
+) -> EvalData:
     raw = ClaraVidSegmentation(root, split=split, palette=pal, **selection)
     attributes = {
         "mission": [f.mission for f in raw.frames],
@@ -127,9 +140,11 @@ def _claravid(
     }
     with contextlib.suppress(OSError, ValueError):  # blocks need the frames' extrinsics
         attributes["block"] = raw.block_ids()
-    return _Opened(
+    return _keyed(
+        "claravid",
+        pal,
         raw,
-        _with_transforms(raw, eval_transforms(norm)),
+        norm,
         [str(f.paths["rgb"]) for f in raw.frames],
         [f.key for f in raw.frames],
         raw.read_mask,
@@ -154,15 +169,17 @@ def _as_list(value: Any) -> list[str] | None:
     return [value] if isinstance(value, str) else [str(v) for v in value]
 
 
-def _uavid(root: Path, split: str, pal: Palette, norm: Any = None, labels: bool = True) -> _Opened:
+def _uavid(root: Path, split: str, pal: Palette, norm: Any = None, labels: bool = True) -> EvalData:
     raw = targets.UAVidSegmentation(root, split=split, palette=pal)
     if labels:
         if not raw.has_labels:
             raise ValueError(f"UAVid {split} has no labels to evaluate against; use val or train")
         check_palette_fit([raw.label_path(p) for p in raw.images], pal)
-    return _Opened(
+    return _keyed(
+        "uavid",
+        pal,
         raw,
-        _with_transforms(raw, eval_transforms(norm)),
+        norm,
         [str(p) for p in raw.images],
         [image_key(p, root) for p in raw.images],  # as the samples' "key"
         lambda i: read_label_mask(raw.label_path(raw.images[i]), pal),
@@ -177,7 +194,7 @@ def _folder(
     pal: Palette,
     norm: Any = None,
     labels: bool = True,
-) -> _Opened:
+) -> EvalData:
     if labels and masks is None:
         raise ValueError("--dataset folder needs --masks: the folder of label images")
     if labels and palette is None:
@@ -186,9 +203,11 @@ def _folder(
     raw = targets.FolderSegmentation(root, masks, palette=pal if masks is not None else None)
     if masks is not None:
         check_palette_fit(list(raw.masks or []), pal)
-    return _Opened(
+    return _keyed(
+        "folder",
+        pal,
         raw,
-        _with_transforms(raw, eval_transforms(norm)),
+        norm,
         [str(p) for p in raw.images],
         list(raw.keys),
         lambda i: read_label_mask(raw.masks[i], pal),
@@ -230,25 +249,16 @@ def open_data(
     pal = load_palette(palette or ("claravid" if dataset == "claravid" else "uavid"))
     describe: dict[str, Any] = {"dataset": dataset, "data": str(root), "split": str(split)}
     if dataset == "claravid":
-        opened = _claravid(root, split, pal, selection or {}, normalisation)
-        describe["selection"] = _selection_used(opened.raw, selection or {})
+        data = _claravid(root, split, pal, selection or {}, normalisation)
+        describe["selection"] = _selection_used(data.raw.dataset, selection or {})
     elif dataset == "uavid":
-        opened = _uavid(root, split, pal, normalisation, labels)
+        data = _uavid(root, split, pal, normalisation, labels)
     else:
         mask_root = None if masks is None else Path(masks).absolute()
-        opened = _folder(root, mask_root, palette, pal, normalisation, labels)
+        data = _folder(root, mask_root, palette, pal, normalisation, labels)
         describe.update(split=None, masks=None if mask_root is None else str(mask_root))
-    if not opened.paths:
+    if not data.paths:
         raise ValueError(f"no images to evaluate in {root} (split {split})")
-    opened.attributes["folder"] = folder_labels(opened.paths, root)
-    return EvalData(
-        name=dataset,
-        palette=pal,
-        dataset=KeyedDataset(opened.transformed, opened.keys),
-        raw=KeyedDataset(opened.raw, opened.keys),
-        paths=opened.paths,
-        keys=opened.keys,
-        read_mask_fn=opened.read_mask,
-        attributes=opened.attributes,
-        describe=describe,
-    )
+    data.attributes["folder"] = folder_labels(data.paths, root)
+    data.describe = describe
+    return data
