@@ -8,8 +8,7 @@ import pytest
 from claravid import demo, synth
 from claravid.dsp import cli as dsp
 from claravid.eval import cli as evaluate
-from claravid.eval import predict
-from claravid.models import export
+from claravid.eval import export_cli, predict
 from claravid.train import cli as train
 
 # Each command's parser and the arguments it needs besides the ones under test.
@@ -17,7 +16,7 @@ COMMANDS = {
     "claravid-synth": (synth.build_parser, []),
     "claravid-demo": (demo.build_parser, []),
     "claravid-dsp": (dsp.build_parser, []),
-    "claravid-export": (export.build_parser, []),
+    "claravid-export": (export_cli.build_parser, []),
     "claravid-eval": (evaluate.build_parser, []),
     "claravid-predict": (predict.build_parser, ["a.jpg"]),
     "claravid-train": (train.build_parser, ["--config", "demo"]),
