@@ -62,6 +62,13 @@ def _check_root(root: str | None, key: str) -> Path:
     return Path(root)
 
 
+def _split(cfg: DictConfig, kind: str, root: Path, split: str, transforms: Any) -> Dataset:
+    """One split of UAVid or ClaraVid (the one branch both builders share)."""
+    if kind == "uavid":
+        return _uavid(root, split, cfg.data.palette, transforms)
+    return _claravid(cfg, root, split, transforms)
+
+
 def build_train_dataset(cfg: DictConfig) -> Dataset:
     """The training split, without transforms (`CropDataset` augments it).
 
@@ -70,10 +77,7 @@ def build_train_dataset(cfg: DictConfig) -> Dataset:
         EmptySplitError: the split selects no frame.
     """
     root = _check_root(cfg.data.root, "data.root")
-    if cfg.data.dataset == "uavid":
-        ds = _uavid(root, cfg.data.train_split, cfg.data.palette, None)
-    else:
-        ds = _claravid(cfg, root, cfg.data.train_split, None)
+    ds = _split(cfg, cfg.data.dataset, root, cfg.data.train_split, None)
     if len(ds) == 0:
         raise EmptySplitError(
             f"the {cfg.data.train_split!r} split of {root} holds no frame with this selection "
@@ -86,11 +90,7 @@ def build_val_dataset(cfg: DictConfig) -> Dataset:
     """The validation split with evaluation transforms (normalisation only)."""
     key = "data.val_root" if cfg.data.val_root is not None else "data.root"
     root = _check_root(cfg.data.val_root or cfg.data.root, key)
-    transforms = eval_transforms(_augment(cfg))
-    if cfg.data.val_dataset == "uavid":
-        ds = _uavid(root, cfg.data.val_split, cfg.data.palette, transforms)
-    else:
-        ds = _claravid(cfg, root, cfg.data.val_split, transforms)
+    ds = _split(cfg, cfg.data.val_dataset, root, cfg.data.val_split, eval_transforms(_augment(cfg)))
     if len(ds) == 0:
         raise EmptySplitError(
             f"the {cfg.data.val_split!r} split of {root} holds no frame with this selection; "
