@@ -32,6 +32,7 @@ from pathlib import Path
 import torch
 
 from claravid.models import OnnxSegmenter, build_model, export_onnx
+from claravid.models.export import ExportSettings
 
 BACKBONE_TFLOP_630 = 1.63  # ViT-L/14, 2026 tokens, forward
 
@@ -57,7 +58,7 @@ def bench_cpu(size: int, reps: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "m.onnx"
         t = time.perf_counter()
-        export_onnx(model, path, size, size)
+        export_onnx(model, path, ExportSettings(height=size, width=size))
         print(f"export + check: {time.perf_counter() - t:.1f} s")
         runner = OnnxSegmenter(path, providers=["CPUExecutionProvider"])
         xn = x.numpy()
@@ -116,7 +117,7 @@ def bench_precisions(size: int, reps: int) -> None:
         expected = model(torch.from_numpy(x)).numpy()
     with tempfile.TemporaryDirectory() as tmp:
         plain = Path(tmp) / "fp32.onnx"
-        export_onnx(model, plain, size, size, check=False)
+        export_onnx(model, plain, ExportSettings(height=size, width=size, check=False))
         runners = {
             name: OnnxSegmenter(path, providers="cpu", threads=threads)
             for name, path in _variants(plain, Path(tmp), size).items()
@@ -150,7 +151,7 @@ def bench_demo(checkpoint: Path, data: Path, frames: int) -> None:
     print(f"== trained {checkpoint}: {frames} val frames, windows {h}x{w}")
     with tempfile.TemporaryDirectory() as tmp:
         plain = Path(tmp) / "fp32.onnx"
-        export_onnx(source.model, plain, h, w, check=False)
+        export_onnx(source.model, plain, ExportSettings(height=h, width=w, check=False))
         variants = _variants(plain, Path(tmp), h)
         runners = {n: OnnxSegmenter(p, providers="cpu") for n, p in variants.items()}
         agree = {name: [] for name in runners}

@@ -8,8 +8,7 @@ import pytest
 from claravid import cache_cli, demo, synth
 from claravid.dsp import cli as dsp
 from claravid.eval import cli as evaluate
-from claravid.eval import predict
-from claravid.models import export
+from claravid.eval import export_cli, predict
 from claravid.train import cli as train
 
 # Each command's parser and the arguments it needs besides the ones under test.
@@ -18,7 +17,7 @@ COMMANDS = {
     "claravid-cache": (cache_cli.build_parser, ["ROOT"]),
     "claravid-demo": (demo.build_parser, []),
     "claravid-dsp": (dsp.build_parser, []),
-    "claravid-export": (export.build_parser, []),
+    "claravid-export": (export_cli.build_parser, []),
     "claravid-eval": (evaluate.build_parser, []),
     "claravid-predict": (predict.build_parser, ["a.jpg"]),
     "claravid-train": (train.build_parser, ["--config", "demo"]),

@@ -29,11 +29,7 @@ def _augment(cfg: DictConfig) -> AugmentConfig:
     return AugmentConfig(**OmegaConf.to_container(cfg.data.augment))  # type: ignore[arg-type]
 
 
-def _uavid(root: str | Path, split: str, palette: str, transforms: Any) -> UAVidSegmentation:
-    return UAVidSegmentation(root, split=split, palette=palette, transforms=transforms)
-
-
-def _claravid(cfg: DictConfig, root: str | Path, split: str, transforms: Any) -> Dataset:
+def _claravid(cfg: DictConfig, root: str | Path, split: str) -> Dataset:
     d = cfg.data
     return ClaraVidSegmentation(
         root,
@@ -42,7 +38,6 @@ def _claravid(cfg: DictConfig, root: str | Path, split: str, transforms: Any) ->
         altitude=list(d.altitude) if d.altitude is not None else None,
         direction=list(d.direction) if d.direction is not None else None,
         palette=d.palette,
-        transforms=transforms,
         split_config={
             "block_size": d.split.block_size,
             "fractions": tuple(d.split.fractions),
@@ -63,6 +58,15 @@ def _check_root(root: str | None, key: str) -> Path:
     return Path(root)
 
 
+def _split(cfg: DictConfig, kind: str, root: Path, split: str) -> Dataset:
+    """One split of UAVid or ClaraVid, uint8 samples without transforms (the one branch both
+    builders share: training crops them in `CropDataset`, validation normalises on the
+    model's device)."""
+    if kind == "uavid":
+        return UAVidSegmentation(root, split=split, palette=cfg.data.palette)
+    return _claravid(cfg, root, split)
+
+
 def build_train_dataset(cfg: DictConfig) -> Dataset:
     """The training split, without transforms (`CropDataset` augments it).
 
@@ -71,10 +75,7 @@ def build_train_dataset(cfg: DictConfig) -> Dataset:
         EmptySplitError: the split selects no frame.
     """
     root = _check_root(cfg.data.root, "data.root")
-    if cfg.data.dataset == "uavid":
-        ds = _uavid(root, cfg.data.train_split, cfg.data.palette, None)
-    else:
-        ds = _claravid(cfg, root, cfg.data.train_split, None)
+    ds = _split(cfg, cfg.data.dataset, root, cfg.data.train_split)
     if len(ds) == 0:
         raise EmptySplitError(
             f"the {cfg.data.train_split!r} split of {root} holds no frame with this selection "
@@ -88,10 +89,7 @@ def build_val_dataset(cfg: DictConfig) -> Dataset:
     them on the model's device (``val_window``'s mean and std are ``data.augment``'s)."""
     key = "data.val_root" if cfg.data.val_root is not None else "data.root"
     root = _check_root(cfg.data.val_root or cfg.data.root, key)
-    if cfg.data.val_dataset == "uavid":
-        ds = _uavid(root, cfg.data.val_split, cfg.data.palette, None)
-    else:
-        ds = _claravid(cfg, root, cfg.data.val_split, None)
+    ds = _split(cfg, cfg.data.val_dataset, root, cfg.data.val_split)
     if len(ds) == 0:
         raise EmptySplitError(
             f"the {cfg.data.val_split!r} split of {root} holds no frame with this selection; "

@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from claravid.cli import UsageError
-from claravid.eval.analysis.bins import Bin, fixed_bins, quantile_bins
-from claravid.eval.analysis.bootstrap import Bootstrap, paired_gap, unpaired_gap
+from claravid.eval.analysis.bins import Bin, choose_bins
+from claravid.eval.analysis.bootstrap import Bootstrap, count_clusters, paired_gap, unpaired_gap
 from claravid.eval.analysis.table import EvalResult
 
 
@@ -57,9 +57,9 @@ def report_bins(result: EvalResult, report: dict[str, Any]) -> list[Bin]:
     values = result.complexity.get(binning.get("measure", ""))
     if values is None or not binning.get("method"):
         return []
-    if binning["method"] == "fixed":
-        return fixed_bins(values, binning["edges"])[0]
-    return quantile_bins(values, result.paths, int(binning["bins"]))
+    edges = binning["edges"] if binning["method"] == "fixed" else None
+    bins = int(binning.get("bins") or 1)
+    return choose_bins(values, result.paths, binning["measure"], bins=bins, edges=edges)[0]
 
 
 def cluster_unit(results: Sequence[EvalResult], names: Sequence[str], wanted: str | None) -> str:
@@ -117,7 +117,7 @@ def gap_analysis(
     return {
         "baseline": names[0],
         "comparisons": comparisons,
-        "uncertainty": settings.describe(int(base_ids.max()) + 1 if base_ids.size else 0),
+        "uncertainty": settings.describe(count_clusters(base_ids)),
     }
 
 

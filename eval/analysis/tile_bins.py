@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from claravid.eval.analysis.bins import Bin, bin_names, fixed_bins
+from claravid.eval.analysis.bins import Bin, choose_bins
 from claravid.eval.analysis.bootstrap import (
     Bootstrap,
     cluster_ids,
@@ -117,23 +117,16 @@ def concat_tables(
 
 def tile_bins(
     table: TileTable, paths: Sequence[str], bins: int, edges: Sequence[float] | None
-) -> tuple[list[Bin], list[int]]:
-    """The tiles' bins (and the tiles outside fixed edges).
+) -> tuple[list[Bin], list[int], dict[str, Any]]:
+    """The tiles' bins, the tiles outside fixed edges, and the ``binning`` entry.
 
     Quantile bins: tiles sorted by (delentropy, image path, row, column), split as
     ``numpy.array_split``; fixed edges: as images (:func:`claravid.eval.analysis.bins.fixed_bins`).
     """
-    if edges is not None:
-        return fixed_bins(table.delent, edges)
-    if bins > len(table):
-        raise ValueError(f"{bins} bins for {len(table)} tiles: use at most {len(table)} (--bins)")
     path_rank = np.argsort(np.argsort(np.asarray(paths, dtype=str), kind="stable"), kind="stable")
     order = np.lexsort((table.col, table.row, path_rank[table.image], table.delent))
-    out = []
-    for name, members in zip(bin_names(bins), np.array_split(order, bins), strict=True):
-        values = table.delent[members]
-        out.append(Bin(name, float(values.min()), float(values.max()), tuple(members.tolist())))
-    return out, []
+    return choose_bins(table.delent, paths, "delent", bins=bins, edges=edges, order=order,
+                       what="tiles")  # fmt: skip
 
 
 def tile_report(
@@ -159,7 +152,7 @@ def tile_report(
     Returns:
         ``{"size", "num_tiles", "num_without_labels", "binning", "bins", "correlation"}``.
     """
-    bin_list, outside = tile_bins(table, paths, bins, edges)
+    bin_list, outside, binning = tile_bins(table, paths, bins, edges)
     ids = None
     if bootstrap is not None:
         labels = list(paths) if clusters is None else list(clusters)
@@ -184,11 +177,8 @@ def tile_report(
     if ids is not None:
         corr.update(correlation_interval(table.delent, tile_miou, ids, bootstrap,
                                          stream="tiles:correlation"))  # fmt: skip
-    binning: dict[str, Any] = {"measure": "delent"}
     if edges is not None:
-        binning.update(method="fixed", edges=[float(e) for e in edges], outside=len(outside))
-    else:
-        binning.update(method="quantile", bins=bins)
+        binning["outside"] = len(outside)
     return {
         "size": table.size,
         "num_tiles": len(table),

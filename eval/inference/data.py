@@ -93,16 +93,28 @@ def folder_labels(paths: list[str], root: Path) -> list[str]:
     return [Path(image_key(Path(p), root)).parent.as_posix() or "." for p in paths]
 
 
-@dataclass
-class _Opened:
-    dataset: Any
-    paths: list[str]
-    keys: list[str]
-    read_mask: Callable[[int], Any]
-    attributes: dict[str, list[str]] = field(default_factory=dict)
+def _keyed(
+    name: str,
+    pal: Palette,
+    raw: Any,
+    paths: list[str],
+    keys: list[str],
+    read_mask: Callable[[int], Any],
+    attributes: dict[str, list[str]] | None = None,
+) -> EvalData:
+    """The opened dataset as :class:`EvalData`, its uint8 samples keyed."""
+    return EvalData(
+        name=name,
+        palette=pal,
+        dataset=KeyedDataset(raw, keys),
+        paths=paths,
+        keys=keys,
+        read_mask_fn=read_mask,
+        attributes=attributes or {},
+    )
 
 
-def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -> _Opened:
+def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -> EvalData:
     # Labels through the label cache (prepared by claravid-cache, else built on first read):
     # a whole-frame read of its tiles costs a fraction of decoding the panoptic PNG.
     raw = ClaraVidSegmentation(root, split=split, palette=pal, label_cache=True, **selection)
@@ -112,7 +124,9 @@ def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -
     }
     with contextlib.suppress(OSError, ValueError):  # blocks need the frames' extrinsics
         attributes["block"] = raw.block_ids()
-    return _Opened(
+    return _keyed(
+        "claravid",
+        pal,
         raw,
         [str(f.paths["rgb"]) for f in raw.frames],
         [f.key for f in raw.frames],
@@ -138,13 +152,15 @@ def _as_list(value: Any) -> list[str] | None:
     return [value] if isinstance(value, str) else [str(v) for v in value]
 
 
-def _uavid(root: Path, split: str, pal: Palette, labels: bool = True) -> _Opened:
+def _uavid(root: Path, split: str, pal: Palette, labels: bool = True) -> EvalData:
     raw = targets.UAVidSegmentation(root, split=split, palette=pal)
     if labels:
         if not raw.has_labels:
             raise ValueError(f"UAVid {split} has no labels to evaluate against; use val or train")
         check_palette_fit([raw.label_path(p) for p in raw.images], pal)
-    return _Opened(
+    return _keyed(
+        "uavid",
+        pal,
         raw,
         [str(p) for p in raw.images],
         [image_key(p, root) for p in raw.images],  # as the samples' "key"
@@ -159,7 +175,7 @@ def _folder(
     palette: Any,
     pal: Palette,
     labels: bool = True,
-) -> _Opened:
+) -> EvalData:
     if labels and masks is None:
         raise ValueError("--dataset folder needs --masks: the folder of label images")
     if labels and palette is None:
@@ -168,7 +184,9 @@ def _folder(
     raw = targets.FolderSegmentation(root, masks, palette=pal if masks is not None else None)
     if masks is not None:
         check_palette_fit(list(raw.masks or []), pal)
-    return _Opened(
+    return _keyed(
+        "folder",
+        pal,
         raw,
         [str(p) for p in raw.images],
         list(raw.keys),
@@ -209,24 +227,16 @@ def open_data(
     pal = load_palette(palette or ("claravid" if dataset == "claravid" else "uavid"))
     describe: dict[str, Any] = {"dataset": dataset, "data": str(root), "split": str(split)}
     if dataset == "claravid":
-        opened = _claravid(root, split, pal, selection or {})
-        describe["selection"] = _selection_used(opened.dataset, selection or {})
+        data = _claravid(root, split, pal, selection or {})
+        describe["selection"] = _selection_used(data.dataset.dataset, selection or {})
     elif dataset == "uavid":
-        opened = _uavid(root, split, pal, labels)
+        data = _uavid(root, split, pal, labels)
     else:
         mask_root = None if masks is None else Path(masks).absolute()
-        opened = _folder(root, mask_root, palette, pal, labels)
+        data = _folder(root, mask_root, palette, pal, labels)
         describe.update(split=None, masks=None if mask_root is None else str(mask_root))
-    if not opened.paths:
+    if not data.paths:
         raise ValueError(f"no images to evaluate in {root} (split {split})")
-    opened.attributes["folder"] = folder_labels(opened.paths, root)
-    return EvalData(
-        name=dataset,
-        palette=pal,
-        dataset=KeyedDataset(opened.dataset, opened.keys),
-        paths=opened.paths,
-        keys=opened.keys,
-        read_mask_fn=opened.read_mask,
-        attributes=opened.attributes,
-        describe=describe,
-    )
+    data.attributes["folder"] = folder_labels(data.paths, root)
+    data.describe = describe
+    return data

@@ -79,10 +79,11 @@ def plot_bins(report: dict[str, Any], path: str | Path) -> Path:
     return _save(fig, path)
 
 
-def plot_scatter(report: dict[str, Any], path: str | Path, measure: str = "delent") -> Path:
-    """Per-image mIoU against ``measure``, the fitted line, and Pearson/Spearman in the title."""
-    x = np.array([np.nan if r.get(measure) is None else r[measure] for r in report["images"]])
-    y = np.array([np.nan if r["miou"] is None else r["miou"] for r in report["images"]])
+def _scatter(
+    x: np.ndarray, y: np.ndarray, corr: dict[str, Any], title: str, xlabel: str, ylabel: str,
+    fit_format: str,
+) -> Figure:  # fmt: skip
+    """Points (x, y) with finite values, the least-squares line, Pearson/Spearman and n."""
     keep = np.isfinite(x) & np.isfinite(y)
     fig = Figure(figsize=(6, 4.5), layout="constrained")
     ax = fig.subplots()
@@ -90,16 +91,25 @@ def plot_scatter(report: dict[str, Any], path: str | Path, measure: str = "delen
     if keep.sum() >= 2 and np.ptp(x[keep]) > 0:
         slope, intercept = np.polyfit(x[keep], y[keep], 1)
         xs = np.linspace(x[keep].min(), x[keep].max(), 50)
-        ax.plot(xs, slope * xs + intercept, color="tab:red", label=f"fit: {slope:+.3f} per bit")
+        ax.plot(xs, slope * xs + intercept, color="tab:red",
+                label=f"fit: {slope:{fit_format}} per bit")  # fmt: skip
         ax.legend(loc="best")
-    corr = report["correlation"].get(measure, {})
     ax.set_title(
-        f"per-image mIoU vs {measure}: Pearson {_fmt(corr.get('pearson'))}, "
+        f"{title}: Pearson {_fmt(corr.get('pearson'))}, "
         f"Spearman {_fmt(corr.get('spearman'))}, n={corr.get('n', int(keep.sum()))}"
     )
-    ax.set_xlabel(f"{measure} (bits)")
-    ax.set_ylabel("mIoU")
-    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    return fig
+
+
+def plot_scatter(report: dict[str, Any], path: str | Path, measure: str = "delent") -> Path:
+    """Per-image mIoU against ``measure``, the fitted line, and Pearson/Spearman in the title."""
+    x = np.array([np.nan if r.get(measure) is None else r[measure] for r in report["images"]])
+    y = np.array([np.nan if r["miou"] is None else r["miou"] for r in report["images"]])
+    fig = _scatter(x, y, report["correlation"].get(measure, {}), f"per-image mIoU vs {measure}",
+                   f"{measure} (bits)", "mIoU", "+.3f")  # fmt: skip
+    fig.axes[0].set_ylim(-0.02, 1.02)
     return _save(fig, path)
 
 
@@ -295,20 +305,6 @@ def plot_metric_scatter(
     """A ``--scores`` metric per image against ``measure``, with the least-squares line."""
     x = np.array([r.get(measure, np.nan) for r in report["images"]], dtype=np.float64)
     y = np.array([r.get(metric, np.nan) for r in report["images"]], dtype=np.float64)
-    keep = np.isfinite(x) & np.isfinite(y)
-    fig = Figure(figsize=(6, 4.5), layout="constrained")
-    ax = fig.subplots()
-    ax.scatter(x[keep], y[keep], s=14, alpha=0.7)
-    if keep.sum() >= 2 and np.ptp(x[keep]) > 0:
-        slope, intercept = np.polyfit(x[keep], y[keep], 1)
-        xs = np.linspace(x[keep].min(), x[keep].max(), 50)
-        ax.plot(xs, slope * xs + intercept, color="tab:red", label=f"fit: {slope:+.3g} per bit")
-        ax.legend(loc="best")
     corr = report["correlation"].get(measure, {}).get(metric, {})
-    ax.set_title(
-        f"{metric} vs {measure}: Pearson {_fmt(corr.get('pearson'))}, "
-        f"Spearman {_fmt(corr.get('spearman'))}, n={corr.get('n', int(keep.sum()))}"
-    )
-    ax.set_xlabel(f"{measure} (bits)")
-    ax.set_ylabel(metric)
+    fig = _scatter(x, y, corr, f"{metric} vs {measure}", f"{measure} (bits)", metric, "+.3g")
     return _save(fig, path)

@@ -130,3 +130,13 @@ def test_a_single_mission_string_is_one_mission():
     assert splits == ["test"] * len(a) + ["val"] * len(b) + ["train"] * len(c)
     with pytest.raises(ValueError, match=r"unknown ClaraVid mission 'urbn_1'"):
         SplitConfig(test_missions="urbn_1")
+
+
+def test_the_seed_alone_changes_the_split():
+    # Same block size and fractions, only the seed differs (a seed ignored would pass the
+    # determinism test above, whose second config also changes the fractions).
+    frames, positions = grid_frames()
+    fractions = (0.6, 0.2, 0.2)
+    three = assign_blocks(frames, positions, SplitConfig(100.0, fractions=fractions, seed=3))
+    four = assign_blocks(frames, positions, SplitConfig(100.0, fractions=fractions, seed=4))
+    assert three != four

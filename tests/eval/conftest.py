@@ -36,5 +36,7 @@ def model_files(claravid_root, tmp_path_factory):
         "plain": models.save_checkpoint(model, folder / "plain.pt"),
         "onnx": folder / "model.onnx",
     }
-    models.export_onnx(model, files["onnx"], height=28, width=28, dynamic=True)
+    models.export_onnx(
+        model, files["onnx"], models.ExportSettings(height=28, width=28, dynamic=True)
+    )
     return files

@@ -12,7 +12,15 @@ import numpy as np
 import pytest
 
 from claravid import modalities
-from claravid.eval.analysis.bootstrap import Bootstrap, cluster_ids, confusion_interval
+from claravid.eval.analysis.bins import quantile_bins
+from claravid.eval.analysis.bootstrap import (
+    Bootstrap,
+    cluster_ids,
+    confusion_interval,
+    correlation_interval,
+    unpaired_gap,
+)
+from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.cli import main
 from claravid.layout import MISSIONS, frame_file
 from claravid.segmentation import ClaraVidSegmentation
@@ -72,22 +80,36 @@ def test_intervals_everywhere_with_block_clusters(runs, claravid_root):
     assert unc["method"] == "cluster percentile bootstrap" and unc["cluster"] == "block"
     assert (unc["resamples"], unc["level"], unc["seed"]) == (300, 0.95, 0)
     assert unc["num_clusters"] == len(set(blocks)) >= 2
-    for row in [report["overall"], *report["bins"], *report["groups"]]:
-        lo, hi = row["miou_ci"]
-        assert 0 <= lo <= hi <= 1 and row["ci_note"] is None
-        assert row["pixel_acc_ci"][0] <= row["pixel_acc_ci"][1]
-    corr = report["correlation"]["delent"]
-    assert len(corr["pearson_ci"]) == 2 and len(corr["spearman_ci"]) == 2
-    # The overall interval resamples the hand-computed blocks of the saved confusions.
+    # Every interval resamples the hand-computed blocks of the saved confusions: restated
+    # per set (overall, each quantile bin, each mission) from the report's own images.
     with np.load(runs["tmp"] / "a" / "confusions.npz") as saved:
         conf = saved["confusions"]
         assert sorted(set(saved["attribute_block"])) == sorted(
             {f"{MISSIONS[m]}/{x}_{y}" for m, x, y in blocks}
         )
     ids = cluster_ids([str(b) for b in blocks])
-    expected = confusion_interval(conf, ids, range(len(conf)), Bootstrap(resamples=300),
-                                  stream="overall")  # fmt: skip
-    assert report["overall"]["miou_ci"] == pytest.approx(expected["miou_ci"])
+    settings = Bootstrap(resamples=300)
+    paths = [row["path"] for row in report["images"]]
+    delent = np.array([row["delent"] for row in report["images"]])
+    missions = [f.mission for f in runs["ds"].frames]
+    sets = [("overall", report["overall"], range(len(conf)))]
+    sets += [
+        (f"bin:{b.name}", row, b.indices)
+        for b, row in zip(quantile_bins(delent, paths, 3), report["bins"], strict=True)
+    ]
+    for row in report["groups"]:
+        members = [i for i, m in enumerate(missions) if m == row["name"]]
+        sets.append((f"group:{row['name']}", row, members))
+    for stream, row, members in sets:
+        expected = confusion_interval(conf, ids, members, settings, stream=stream)
+        assert row["miou_ci"] == pytest.approx(expected["miou_ci"]), stream
+        assert row["pixel_acc_ci"] == pytest.approx(expected["pixel_acc_ci"]), stream
+        assert row["ci_note"] is None
+    corr = report["correlation"]["delent"]
+    per_image = np.array([mean_iou(c) for c in conf])
+    expected = correlation_interval(delent, per_image, ids, settings, stream="correlation:delent")
+    assert corr["pearson_ci"] == pytest.approx(expected["pearson_ci"])
+    assert corr["spearman_ci"] == pytest.approx(expected["spearman_ci"])
     text = (runs["tmp"] / "a" / "report.md").read_text()
     o = report["overall"]
     assert f"{o['miou']:.3f} [{o['miou_ci'][0]:.3f}, {o['miou_ci'][1]:.3f}]" in text
@@ -131,7 +153,24 @@ def test_compare_identical_and_injected_error(runs, tmp_path, capsys):
     assert worse["overall"]["gap_ci"][1] < 0 and worse["overall"]["p_value"] < 0.01
     text = (out / "compare.md").read_text()
     assert "**yes**" in text and "paired" in text
-    assert (out / "compare.png").stat().st_size > 5000
+    _check_compare_png(out / "compare.png", bins=3, reports=3)
+
+
+def _check_compare_png(path, bins, reports):
+    """compare.png read back: the figure's size (two panels at 100 dpi), bars of every report
+    in the top panel (matplotlib's C0, C1, ...) and gap bars (C1, C2, ...) in the bottom one."""
+    image = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+    assert image.shape == (900, int(100 * max(6, 1.8 * bins + 2)), 3)
+    colours = [(31, 119, 180), (255, 127, 14), (44, 160, 44)]  # C0, C1, C2
+    top, bottom = image[:450], image[450:]
+
+    def drawn(panel, rgb):
+        return int((np.abs(panel.astype(int) - rgb).sum(axis=2) < 10).sum())
+
+    for k in range(reports):
+        assert drawn(top, colours[k]) > 100, f"no bars of report {k}"
+    # B = A draws no gap bar (a gap of 0); the injected error's gap is drawn.
+    assert drawn(bottom, colours[reports - 1]) > 100
 
 
 def test_compare_different_images_is_unpaired(runs, tmp_path):
@@ -141,15 +180,25 @@ def test_compare_different_images_is_unpaired(runs, tmp_path):
                  "--output", str(out)]) == 0  # fmt: skip
     comp = json.loads((out / "compare.json").read_text())["comparisons"][0]
     assert comp["paired"] is False and "unpaired" in comp["note"]
-    assert comp["overall"]["paired"] is False and comp["overall"]["gap_ci"] is not None
+    assert comp["overall"]["paired"] is False
+    # The unpaired gap restated: A over all its images, the half over its own, resampled
+    # independently with A's block clusters and the half's.
+    with np.load(tmp / "a" / "confusions.npz") as a, np.load(tmp / "half" / "confusions.npz") as h:
+        conf_a, conf_h = a["confusions"], h["confusions"]
+        ids_a, ids_h = cluster_ids(a["attribute_block"]), cluster_ids(h["attribute_block"])
+    settings = Bootstrap(resamples=100, cluster="block")
+    expected = unpaired_gap(conf_a, ids_a, range(len(conf_a)), conf_h, ids_h,
+                            range(len(conf_h)), settings, stream="compare:1:overall")  # fmt: skip
+    assert comp["overall"]["gap"] == pytest.approx(expected["gap"])
+    assert comp["overall"]["gap_ci"] == pytest.approx(expected["gap_ci"])
     assert "unpaired" in (out / "compare.md").read_text()
 
 
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--bootstrap", "-1"], "--bootstrap must be >= 0"),
-        (["--ci-level", "1.5"], "--ci-level must be between 0 and 1"),
+        (["--bootstrap", "-1"], "--bootstrap (resamples) must be >= 0"),
+        (["--ci-level", "1.5"], "--ci-level (the interval level) must be between 0 and 1"),
         (["--cluster", "tile"], "unknown --cluster 'tile'"),
         (["--cluster", "sequence"], "--cluster sequence is not available"),
     ],

@@ -175,10 +175,35 @@ def test_p_value_by_hand():
         ({"resamples": -1}, ">= 0"),
         ({"level": 1.5}, "between 0 and 1"),
         ({"level": 0.0}, "between 0 and 1"),
-        ({"cluster": "tile"}, "unknown cluster unit"),
+        ({"cluster": "tile"}, "unknown --cluster 'tile'"),
         ({"seed": -2}, "seed"),
     ],
 )
 def test_bad_settings(kwargs, message):
     with pytest.raises(ValueError, match=message):
         Bootstrap(**kwargs)
+
+
+def test_the_seed_alone_changes_the_draws():
+    # One stream, two seeds: only the seed differs (a generator seeded with a constant would
+    # give the same draws). And the generator is the documented one: default_rng([seed,
+    # crc32(stream)]).
+    import zlib
+
+    conf = _random_confusions(30, 4, 0)
+    ids = cluster_ids([str(i // 3) for i in range(30)])
+    five = confusion_interval(conf, ids, range(30), Bootstrap(resamples=200, seed=5), stream="x")
+    six = confusion_interval(conf, ids, range(30), Bootstrap(resamples=200, seed=6), stream="x")
+    assert five["miou_ci"] != six["miou_ci"]
+    expected = np.random.default_rng([6, zlib.crc32(b"x")]).integers(0, 1000, 8)
+    np.testing.assert_array_equal(Bootstrap(seed=6).rng("x").integers(0, 1000, 8), expected)
+
+
+def test_mean_interval_leaves_out_non_finite_values():
+    # test_mean_interval_by_hand's values with a NaN and an inf added to cluster a: the same
+    # mean and interval as without them.
+    values = np.array([1.0, np.nan, 3.0, np.inf, 10.0])
+    clusters = cluster_ids(["a", "a", "a", "a", "b"])
+    out = mean_interval(values, clusters, range(5), Bootstrap(level=0.5), DRAWS)
+    assert out["mean"] == pytest.approx(14 / 3)
+    assert out["ci"] == pytest.approx([10 / 3, 22 / 3])

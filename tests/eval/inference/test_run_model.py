@@ -21,7 +21,7 @@ def test_per_image_confusions_match_a_direct_count(claravid_root):
     saved = {}
     scores = evaluate_model(
         model, dataset, 8, WindowConfig(size=(28, 28)), indices=[0, 5],
-        on_prediction=lambda s, p: saved.setdefault(s["key"], p.numpy()),
+        on_score=lambda s, p, _: saved.setdefault(s["key"], p.numpy()),
     )  # fmt: skip
     assert [s.path for s in scores] == [str(dataset.frames[i].paths["rgb"]) for i in (0, 5)]
     assert len(saved) == 2
