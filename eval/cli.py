@@ -114,7 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="also bin tiles of about T px by their own delentropy (e.g. 630)",
     )
     rep.add_argument(
-        "--hardest", type=non_negative_int, default=4, help="overlays of the K hardest images"
+        "--hardest", type=non_negative_int, help="overlays of the K hardest images (default 4)"
     )
     rep.add_argument("--save-predictions", type=Path, metavar="DIR", help="write label maps")
     rep.add_argument("--allow-missing", action="store_true", help="skip images w/o prediction")
@@ -181,10 +181,14 @@ _MODEL_ONLY = (
 )
 _DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing", *SELECTION)
 IDLE = {
-    "compare": (*_MODEL_ONLY, *_DATA, "bins", "edges", "group_by", "measures", "tiles"),
-    "merge": (*_MODEL_ONLY, *_DATA, "measures", "tiles"),
-    "scores": (*_MODEL_ONLY, "allow_missing", "tiles"),
-}
+    "compare": (*_MODEL_ONLY, *_DATA, "bins", "edges", "group_by", "measures", "tiles",
+                "hardest", "provider"),
+    "merge": (*_MODEL_ONLY, *_DATA, "measures", "tiles", "hardest", "provider"),
+    # --scores reads images only: no labels (--masks), no label palette (--palette).
+    "scores": (*_MODEL_ONLY, "allow_missing", "tiles", "hardest", "provider", "masks", "palette"),
+    "checkpoint": ("provider",),
+    "predictions": ("provider",),
+}  # fmt: skip
 
 
 def _refuse_idle_options(args: argparse.Namespace, source: str) -> None:
@@ -208,7 +212,8 @@ def _data_choice(args: argparse.Namespace) -> DataChoice:
 
 def _report_settings(args: argparse.Namespace) -> ReportSettings:
     return ReportSettings(bins=args.bins or 3, edges=args.edges, group_by=args.group_by,
-                          measures=args.measures, tiles=args.tiles, hardest=args.hardest,
+                          measures=args.measures, tiles=args.tiles,
+                          hardest=4 if args.hardest is None else args.hardest,
                           bootstrap=args.intervals, cluster=args.cluster)  # fmt: skip
 
 

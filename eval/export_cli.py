@@ -142,7 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--calibration", metavar="DATA",
                         help="int8: static QDQ quantisation calibrated on crops of these images "
                         "(a dataset root or an image folder); default dynamic")  # fmt: skip
-    parser.add_argument("--calibration-images", type=positive_int, default=64, metavar="N",
+    parser.add_argument("--calibration-images", type=positive_int, metavar="N",
                         help="int8: number of calibration crops (default 64)")  # fmt: skip
     parser.add_argument("--per-channel", action="store_true",
                         help="int8: one weight scale per output channel")  # fmt: skip
@@ -196,6 +196,8 @@ def _run(args: argparse.Namespace) -> int:
     check_output_file(output, overwrite=args.overwrite or _exported(output), what="--output")
     if args.precision != "int8" and (args.calibration is not None or args.per_channel):
         raise UsageError("--calibration and --per-channel apply to --precision int8 only")
+    if args.calibration_images is not None and args.calibration is None:
+        raise UsageError("--calibration-images does nothing without --calibration DATA; drop it")
     if args.calibration is not None and not Path(args.calibration).is_dir():
         raise UsageError(f"--calibration {args.calibration} is not a folder of images")
     if output.exists() and checkpoint.exists() and output.samefile(checkpoint):
@@ -222,7 +224,7 @@ def _run(args: argparse.Namespace) -> int:
         normalisation = normalisation_from_config(config)
         size = (height, width)
         calibration = calibration_batches(
-            args.calibration, args.calibration_images, size, normalisation
+            args.calibration, args.calibration_images or 64, size, normalisation
         )
     try:
         settings = ExportSettings(

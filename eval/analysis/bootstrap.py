@@ -21,6 +21,7 @@ and its own images only, never on the other bins; the same seed gives identical 
 
 from __future__ import annotations
 
+import os
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -35,6 +36,15 @@ METHOD = "cluster percentile bootstrap"
 _CHUNK = 256
 #: Cells counted per bincount in :func:`draw_counts` (~L2-sized).
 _CACHE_CELLS = 32768
+#: The fewest resamples an interval may rest on. A 95 % percentile interval reads the 2.5th and
+#: 97.5th percentiles: with 100 resamples each end rests on 2-3 values (with 1, 2 or 5 it is
+#: an extreme value or an interpolation that can exclude the estimate). Efron & Tibshirani
+#: advise 1000 or more for percentile intervals; 100 is the floor, 1000 the default.
+MIN_RESAMPLES = 100
+#: The fewest image pairs, and clusters, a correlation interval is computed from: with 3
+#: points every resample holding all three gives the same r (a zero-width "interval"), and 3
+#: clusters have only 10 distinct resamples.
+MIN_CORRELATION = 4
 
 
 @dataclass(frozen=True)
@@ -62,6 +72,11 @@ class Bootstrap:
             raise ValueError(
                 f"--bootstrap (resamples) must be >= 0 (0 switches intervals off), got "
                 f"{self.resamples}"
+            )
+        if 0 < self.resamples < MIN_RESAMPLES:
+            raise ValueError(
+                f"--bootstrap (resamples) {self.resamples} is too few for a percentile interval: "
+                f"use at least {MIN_RESAMPLES} (1000 is usual), or 0 to switch intervals off"
             )
         if not 0.0 < float(self.level) < 1.0:
             raise ValueError(
@@ -115,6 +130,7 @@ def draw_counts(num_clusters: int, resamples: int, rng: np.random.Generator) -> 
         sums to C.
     """
     c, r = int(num_clusters), int(resamples)
+    check_memory(r * c * 4, f"the draw counts of {r} resamples x {c} clusters")
     counts = np.zeros((r, c), dtype=np.int32)
     if c == 0 or r == 0:
         return counts
@@ -134,6 +150,24 @@ def count_clusters(ids: np.ndarray) -> int:
     """The number of clusters of ids numbered 0..C-1 (:func:`cluster_ids`); 0 for no image."""
     ids = np.asarray(ids)
     return int(ids.max()) + 1 if ids.size else 0
+
+
+def check_memory(nbytes: int, what: str) -> None:
+    """Refuse, before allocating it, an array larger than the memory available now.
+
+    Raises:
+        ValueError: ``nbytes`` exceeds the memory available (a user's mistake, one line naming
+            the size and the flag to lower, instead of a ``MemoryError`` traceback).
+    """
+    try:
+        free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):  # not a POSIX system: let numpy decide
+        return
+    if nbytes > free:
+        raise ValueError(
+            f"{what} need {nbytes / 2**30:.1f} GiB and {free / 2**30:.1f} GiB are free: lower "
+            "--bootstrap (1000 resamples is usual)"
+        )
 
 
 def _local_clusters(clusters: np.ndarray, members: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
@@ -361,8 +395,12 @@ def correlation_interval(
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     keep = np.flatnonzero(np.isfinite(x) & np.isfinite(y))
     members, local, num, note = _set_clusters(clusters, keep, settings, counts)
-    if note is not None or len(members) < 3:
-        note = note or f"{len(members)} image pairs: a correlation needs at least 3"
+    if note is None and min(len(members), num) < MIN_CORRELATION:
+        note = (
+            f"{len(members)} image pairs in {num} {settings.cluster} clusters: a correlation "
+            f"interval needs at least {MIN_CORRELATION} of each"
+        )
+    if note is not None:
         return {"pearson_ci": None, "spearman_ci": None, "ci_note": note}
     draws = _counts_for(num, settings, counts, stream)
     xs, ys = x[members], y[members]

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from claravid.cli import UsageError
+from claravid.dsp import METRICS as MEASURES
 
 PATH_COLUMN = "path"
 _SHOWN = 5  # rows named in an error
@@ -56,6 +57,18 @@ def read_metrics_csv(path: str | Path, root: str | Path) -> tuple[list[str], dic
         raise UsageError(
             f"{path} has no '{PATH_COLUMN}' column (header: {', '.join(header) or 'none'}); "
             f"write a header like path,psnr,ssim"
+        )
+    repeated = sorted({h for h in header if header.count(h) > 1})
+    if repeated:
+        raise UsageError(
+            f"{path}: column {', '.join(repr(h) for h in repeated)} appears more than once in the "
+            "header; name each column once"
+        )
+    taken = [h for h in header if h in MEASURES]
+    if taken:
+        raise UsageError(
+            f"{path}: column {taken[0]!r} is named like a complexity measure (the report's own "
+            f"{taken[0]} of each image); rename it (e.g. {taken[0]}_csv)"
         )
     raw_names = reader.fieldnames or []
     columns = [(raw, h) for raw, h in zip(raw_names, header, strict=True) if h != PATH_COLUMN]

@@ -16,6 +16,8 @@
 from __future__ import annotations
 
 import json
+import os
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -46,8 +48,9 @@ KEYS = (
 REQUIRED_KEYS = KEYS[:-2]
 
 
-def save_confusions(path: str | Path, result: EvalResult) -> Path:
-    """Write the per-image table as a compressed npz (no pickles), atomically."""
+def save_confusions(path: str | Path, result: EvalResult, report_id: str | None = None) -> Path:
+    """Write the per-image table as a compressed npz (no pickles), atomically, with the
+    ``report_id`` of the ``report.json`` it belongs to."""
     arrays: dict[str, np.ndarray] = {
         "paths": np.asarray(result.paths, dtype=str),
         "keys": np.asarray(result.keys, dtype=str),
@@ -55,6 +58,8 @@ def save_confusions(path: str | Path, result: EvalResult) -> Path:
         "classes": np.asarray(result.classes, dtype=str),
         "palette": np.asarray(result.palette, dtype=str),
     }
+    if report_id is not None:
+        arrays["report_id"] = np.asarray(report_id, dtype=str)
     for measure, values in result.complexity.items():
         arrays[f"complexity_{measure}"] = np.asarray(values, dtype=np.float64)
     for name, values in result.attributes.items():
@@ -113,11 +118,24 @@ def load_result(path: str | Path) -> EvalResult:
             },
             classes=classes,
             palette=str(data["palette"]),
-            source={k: v for k, v in report["source"].items() if k != "binning"},
+            source={k: v for k, v in report["source"].items() if k not in ("binning", "report_id")},
             tiles=_load_tiles(data),
+            # The real file behind each path: a symlinked or ../ spelling of the data root
+            # is the same image (merge refuses it twice, compare pairs it).
+            identity=[os.path.realpath(str(p)) for p in data["paths"]],
         )
-    except (KeyError, ValueError, OSError) as exc:
-        raise UsageError(f"{npz_file} is damaged or not written by claravid-eval ({exc})") from None
+    except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise UsageError(
+            f"{npz_file} is damaged or not written by claravid-eval ({exc}); evaluate again"
+        ) from None
+    # Older reports carry no id; a folder written since carries one in both files.
+    ids = (str(data["report_id"]) if "report_id" in data else None,
+           report["source"].get("report_id"))  # fmt: skip
+    if ids[0] != ids[1]:
+        raise UsageError(
+            f"{npz_file} does not belong to {report_file} (their report ids differ: the folder "
+            "was written by two runs); evaluate or merge into it again"
+        )
     n, k = len(result.paths), len(classes)
     if confusions.shape != (n, k, k) or classes != list(report["classes"]):
         raise UsageError(f"{npz_file} does not match {report_file} (classes or image count)")

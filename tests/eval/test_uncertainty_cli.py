@@ -223,7 +223,7 @@ def test_block_without_extrinsics_is_refused(writable_root, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--cluster block is not available" in err and "extrinsics" in err
     # Without --cluster the default falls back to the viewpoint.
-    assert main([*argv, "--bootstrap", "50"]) == 0
+    assert main([*argv, "--bootstrap", "100"]) == 0
     assert _report(tmp_path / "x")["uncertainty"]["cluster"] == "viewpoint"
 
 

@@ -124,6 +124,7 @@ def test_cli_rejects_calibration_misuse(tmp_path, capsys):
     for args, match in [
         (["--calibration", str(tmp_path)], "apply to --precision int8 only"),
         (["--per-channel"], "apply to --precision int8 only"),
+        (["--precision", "int8", "--calibration-images", "8"], "does nothing without --calibr"),
         (["--precision", "int8", "--calibration", str(tmp_path / "no")], "is not a folder"),
     ]:
         assert main([str(tmp_path / "m.pt"), "-o", str(tmp_path / "x.onnx"), *args]) == 2

@@ -1,0 +1,162 @@
+"""Report folders under hostile use (issue 20): replaced whole, files that belong together,
+images known by their key, options and inputs that would give a silent wrong number."""
+
+import json
+import os
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from claravid.eval.cli import main
+from claravid.segmentation import ClaraVidSegmentation
+
+K = 8  # uavid palette
+
+
+def _write_predictions(ds, folder, share, seed):
+    rng = np.random.default_rng(seed)
+    for i, frame in enumerate(ds.frames):
+        truth = ds.read_mask(i)
+        valid = np.where(truth == 255, 0, truth).astype(np.uint8)
+        wrong = rng.random(valid.shape) < share
+        pred = np.where(wrong, (valid + 1) % K, valid).astype(np.uint8)
+        (folder / frame.key).parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(folder / f"{frame.key}.png"), pred)
+
+
+@pytest.fixture(scope="module")
+def reps(claravid_root, tmp_path_factory):
+    """Label maps A (10 % wrong) and B (20 % wrong) without predictions.json, their reports."""
+    tmp = tmp_path_factory.mktemp("hostile")
+    ds = ClaraVidSegmentation(claravid_root, split="all", palette="uavid")
+    common = ["--data", str(claravid_root), "--split", "all", "--palette", "uavid",
+              "--no-progress", "--bootstrap", "100"]  # fmt: skip
+    for name, share in (("a", 0.1), ("b", 0.2)):
+        _write_predictions(ds, tmp / f"pred_{name}", share, 0)
+        argv = ["--predictions", str(tmp / f"pred_{name}"), *common, "-o", str(tmp / name)]
+        assert main(argv) == 0
+    return {"tmp": tmp, "common": common, "root": claravid_root}
+
+
+def _one_line(capsys, *words):
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.startswith("claravid-eval: error:")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    for word in words:
+        assert word in lines[0], lines[0]
+    return lines[0]
+
+
+def _json(folder):
+    return json.loads((folder / "report.json").read_text())
+
+
+def test_an_interrupted_rewrite_leaves_the_old_folder_whole(reps, tmp_path, monkeypatch):
+    """Ctrl-C after the new confusions are written: the old report.json and confusions.npz
+    stay together, nothing new beside them, no temp folder left."""
+    import claravid.eval.report.folder as folder
+
+    out = shutil.copytree(reps["tmp"] / "a", tmp_path / "rep")
+    (out / "notes.txt").write_text("mine")
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(folder, "plot_bins", interrupted)
+    argv = ["--predictions", str(reps["tmp"] / "pred_b"), *reps["common"], "-o", str(out)]
+    assert main(argv) == 130  # "interrupted", as a shell reports Ctrl-C
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rep"]  # no .rep.new-* left
+    monkeypatch.undo()
+    assert main(argv) == 0  # the full rewrite: new numbers, the user's file kept
+    assert _json(out)["overall"]["miou"] == _json(reps["tmp"] / "b")["overall"]["miou"]
+    assert (out / "notes.txt").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rep"]
+
+
+def test_confusions_of_another_report_are_refused(reps, tmp_path, capsys):
+    out = shutil.copytree(reps["tmp"] / "a", tmp_path / "a")
+    shutil.copy(reps["tmp"] / "b" / "confusions.npz", out / "confusions.npz")
+    assert main(["--merge", str(out), "-o", str(tmp_path / "m")]) == 2
+    _one_line(capsys, "does not belong to", "report ids differ")
+    assert main(["--compare", str(out), str(reps["tmp"] / "b")]) == 2
+    _one_line(capsys, "does not belong to")
+
+
+def test_a_truncated_npz_is_one_line(reps, tmp_path, capsys):
+    out = shutil.copytree(reps["tmp"] / "a", tmp_path / "a")
+    data = (out / "confusions.npz").read_bytes()
+    (out / "confusions.npz").write_bytes(data[: len(data) // 2])
+    assert main(["--merge", str(out), "-o", str(tmp_path / "m")]) == 2
+    _one_line(capsys, "confusions.npz is damaged", "evaluate again")
+
+
+def test_the_same_images_through_two_spellings_of_the_root(reps, tmp_path, capsys):
+    """A symlinked root gives other path strings for the same images: merge refuses them as
+    duplicates and compare pairs them (images are known by their key below the root)."""
+    link = tmp_path / "link"
+    os.symlink(reps["root"], link)
+    common = [str(link) if a == str(reps["root"]) else a for a in reps["common"]]
+    linked = tmp_path / "b_linked"
+    argv = ["--predictions", str(reps["tmp"] / "pred_b"), *common, "-o", str(linked)]
+    assert main(argv) == 0
+    assert main(["--merge", str(reps["tmp"] / "a"), str(linked), "-o", str(tmp_path / "m")]) == 2
+    _one_line(capsys, "is in both", "merge disjoint runs")
+    out = tmp_path / "cmp"
+    assert main(["--compare", str(reps["tmp"] / "a"), str(linked), "-o", str(out)]) == 0
+    comp = json.loads((out / "compare.json").read_text())["comparisons"][0]
+    assert comp["paired"] is True
+
+
+def test_label_maps_without_a_marker_need_a_palette(reps, capsys, tmp_path):
+    argv = ["--predictions", str(reps["tmp"] / "pred_a"), "--data", str(reps["root"]),
+            "--split", "all", "-o", str(tmp_path / "x")]  # fmt: skip
+    assert main(argv) == 2
+    _one_line(capsys, "--palette", "predictions.json")
+    assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize(
+    ("header", "message"),
+    [
+        ("path,psnr,psnr", "column 'psnr' appears more than once"),
+        ("path,delent", "column 'delent' is named like a complexity measure"),
+    ],
+)
+def test_scores_csv_columns_that_would_overwrite(reps, tmp_path, capsys, header, message):
+    image = next(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)
+    csv = tmp_path / "m.csv"
+    csv.write_text(header + "\n" + ",".join([str(image), *["1"] * header.count(",")]) + "\n")
+    argv = ["--scores", str(csv), "--data", str(reps["root"]), "-o", str(tmp_path / "o")]
+    assert main(argv) == 2
+    _one_line(capsys, message)
+
+
+def test_huge_bootstrap_is_one_line(reps, tmp_path, capsys):
+    argv = ["--merge", str(reps["tmp"] / "a"), "--bootstrap", "100000000000", "-o",
+            str(tmp_path / "m")]  # fmt: skip
+    assert main(argv) == 2
+    _one_line(capsys, "GiB", "lower --bootstrap")
+
+
+@pytest.mark.parametrize(
+    ("extra", "flag"),
+    [
+        (["--predictions", "P", "--provider", "cpu"], "--provider"),
+        (["--merge", "A", "--provider", "cpu"], "--provider"),
+        (["--compare", "A", "A", "--hardest", "2"], "--hardest"),
+        (["--scores", "S.csv", "--palette", "uavid"], "--palette"),
+        (["--scores", "S.csv", "--masks", "M"], "--masks"),
+    ],
+)
+def test_options_that_do_nothing_are_refused(reps, tmp_path, capsys, extra, flag):
+    names = {"P": reps["tmp"] / "pred_a", "A": reps["tmp"] / "a", "S.csv": tmp_path / "s.csv",
+             "M": tmp_path}  # fmt: skip
+    argv = [str(names.get(a, a)) for a in extra]
+    assert main([*argv, "--data", str(reps["root"]), "-o", str(tmp_path / "o")]
+                if "--merge" not in extra and "--compare" not in extra
+                else [*argv, "-o", str(tmp_path / "o")]) == 2  # fmt: skip
+    _one_line(capsys, f"{flag} does nothing")
