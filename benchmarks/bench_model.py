@@ -14,7 +14,10 @@ loaded as ``claravid-eval --onnx`` loads it (``OnnxSegmenter``, CPU, torch's thr
 they are timed in turn (A B C A B C, batch 1) in one run: the median and the best of
 ``--precision-reps`` as ratios of speed against fp32 (target int8 >= 1.5x), and the argmax
 agreement with PyTorch. The machine's load average is printed: on shared cores, compare
-ratios, not milliseconds.
+ratios, not milliseconds, and read the medians: a run takes 2-3x longer whenever another
+process holds a core, so a best-of pairs a lucky int8 run with an unlucky fp32 one (best-of
+ratios of 1.5-1.65x were seen for files whose medians gave 1.2x); best-of is fair only on a
+quiet machine.
 On random weights the agreement says little about accuracy; ``--demo`` exports a trained
 checkpoint the same way (static QDQ calibrated on its data) and adds the agreement on real
 validation frames.
