@@ -182,12 +182,13 @@ _MODEL_ONLY = (
 _DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing", *SELECTION)
 IDLE = {
     "compare": (*_MODEL_ONLY, *_DATA, "bins", "edges", "group_by", "measures", "tiles",
-                "hardest", "provider"),
-    "merge": (*_MODEL_ONLY, *_DATA, "measures", "tiles", "hardest", "provider"),
+                "hardest", "provider", "workers"),
+    "merge": (*_MODEL_ONLY, *_DATA, "measures", "tiles", "hardest", "provider", "workers"),
     # --scores reads images only: no labels (--masks), no label palette (--palette).
     "scores": (*_MODEL_ONLY, "allow_missing", "tiles", "hardest", "provider", "masks", "palette"),
     "checkpoint": ("provider",),
-    "predictions": ("provider",),
+    # Label maps are read, not predicted: no precision (an ONNX file is refused it below).
+    "predictions": ("provider", "precision", "no_amp"),
 }  # fmt: skip
 
 

@@ -269,7 +269,9 @@ def _gap_cell(row: dict[str, Any], resamples: int) -> list[str]:
     if ci:
         text += f" [{points[1]:+.{d}f}, {points[2]:+.{d}f}]"
     p = row.get("p_value")
-    excludes = bool(ci) and (ci[0] > 0 or ci[1] < 0)
+    if not ci:  # no interval (--bootstrap 0, too few clusters): nothing to exclude
+        return [text, _p(p, resamples), "–"]
+    excludes = ci[0] > 0 or ci[1] < 0
     return [text, _p(p, resamples), "**yes**" if excludes else "no"]
 
 

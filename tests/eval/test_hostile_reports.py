@@ -150,6 +150,11 @@ def test_huge_bootstrap_is_one_line(reps, tmp_path, capsys):
         (["--compare", "A", "A", "--hardest", "2"], "--hardest"),
         (["--scores", "S.csv", "--palette", "uavid"], "--palette"),
         (["--scores", "S.csv", "--masks", "M"], "--masks"),
+        (["--compare", "A", "A", "--workers", "2"], "--workers"),
+        (["--merge", "A", "--workers", "2"], "--workers"),
+        (["--predictions", "P", "--precision", "fp32"], "--precision"),
+        (["--onnx", "m.onnx", "--precision", "fp32"], "--precision"),  # runs as exported
+        (["--onnx", "m.onnx", "--no-amp"], "--no-amp"),
     ],
 )
 def test_options_that_do_nothing_are_refused(reps, tmp_path, capsys, extra, flag):
@@ -160,3 +165,17 @@ def test_options_that_do_nothing_are_refused(reps, tmp_path, capsys, extra, flag
                 if "--merge" not in extra and "--compare" not in extra
                 else [*argv, "-o", str(tmp_path / "o")]) == 2  # fmt: skip
     _one_line(capsys, f"{flag} does nothing")
+
+
+def test_compare_without_intervals_excludes_nothing(reps, tmp_path):
+    """--bootstrap 0: no interval, so the "interval excludes 0" column says "–", not "no"."""
+    out = tmp_path / "cmp"
+    argv = ["--compare", str(reps["tmp"] / "a"), str(reps["tmp"] / "b"), "--bootstrap", "0",
+            "-o", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    lines = (out / "compare.md").read_text().splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.endswith("| interval excludes 0 |"))
+    rows = [ln for ln in lines[start + 2 :] if ln.startswith("| ")]
+    assert rows
+    for line in rows:  # bins and overall: a gap, no interval, p-value and mark "–"
+        assert [c.strip() for c in line.strip("| ").split("|")][-2:] == ["–", "–"], line
