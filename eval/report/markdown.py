@@ -123,9 +123,10 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         rows = []
         for g in report["groups"]:
             p = g.get("profile") or {}
-            rows.append([g["name"], str(g["num_images"]), _f(p.get("mu")), _f(p.get("alpha"), 2),
-                         _f(p.get("beta"), 2), *_scores(g)])  # fmt: skip
+            rows.append([g["name"], str(g["num_images"]), _f(p.get("mu")), _shape(p, "alpha", 2),
+                         _shape(p, "beta", 2), *_scores(g)])  # fmt: skip
         lines += _table(["group", "images", "DSP μ", "α", "β", "mIoU", "pixel acc"], rows)
+        lines += _profile_notes(report["groups"])
 
     lines += ["## IoU per class", ""]
     header = ["class", "overall", *[r["name"] for r in report["bins"]]]
@@ -179,6 +180,19 @@ def tile_section(tiles: dict[str, Any] | None) -> list[str]:
         "",
     ]
     return lines
+
+
+def _shape(profile: dict[str, Any], key: str, digits: int = 3) -> str:
+    """α or β of a group's profile: "n/a" where the Beta fit says nothing (see its note)."""
+    value = profile.get(key)
+    return "n/a" if value is None and profile.get("mu") is not None else _f(value, digits)
+
+
+def _profile_notes(groups: Sequence[dict[str, Any]]) -> list[str]:
+    """Why a group's α and β are n/a, one line per group."""
+    notes = [f"- {g['name']}: α, β n/a ({g['profile']['note']})"
+             for g in groups if (g.get("profile") or {}).get("note")]  # fmt: skip
+    return [*notes, ""] if notes else []
 
 
 def _scores(row: dict[str, Any]) -> list[str]:
@@ -329,8 +343,9 @@ def metric_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         for g in groups:
             p = g.get("profile") or {}
             rows.append([g["name"], str(g["num_images"]), _f(p.get("mu")), _f(p.get("sigma")),
-                         _f(p.get("alpha")), _f(p.get("beta")), *cells(g)])  # fmt: skip
+                         _shape(p, "alpha"), _shape(p, "beta"), *cells(g)])  # fmt: skip
         lines += _table(["group", "images", "DSP μ", "σ", "α", "β", *metrics], rows)
+        lines += _profile_notes(groups)
 
     lines += ["## Correlations", ""]
     rows = []

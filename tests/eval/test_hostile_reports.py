@@ -179,3 +179,24 @@ def test_compare_without_intervals_excludes_nothing(reps, tmp_path):
     assert rows
     for line in rows:  # bins and overall: a gap, no interval, p-value and mark "–"
         assert [c.strip() for c in line.strip("| ").split("|")][-2:] == ["–", "–"], line
+
+
+def test_a_scores_report_is_not_replaced_by_an_evaluation(reps, tmp_path, capsys):
+    """Evaluating into a --scores report folder needs --overwrite, and leaves none of its plots."""
+    image = next(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)
+    others = sorted(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)[:4]
+    csv = tmp_path / "m.csv"
+    csv.write_text("path,err\n" + "".join(f"{p},{i}\n" for i, p in enumerate({image, *others})))
+    out = tmp_path / "rep"
+    argv = ["--scores", str(csv), "--data", str(reps["root"]), "--split", "all", "--bins", "1",
+            "--bootstrap", "0", "-o", str(out)]  # fmt: skip
+    assert main(argv) == 0 and (out / "err_per_bin.png").is_file()
+    evaluation = ["--predictions", str(reps["tmp"] / "pred_a"), *reps["common"], "-o", str(out)]
+    assert main(evaluation) == 2
+    _one_line(capsys, "holds a --scores report", "--overwrite")
+    assert _json(out)["source"]["kind"] == "scores"
+    assert main([*evaluation, "--overwrite"]) == 0
+    assert _json(out)["source"]["kind"] == "predictions"
+    assert not (out / "err_per_bin.png").exists() and not (out / "err_vs_delent.png").exists()
+    assert main(argv) == 2  # and back: an mIoU report is not the --scores run's to replace
+    _one_line(capsys, "holds an mIoU report")
