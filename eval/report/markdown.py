@@ -294,6 +294,10 @@ def _gap_tables(analysis: dict[str, Any]) -> list[str]:
     unc = analysis["uncertainty"]
     lines = [uncertainty_line(unc) or "", ""]
     for comp in analysis["comparisons"]:
+        if comp.get("comparable") is False:
+            lines += [f"Gap {comp['report']} − {analysis['baseline']}: **not comparable**: "
+                      f"{comp['reason']}; no gaps or p-values computed.", ""]  # fmt: skip
+            continue
         kind = "paired (same images, same resampled clusters)" if comp["paired"] else (
             "unpaired (different images, resampled independently)")  # fmt: skip
         lines += [f"Gap {comp['report']} − {analysis['baseline']} in mIoU points, {kind}; "

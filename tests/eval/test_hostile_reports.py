@@ -200,3 +200,30 @@ def test_a_scores_report_is_not_replaced_by_an_evaluation(reps, tmp_path, capsys
     assert not (out / "err_per_bin.png").exists() and not (out / "err_vs_delent.png").exists()
     assert main(argv) == 2  # and back: an mIoU report is not the --scores run's to replace
     _one_line(capsys, "holds an mIoU report")
+
+
+def test_a_report_and_its_own_rebinning_are_not_comparable(reps, tmp_path):
+    """--merge A --bins 5 holds A's predictions: no paired gaps between a model and itself;
+    other class sets are not comparable either."""
+    rebinned = tmp_path / "a5"
+    assert main(["--merge", str(reps["tmp"] / "a"), "--bins", "5", "-o", str(rebinned)]) == 0
+    out = tmp_path / "cmp"
+    assert main(["--compare", str(reps["tmp"] / "a"), str(rebinned), "-o", str(out)]) == 0
+    comp = json.loads((out / "compare.json").read_text())["comparisons"][0]
+    assert comp["comparable"] is False and "same predictions" in comp["reason"]
+    assert comp["overall"] is None and comp["bins"] == []
+    text = (out / "compare.md").read_text()
+    assert "**not comparable**" in text and "**yes**" not in text and "paired (" not in text
+    # B, a different model on the same images, stays comparable.
+    assert main(["--compare", str(reps["tmp"] / "a"), str(reps["tmp"] / "b"), "-o",
+                 str(tmp_path / "ab")]) == 0  # fmt: skip
+    ab = json.loads((tmp_path / "ab" / "compare.json").read_text())["comparisons"][0]
+    assert ab.get("comparable", True) and ab["paired"] is True
+    import dataclasses
+
+    from claravid.eval.analysis.compare import not_comparable
+    from claravid.eval.report.files import load_result
+
+    a = load_result(reps["tmp"] / "a")
+    other = dataclasses.replace(a, classes=[f"c{i}" for i in range(len(a.classes) + 1)])
+    assert "different class sets" in not_comparable(a, other, "a", "x")
