@@ -182,12 +182,13 @@ _MODEL_ONLY = (
 _DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing", *SELECTION)
 IDLE = {
     "compare": (*_MODEL_ONLY, *_DATA, "bins", "edges", "group_by", "measures", "tiles",
-                "hardest", "provider"),
-    "merge": (*_MODEL_ONLY, *_DATA, "measures", "tiles", "hardest", "provider"),
+                "hardest", "provider", "workers"),
+    "merge": (*_MODEL_ONLY, *_DATA, "measures", "tiles", "hardest", "provider", "workers"),
     # --scores reads images only: no labels (--masks), no label palette (--palette).
     "scores": (*_MODEL_ONLY, "allow_missing", "tiles", "hardest", "provider", "masks", "palette"),
     "checkpoint": ("provider",),
-    "predictions": ("provider",),
+    # Label maps are read, not predicted: no precision (an ONNX file is refused it below).
+    "predictions": ("provider", "precision", "no_amp"),
 }  # fmt: skip
 
 
@@ -301,7 +302,9 @@ def _run_scores(args: argparse.Namespace) -> int:
     done = score_metrics(args.scores, args.output, data=_data_choice(args),
                          report=_report_settings(args), workers=args.workers,
                          overwrite=args.overwrite)  # fmt: skip
-    print(done.text.split("## Correlations")[0].rstrip())
+    # The bins and groups as report.md has them, less its warning lines: printed once, below.
+    text = done.text.split("## Correlations")[0].rstrip()
+    print("\n".join(ln for ln in text.splitlines() if not ln.startswith("**Warning:**")))
     for message in done.report["uncertainty"]["warnings"]:
         print(f"{PROG}: warning: {message}", file=sys.stderr)
     print(f"\nreport: {done.output / 'report.md'} ({done.output / REPORT} and plots beside)")

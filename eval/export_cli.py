@@ -28,6 +28,7 @@ from claravid.cli import (
     EXIT_FAILED,
     UsageError,
     add_debug_flag,
+    add_progress_flag,
     check_output_file,
     given_once,
     parse_size,
@@ -149,6 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--overwrite", action="store_true", help="replace an --output claravid-export did not write"
     )
+    add_progress_flag(parser, help="print only the file written, not the check's numbers")
     add_debug_flag(parser)
     return parser
 
@@ -242,7 +244,7 @@ def _run(args: argparse.Namespace) -> int:
     except ExportCheckError as exc:
         print(f"{PROG}: error: {exc}; nothing was written", file=sys.stderr)
         return EXIT_FAILED
-    if result["check_shape"] is not None:
+    if result["check_shape"] is not None and not args.no_progress:
         print(
             f"onnxruntime vs PyTorch on input {list(result['check_shape'])}: max abs diff of "
             f"logits {result['max_abs_diff']:.3g}, argmax agreement "

@@ -23,7 +23,7 @@ import numpy as np
 from claravid.cli import check_output_dir
 from claravid.eval.analysis.bootstrap import Bootstrap
 from claravid.eval.analysis.table import EvalResult
-from claravid.eval.report.files import REPORT
+from claravid.eval.report.files import REPORT, check_report_kind
 from claravid.eval.settings import Evaluation, ReportSettings
 
 
@@ -63,6 +63,7 @@ def merge(
     settings = settings or ReportSettings()
     output = Path(output)
     check_output_dir(output, marker=REPORT, overwrite=overwrite)
+    check_report_kind(output, scores=False, overwrite=overwrite)
     results = [load_result(p) for p in parts]
     _warn_different_runs(results)
     result = merge_results(results, [str(p) for p in parts])

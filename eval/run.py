@@ -24,7 +24,7 @@ import numpy as np
 
 from claravid.cli import UsageError, check_output_dir
 from claravid.eval.analysis.units import DATASETS, default_cluster
-from claravid.eval.report.files import REPORT
+from claravid.eval.report.files import REPORT, check_report_kind
 from claravid.eval.reports import warn_outside_edges
 from claravid.eval.settings import (
     SELECTION,
@@ -125,6 +125,7 @@ def evaluate(
     check_device(inference.device)  # one line, not CUDA's traceback
     info = distributed.init_distributed(inference.device)
     check_output_dir(output, marker=REPORT, overwrite=overwrite)
+    check_report_kind(output, scores=False, overwrite=overwrite)
     if save_predictions is not None:
         if predictions is not None:
             raise UsageError("--save-predictions needs a model (--checkpoint or --onnx)")
@@ -270,8 +271,9 @@ def score_metrics(
         raise UsageError("--scores needs --data: the dataset root the CSV's paths belong to")
     output = Path(output)
     check_output_dir(output, marker=REPORT, overwrite=overwrite)
+    check_report_kind(output, scores=True, overwrite=overwrite)
     dataset = data.dataset or "claravid"
-    csv_paths, metrics = read_metrics_csv(scores, data.root)
+    csv_paths, metrics, csv_rows = read_metrics_csv(scores, data.root)
     opened = open_data(
         data.root,
         dataset=dataset,
@@ -284,7 +286,7 @@ def score_metrics(
     if report.group_by is not None:
         opened.groups(report.group_by)  # fails now, before the complexity is measured
     settings = report.intervals(opened.attributes, default_cluster(opened.name, opened.attributes))
-    order = match_images(csv_paths, opened.paths, Path(scores))
+    order = match_images(csv_paths, opened.paths, Path(scores), csv_rows)
     paths = [opened.paths[i] for i in order]
     report.check_bins(len(paths))
     attributes = {a: [v[i] for i in order] for a, v in opened.attributes.items()}

@@ -22,13 +22,14 @@ COMMANDS = {
     "claravid-predict": (predict.build_parser, ["a.jpg"]),
     "claravid-train": (train.build_parser, ["--config", "demo"]),
 }
-WITH_PROGRESS = [c for c in COMMANDS if c != "claravid-export"]  # export shows no bar
+WITH_PROGRESS = list(COMMANDS)  # export shows no bar: its --quiet leaves out the check's numbers
 WITH_WORKERS = [
     "claravid-cache",
     "claravid-demo",
     "claravid-dsp",
     "claravid-eval",
     "claravid-predict",
+    "claravid-synth",
 ]
 
 
@@ -58,6 +59,16 @@ def test_workers_mean_the_same_everywhere(command):
     action = next(a for a in COMMANDS[command][0]()._actions if a.dest == "workers")
     assert action.help.startswith("worker processes for ")
     assert action.help.endswith(" (default 0: all in this process)")
+
+
+def test_train_workers_are_the_data_loader_workers():
+    """``claravid-train --workers N`` is ``data.num_workers=N``; without it the config's."""
+    from claravid.train.cli import overrides
+
+    assert _parse("claravid-train").workers is None
+    assert overrides(_parse("claravid-train", "--workers", "3")) == ["data.num_workers=3"]
+    action = next(a for a in train.build_parser()._actions if a.dest == "workers")
+    assert action.help.startswith("worker processes for ")
 
 
 @pytest.mark.parametrize(

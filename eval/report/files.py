@@ -92,6 +92,8 @@ def load_result(path: str | Path) -> EvalResult:
     path = Path(path)
     folder = path.parent if path.name == REPORT or path.suffix == ".json" else path
     report_file, npz_file = folder / REPORT, folder / CONFUSIONS
+    if report_file.is_file() and not npz_file.is_file():
+        read_report(report_file)  # a --scores report (no confusions) is named as one
     if not report_file.is_file() or not npz_file.is_file():
         raise UsageError(
             f"{path} is not a claravid-eval report folder (needs {REPORT} and {CONFUSIONS})"
@@ -172,12 +174,44 @@ def read_report(path: str | Path) -> dict[str, Any]:
         report = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise UsageError(f"cannot read {path} as a claravid-eval report ({exc})") from None
+    source = report.get("source") if isinstance(report, dict) else None
+    if isinstance(source, dict) and source.get("kind") == "scores":
+        metrics = ", ".join(report.get("metrics") or []) or "?"
+        raise UsageError(
+            f"{path} is a --scores report (per-image metrics {metrics}, no mIoU or confusions): "
+            "--merge and --compare take mIoU reports; run --scores again on the merged CSV, or "
+            "with the other's --edges, and read the metric means side by side"
+        )
     if not isinstance(report, dict) or not set(REQUIRED_KEYS) <= set(report):
         raise UsageError(
             f"{path} is not a claravid-eval report.json (expected the keys "
             f"{', '.join(REQUIRED_KEYS)})"
         )
     return report
+
+
+def check_report_kind(folder: str | Path, scores: bool, overwrite: bool = False) -> None:
+    """Refuse to replace a ``--scores`` report with an mIoU report, or the other way round,
+    without ``overwrite``: a folder of one kind is not the other's to replace.
+
+    Raises:
+        UsageError: ``folder`` holds a report of the other kind and ``overwrite`` is off.
+    """
+    path = Path(folder) / REPORT
+    if overwrite or not path.is_file():
+        return
+    try:
+        old = json.loads(path.read_text(encoding="utf-8"))
+        kind = old["source"]["kind"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return  # not readable as a report: check_output_dir's marker rule applies
+    if (kind == "scores") != scores:
+        held = "a --scores report" if kind == "scores" else "an mIoU report"
+        new = "a --scores report" if scores else "an mIoU report"
+        raise UsageError(
+            f"output {folder} holds {held}; writing {new} there would replace it: choose a new "
+            "folder or pass --overwrite"
+        )
 
 
 def write_json(path: str | Path, report: dict[str, Any]) -> Path:

@@ -258,7 +258,7 @@ def plot_compare(
 
 def _plot_gaps(ax: Any, analysis: dict[str, Any], labels: Sequence[str]) -> None:
     """Gap B − A per bin (points) with interval bars; 0 drawn as a line."""
-    comps = analysis["comparisons"]
+    comps = [c for c in analysis["comparisons"] if c.get("comparable") is not False]
     width = 0.8 / max(1, len(comps))
     for k, comp in enumerate(comps):
         rows = comp["bins"]
@@ -275,7 +275,8 @@ def _plot_gaps(ax: Any, analysis: dict[str, Any], labels: Sequence[str]) -> None
     level = analysis["uncertainty"]["level"]
     ax.set_ylabel("mIoU gap (points)")
     ax.set_title(f"gap to {analysis['baseline']} per bin, {level:.0%} intervals")
-    ax.legend()
+    if comps:  # none when no report is comparable to the baseline
+        ax.legend()
 
 
 def plot_metric_bins(report: dict[str, Any], metric: str, path: str | Path) -> Path:

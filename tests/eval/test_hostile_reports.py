@@ -150,6 +150,11 @@ def test_huge_bootstrap_is_one_line(reps, tmp_path, capsys):
         (["--compare", "A", "A", "--hardest", "2"], "--hardest"),
         (["--scores", "S.csv", "--palette", "uavid"], "--palette"),
         (["--scores", "S.csv", "--masks", "M"], "--masks"),
+        (["--compare", "A", "A", "--workers", "2"], "--workers"),
+        (["--merge", "A", "--workers", "2"], "--workers"),
+        (["--predictions", "P", "--precision", "fp32"], "--precision"),
+        (["--onnx", "m.onnx", "--precision", "fp32"], "--precision"),  # runs as exported
+        (["--onnx", "m.onnx", "--no-amp"], "--no-amp"),
     ],
 )
 def test_options_that_do_nothing_are_refused(reps, tmp_path, capsys, extra, flag):
@@ -160,3 +165,65 @@ def test_options_that_do_nothing_are_refused(reps, tmp_path, capsys, extra, flag
                 if "--merge" not in extra and "--compare" not in extra
                 else [*argv, "-o", str(tmp_path / "o")]) == 2  # fmt: skip
     _one_line(capsys, f"{flag} does nothing")
+
+
+def test_compare_without_intervals_excludes_nothing(reps, tmp_path):
+    """--bootstrap 0: no interval, so the "interval excludes 0" column says "–", not "no"."""
+    out = tmp_path / "cmp"
+    argv = ["--compare", str(reps["tmp"] / "a"), str(reps["tmp"] / "b"), "--bootstrap", "0",
+            "-o", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    lines = (out / "compare.md").read_text().splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.endswith("| interval excludes 0 |"))
+    rows = [ln for ln in lines[start + 2 :] if ln.startswith("| ")]
+    assert rows
+    for line in rows:  # bins and overall: a gap, no interval, p-value and mark "–"
+        assert [c.strip() for c in line.strip("| ").split("|")][-2:] == ["–", "–"], line
+
+
+def test_a_scores_report_is_not_replaced_by_an_evaluation(reps, tmp_path, capsys):
+    """Evaluating into a --scores report folder needs --overwrite, and leaves none of its plots."""
+    image = next(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)
+    others = sorted(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)[:4]
+    csv = tmp_path / "m.csv"
+    csv.write_text("path,err\n" + "".join(f"{p},{i}\n" for i, p in enumerate({image, *others})))
+    out = tmp_path / "rep"
+    argv = ["--scores", str(csv), "--data", str(reps["root"]), "--split", "all", "--bins", "1",
+            "--bootstrap", "0", "-o", str(out)]  # fmt: skip
+    assert main(argv) == 0 and (out / "err_per_bin.png").is_file()
+    evaluation = ["--predictions", str(reps["tmp"] / "pred_a"), *reps["common"], "-o", str(out)]
+    assert main(evaluation) == 2
+    _one_line(capsys, "holds a --scores report", "--overwrite")
+    assert _json(out)["source"]["kind"] == "scores"
+    assert main([*evaluation, "--overwrite"]) == 0
+    assert _json(out)["source"]["kind"] == "predictions"
+    assert not (out / "err_per_bin.png").exists() and not (out / "err_vs_delent.png").exists()
+    assert main(argv) == 2  # and back: an mIoU report is not the --scores run's to replace
+    _one_line(capsys, "holds an mIoU report")
+
+
+def test_a_report_and_its_own_rebinning_are_not_comparable(reps, tmp_path):
+    """--merge A --bins 5 holds A's predictions: no paired gaps between a model and itself;
+    other class sets are not comparable either."""
+    rebinned = tmp_path / "a5"
+    assert main(["--merge", str(reps["tmp"] / "a"), "--bins", "5", "-o", str(rebinned)]) == 0
+    out = tmp_path / "cmp"
+    assert main(["--compare", str(reps["tmp"] / "a"), str(rebinned), "-o", str(out)]) == 0
+    comp = json.loads((out / "compare.json").read_text())["comparisons"][0]
+    assert comp["comparable"] is False and "same predictions" in comp["reason"]
+    assert comp["overall"] is None and comp["bins"] == []
+    text = (out / "compare.md").read_text()
+    assert "**not comparable**" in text and "**yes**" not in text and "paired (" not in text
+    # B, a different model on the same images, stays comparable.
+    assert main(["--compare", str(reps["tmp"] / "a"), str(reps["tmp"] / "b"), "-o",
+                 str(tmp_path / "ab")]) == 0  # fmt: skip
+    ab = json.loads((tmp_path / "ab" / "compare.json").read_text())["comparisons"][0]
+    assert ab.get("comparable", True) and ab["paired"] is True
+    import dataclasses
+
+    from claravid.eval.analysis.compare import not_comparable
+    from claravid.eval.report.files import load_result
+
+    a = load_result(reps["tmp"] / "a")
+    other = dataclasses.replace(a, classes=[f"c{i}" for i in range(len(a.classes) + 1)])
+    assert "different class sets" in not_comparable(a, other, "a", "x")

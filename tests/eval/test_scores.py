@@ -76,7 +76,8 @@ def test_scores_means_groups_and_correlations_by_hand(uavid_test, tmp_path):
         assert g["num_images"] == len(values)
         assert g["scores"]["psnr"]["mean"] == pytest.approx(np.mean(values))
         assert g["scores"]["ssim"]["mean"] == pytest.approx(np.mean(SSIM[seq]))
-        assert set(g["profile"]) == {"mu", "sigma", "alpha", "beta"}
+        # A note where α and β are null (seq2, seq3: 2 images each).
+        assert set(g["profile"]) - {"note"} == {"mu", "sigma", "alpha", "beta"}
         # One cluster per sequence group: no interval, and the note says why.
         assert g["scores"]["psnr"]["ci"] is None and "at least 2" in g["scores"]["psnr"]["ci_note"]
     seq1 = [i for i, p in enumerate(uavid_test["paths"]) if "seq1" in str(p)]
@@ -148,6 +149,18 @@ def test_folder_group_by_on_a_folder_dataset(tmp_path):
             "not in the data",
         ),
         ("path,psnr\n,1\n", "empty 'path' in row 2"),
+        # Rows as a spreadsheet numbers them: blank lines count (rows 2-3 blank, row 5 bad).
+        (
+            "path,psnr\n\n\nuavid_test/seq1/Images/000000.png,1\n"
+            "uavid_test/seq1/Images/000001.png,nan\n",
+            "row 5 psnr='nan'",
+        ),
+        (
+            "path,psnr\nuavid_test/seq1/Images/000000.png,1\n\n"
+            "uavid_test/seq1/Images/../Images/000000.png,3\n",
+            "row 4 repeats row 2",
+        ),
+        ("path,psnr\n\nuavid_test/seq9/Images/000000.png,2\n", "row 3 "),
         ("path,psnr\nuavid_test/seq1/Images/000000.png,1,2\n", "more cells than header columns"),
     ],
 )
@@ -189,3 +202,29 @@ def test_group_by_viewpoint_follows_the_one_rule(claravid_root, tmp_path):
         # The metric is each image's position: the group's mean names its images.
         assert groups[name]["num_images"] == len(members)
         assert groups[name]["scores"]["err"]["mean"] == pytest.approx(np.mean(members))
+
+
+def test_scores_report_prints_once_refuses_compare_and_says_beta_na(uavid_test, tmp_path, capsys):
+    """Each order warning printed once; --compare/--merge of a --scores report say what it is;
+    groups of 2 images get α, β "n/a" with a note, not 0.000."""
+    out = tmp_path / "rep"
+    argv = _args(uavid_test, out, "--group-by", "sequence", "--bins", "3", "--bootstrap", "200")
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    report = json.loads((out / "report.json").read_text())
+    messages = report["uncertainty"]["warnings"]
+    assert messages, "the fixture should give an order warning"
+    for message in messages:
+        assert (captured.out + captured.err).count(message) == 1, message
+    seq2 = next(g for g in report["groups"] if g["name"] == "seq2")["profile"]
+    assert seq2["alpha"] is None and seq2["beta"] is None and "at least 3" in seq2["note"]
+    text = (out / "report.md").read_text()
+    assert "| n/a | n/a |" in text and "seq2: α, β n/a (a Beta fit needs" in text
+    assert "0.000 | 0.000" not in text
+    for mode in (
+        ["--compare", str(out), str(out)],
+        ["--merge", str(out), "-o", str(tmp_path / "m")],
+    ):
+        assert main(mode) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "is a --scores report" in err[0], err

@@ -246,8 +246,9 @@ def test_precision_settings_and_the_old_boolean():
                           (("fp16",), "must be fp32 or bf16")]:  # fmt: skip
         with pytest.raises(ValueError, match=message):
             flag_precision(*args)
-    with pytest.raises(ValueError, match="PyTorch model"):
-        flag_precision("bf16", pytorch=False)
+    for args in [("bf16",), ("fp32",), (None, True)]:  # ONNX runs at its exported precision
+        with pytest.raises(ValueError, match="does nothing with --onnx"):
+            flag_precision(*args, pytorch=False)
 
 
 def test_onnx_windows_equal_pytorch_windows(model_files):
