@@ -258,9 +258,12 @@ def plot_compare(
 
 def _plot_gaps(ax: Any, analysis: dict[str, Any], labels: Sequence[str]) -> None:
     """Gap B − A per bin (points) with interval bars; 0 drawn as a line."""
-    comps = [c for c in analysis["comparisons"] if c.get("comparable") is not False]
+    # A report keeps its colour of the top panel (C1 for the first after the baseline), also
+    # when a report between is not comparable and draws no gap.
+    comps = [(i, c) for i, c in enumerate(analysis["comparisons"])
+             if c.get("comparable") is not False]  # fmt: skip
     width = 0.8 / max(1, len(comps))
-    for k, comp in enumerate(comps):
+    for k, (index, comp) in enumerate(comps):
         rows = comp["bins"]
         values = [np.nan if r["gap"] is None else 100 * r["gap"] for r in rows]
         scaled = [{"ci": None if not r.get("gap_ci") else [100 * v for v in r["gap_ci"]]}
@@ -268,7 +271,7 @@ def _plot_gaps(ax: Any, analysis: dict[str, Any], labels: Sequence[str]) -> None
         xs = np.arange(len(rows)) + (k - (len(comps) - 1) / 2) * width
         err = error_bars(values, scaled, "ci")
         kind = "paired" if comp["paired"] else "unpaired"
-        ax.bar(xs, values, width, yerr=err, capsize=4, color=f"C{k + 1}",
+        ax.bar(xs, values, width, yerr=err, capsize=4, color=f"C{index + 1}",
                label=f"{comp['report']} − {analysis['baseline']} ({kind})")  # fmt: skip
     ax.axhline(0, color="k", lw=1)
     ax.set_xticks(range(len(labels)), labels)

@@ -5,25 +5,13 @@ import json
 import os
 import shutil
 
-import cv2
-import numpy as np
 import pytest
 
 from claravid.eval.cli import main
 from claravid.segmentation import ClaraVidSegmentation
+from tests.eval.conftest import write_noisy_predictions
 
 K = 8  # uavid palette
-
-
-def _write_predictions(ds, folder, share, seed):
-    rng = np.random.default_rng(seed)
-    for i, frame in enumerate(ds.frames):
-        truth = ds.read_mask(i)
-        valid = np.where(truth == 255, 0, truth).astype(np.uint8)
-        wrong = rng.random(valid.shape) < share
-        pred = np.where(wrong, (valid + 1) % K, valid).astype(np.uint8)
-        (folder / frame.key).parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(folder / f"{frame.key}.png"), pred)
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +22,7 @@ def reps(claravid_root, tmp_path_factory):
     common = ["--data", str(claravid_root), "--split", "all", "--palette", "uavid",
               "--no-progress", "--bootstrap", "100"]  # fmt: skip
     for name, share in (("a", 0.1), ("b", 0.2)):
-        _write_predictions(ds, tmp / f"pred_{name}", share, 0)
+        write_noisy_predictions(ds, tmp / f"pred_{name}", share, 0)
         argv = ["--predictions", str(tmp / f"pred_{name}"), *common, "-o", str(tmp / name)]
         assert main(argv) == 0
     return {"tmp": tmp, "common": common, "root": claravid_root}

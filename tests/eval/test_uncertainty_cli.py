@@ -24,19 +24,9 @@ from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.cli import main
 from claravid.layout import MISSIONS, frame_file
 from claravid.segmentation import ClaraVidSegmentation
+from tests.eval.conftest import write_noisy_predictions
 
 K = 8  # uavid palette
-
-
-def _write_predictions(ds, folder, share, seed):
-    rng = np.random.default_rng(seed)
-    for i, frame in enumerate(ds.frames):
-        truth = ds.read_mask(i)
-        valid = np.where(truth == 255, 0, truth).astype(np.uint8)
-        wrong = rng.random(valid.shape) < share
-        pred = np.where(wrong, (valid + 1) % K, valid).astype(np.uint8)
-        (folder / frame.key).parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(folder / f"{frame.key}.png"), pred)
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +35,7 @@ def runs(claravid_root, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("unc")
     ds = ClaraVidSegmentation(claravid_root, split="all", palette="uavid")
     for name, share, seed in (("a", 0.1, 0), ("b", 0.1, 0), ("c", 0.4, 1)):
-        _write_predictions(ds, tmp / f"pred_{name}", share, seed)
+        write_noisy_predictions(ds, tmp / f"pred_{name}", share, seed)
     common = ["--data", str(claravid_root), "--split", "all", "--palette", "uavid",
               "--no-progress", "--bootstrap", "300"]  # fmt: skip
     for name in "abc":
@@ -143,9 +133,11 @@ def test_compare_identical_and_injected_error(runs, tmp_path, capsys):
     result = json.loads((out / "compare.json").read_text())
     assert result["baseline"] == "a" and result["uncertainty"]["cluster"] == "block"
     same, worse = result["comparisons"]
-    assert same["report"] == "b" and same["paired"]
-    for row in [same["overall"], *same["bins"]]:
-        assert (row["gap"], row["gap_ci"], row["p_value"]) == (0.0, [0.0, 0.0], 1.0)
+    # B holds A's very predictions: a model against itself is not a comparison (no gap, no
+    # interval, no p-value), and the reason says so.
+    assert same["report"] == "b" and same["comparable"] is False
+    assert "same predictions" in same["reason"]
+    assert (same["overall"], same["bins"]) == (None, [])
     a, c = _report(tmp / "a"), _report(tmp / "c")
     assert worse["paired"] and worse["overall"]["gap"] == pytest.approx(
         c["overall"]["miou"] - a["overall"]["miou"]
@@ -169,7 +161,7 @@ def _check_compare_png(path, bins, reports):
 
     for k in range(reports):
         assert drawn(top, colours[k]) > 100, f"no bars of report {k}"
-    # B = A draws no gap bar (a gap of 0); the injected error's gap is drawn.
+    # B = A draws no gap bar (not comparable); the injected error's gap is drawn.
     assert drawn(bottom, colours[reports - 1]) > 100
 
 
@@ -216,7 +208,7 @@ def test_block_without_extrinsics_is_refused(writable_root, tmp_path, capsys):
     for f in writable_root.glob("*/extrinsics/*/*"):
         f.unlink()
     ds = ClaraVidSegmentation(writable_root, split="all", palette="uavid")
-    _write_predictions(ds, tmp_path / "p", 0.1, 0)
+    write_noisy_predictions(ds, tmp_path / "p", 0.1, 0)
     argv = ["--predictions", str(tmp_path / "p"), "--data", str(writable_root), "--split", "all",
             "--palette", "uavid", "--no-progress", "--output", str(tmp_path / "x")]  # fmt: skip
     assert main([*argv, "--cluster", "block"]) == 2
@@ -228,21 +220,32 @@ def test_block_without_extrinsics_is_refused(writable_root, tmp_path, capsys):
 
 
 def test_paired_compare_aligns_images_by_path():
-    """B lists the same images as A in another order: the pairs follow the paths."""
+    """B lists the same images as A in another order: the pairs follow the paths, so the gaps
+    equal those of B listed in A's order, and differ from pairing rows by position."""
     from claravid.eval.analysis.compare import gap_analysis
     from claravid.eval.analysis.table import EvalResult
 
     rng = np.random.default_rng(0)
     conf = rng.integers(0, 50, size=(12, 3, 3)) + np.eye(3, dtype=np.int64) * 400
+    better = conf + np.eye(3, dtype=np.int64) * rng.integers(0, 200, size=(12, 1, 1))
     paths = [f"img{i:02d}.png" for i in range(12)]
     attrs = {"folder": [f"f{i // 3}" for i in range(12)]}
-    a = EvalResult(paths, paths, conf, {}, attrs, ["x", "y", "z"], "p", {"dataset": "folder"})
+
+    def result(rows, confusions):
+        return EvalResult([paths[i] for i in rows], [paths[i] for i in rows], confusions, {},
+                          {"folder": [attrs["folder"][i] for i in rows]}, ["x", "y", "z"], "p",
+                          {"dataset": "folder"})  # fmt: skip
+
+    a, in_order = result(range(12), conf), result(range(12), better)
     order = rng.permutation(12)
-    b = EvalResult([paths[i] for i in order], [paths[i] for i in order], conf[order], {},
-                   {"folder": [attrs["folder"][i] for i in order]}, ["x", "y", "z"], "p",
-                   {"dataset": "folder"})  # fmt: skip
-    report = {"source": {"binning": {}}}
-    out = gap_analysis([a, b], [report, report], ["a", "b"], Bootstrap(resamples=100,
-                       cluster="folder"))["comparisons"][0]  # fmt: skip
-    assert out["paired"] and out["overall"]["gap_ci"] == [0.0, 0.0]
-    assert out["overall"]["p_value"] == 1.0
+    shuffled = result(order, better[order])
+    by_position = result(range(12), better[order])  # B's rows put on A's paths by position
+    report, settings = {"source": {"binning": {}}}, Bootstrap(resamples=100, cluster="folder")
+
+    def overall(b):
+        out = gap_analysis([a, b], [report, report], ["a", "b"], settings)["comparisons"][0]
+        assert out["paired"]
+        return out["overall"]
+
+    assert overall(shuffled) == overall(in_order)
+    assert overall(by_position)["gap_ci"] != overall(in_order)["gap_ci"]
