@@ -311,3 +311,21 @@ def test_tiles_outside_fixed_edges_are_warned(tiled, capsys):
     err = capsys.readouterr().err
     assert re.search(rf"warning: {n} of {n} tile\(s\) fall outside --edges \(delentropy of the "
                      r"tiles: \d+\.\d\d\.\.\d+\.\d\d\): no tile is in a bin", err), err  # fmt: skip
+
+
+def test_too_many_tiles_per_image_is_refused_before_the_work(tmp_path, capsys):
+    # Before: any grid was cut (--tiles 2 took 1.1 GB for four small images).
+    images, masks, preds = tmp_path / "images", tmp_path / "masks", tmp_path / "preds"
+    truth = np.zeros((1200, 1200), np.uint8)
+    for folder in (images, masks, preds):
+        folder.mkdir()
+    cv2.imwrite(str(images / "x.jpg"), np.full((1200, 1200, 3), 128, np.uint8))
+    cv2.imwrite(str(masks / "x.png"), truth)
+    cv2.imwrite(str(preds / "x.png"), truth)
+    argv = ["--predictions", str(preds), "--dataset", "folder", "--data", str(images),
+            "--masks", str(masks), "--palette", "udd6", "--bins", "1", "--no-progress",
+            "--tiles", "32", "--output", str(tmp_path / "rep")]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "x.jpg of 1200x1200 into 1444 tiles, more than 1024: use tiles of 37 px or more" in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
