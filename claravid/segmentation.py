@@ -19,7 +19,6 @@ decode) and the labels are read by region from the label cache (:mod:`claravid.l
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 from collections.abc import Sequence
@@ -33,6 +32,7 @@ from torch.utils.data import Dataset
 from tqdm.auto import tqdm
 
 from claravid import modalities
+from claravid.blocks import mission_origins
 from claravid.cachedir import cache_dir
 from claravid.index import Frame, list_frames
 from claravid.jpeg_region import image_size, read_rgb_window
@@ -47,6 +47,7 @@ from claravid.splits import (
     SplitConfig,
     SplitSummary,
     block_ids,
+    make_split_config,
     select_split,
     summarize_split,
 )
@@ -99,15 +100,7 @@ class ClaraVidSegmentation(Dataset):
         self.palette = load_palette(palette)
         self.transforms = transforms
         self.split = str(split)
-        if isinstance(split_config, dict):
-            unknown = set(split_config) - {f.name for f in dataclasses.fields(SplitConfig)}
-            if unknown:
-                raise ValueError(
-                    f"unknown split_config key(s) {sorted(unknown)}; valid: "
-                    f"{', '.join(f.name for f in dataclasses.fields(SplitConfig))}"
-                )
-            split_config = SplitConfig(**split_config)
-        self.split_config = split_config or SplitConfig()
+        self.split_config = make_split_config(split_config, "split_config.")
         fields = ["rgb", "pan_seg"] + (["dynamic_mask"] if self.palette.uses_dynamic else [])
         frames = list_frames(
             self.root, missions, altitude, direction, fields, skip_incomplete=skip_incomplete
@@ -286,14 +279,18 @@ class ClaraVidSegmentation(Dataset):
         return summarize_split(self._selection, self._camera_positions(), self.split_config)
 
     def block_ids(self) -> list[str]:
-        """The spatial block of each of this dataset's frames, e.g. ``"003_urban_1/3_-2"``.
+        """The spatial block of each of this dataset's frames, e.g. ``"003_urban_1/3_2"``.
 
         ``claravid.splits.block_ids`` at ``split_config.block_size``: the unit the block split
         deals whole, and the cluster of dependent frames for a bootstrap.
         """
         row = {f.key: i for i, f in enumerate(self._selection)}
-        positions = self._camera_positions()[[row[f.key] for f in self.frames]]
-        return block_ids(self.frames, positions, self.split_config.block_size)
+        everywhere = self._camera_positions()
+        positions = everywhere[[row[f.key] for f in self.frames]]
+        # The grid the split laid: over the whole selection's extent per mission.
+        size = self.split_config.block_size
+        origins = mission_origins(self._selection, everywhere, size)
+        return block_ids(self.frames, positions, size, origins)
 
     def plot(
         self,

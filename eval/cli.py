@@ -152,8 +152,12 @@ def _check_args(args: argparse.Namespace) -> str:
         raise UsageError(f"--bins must be at least 1, got {args.bins}")
     if args.edges is not None:
         args.edges = parse_edges(args.edges)
-    if args.tiles is not None and args.tiles < 2:
-        raise UsageError(f"--tiles must be at least 2 pixels (e.g. 630), got {args.tiles}")
+    from claravid.dsp.tiles import MIN_TILE_SIZE  # claravid/dsp/tiles.py says why
+
+    if args.tiles is not None and args.tiles < MIN_TILE_SIZE:
+        raise UsageError(
+            f"--tiles must be at least {MIN_TILE_SIZE} pixels (e.g. 630), got {args.tiles}"
+        )
     # The one validation of the interval settings (its messages name the flags).
     args.intervals = Bootstrap(resamples=args.bootstrap, level=args.ci_level, seed=args.seed,
                                cluster=args.cluster or "image")  # fmt: skip

@@ -17,6 +17,7 @@ what they return. Merging and comparing saved reports is :mod:`claravid.eval.rep
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +34,7 @@ from claravid.eval.settings import (
     InferenceSettings,
     ReportSettings,
 )
+from claravid.splits import SplitBalanceWarning
 
 
 def resolve_data(choice: DataChoice, defaults: dict[str, Any], *, hint: str = "") -> dict[str, Any]:
@@ -218,14 +220,18 @@ def _open(data: DataChoice, model: Any, run: Any, predictions: Any) -> Any:
         defaults, hint = predictions_defaults(predictions, data.palette), ""
     spec = resolve_data(data, defaults, hint=hint)
     try:
-        opened = open_data(
-            spec["root"],
-            dataset=spec["dataset"],
-            split=spec["split"],
-            palette=spec["palette"],
-            masks=spec["masks"],
-            selection=spec["selection"],
-        )
+        with warnings.catch_warnings():
+            if model is not None and _split_as_trained(data, spec, defaults):
+                # The training run printed this warning for these very split settings.
+                warnings.simplefilter("ignore", SplitBalanceWarning)
+            opened = open_data(
+                spec["root"],
+                dataset=spec["dataset"],
+                split=spec["split"],
+                palette=spec["palette"],
+                masks=spec["masks"],
+                selection=spec["selection"],
+            )
     except FileNotFoundError as exc:
         if data.root is not None or model is None or "data" not in model.defaults:
             raise
@@ -240,6 +246,17 @@ def _open(data: DataChoice, model: Any, run: Any, predictions: Any) -> Any:
             f"has {num_classes}; pass the palette it was trained with (--palette)"
         )
     return opened
+
+
+def _split_as_trained(data: DataChoice, spec: dict[str, Any], defaults: dict[str, Any]) -> bool:
+    """Whether the images are split as in the model's training run: the recorded ClaraVid
+    root, selection and split settings, none of them overridden."""
+    recorded = defaults.get("data")
+    if spec["dataset"] != "claravid" or recorded is None or "split_config" not in defaults:
+        return False
+    if data.selection or defaults.get("dataset", "claravid") != "claravid":
+        return False
+    return Path(recorded).resolve() == Path(spec["root"]).resolve()
 
 
 def score_metrics(

@@ -8,10 +8,16 @@ row, column), split as ``numpy.array_split``; or fixed edges), with each bin's m
 summed confusion and its cluster bootstrap interval (a tile is resampled with its image's
 cluster), and correlates tile delentropy with the tile's own mIoU (classes with union 0 left
 out; tiles without a valid pixel left out of the correlation and counted).
+
+A tile bin's interval draws from the generator of the image bin of the same name
+(``bin:<name>``), the tiles' correlation from the images' (``correlation:delent``): the same
+clusters are drawn the same number of times for both, so tiles the size of the image (one per
+image) give exactly the images' bins, intervals and correlation.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -129,6 +135,23 @@ def tile_bins(
                        what="tiles")  # fmt: skip
 
 
+def _warn_outside(delent: np.ndarray, outside: int) -> None:
+    """Say when fixed edges leave tiles in no bin, with the tiles' delentropy range (the
+    report only counts them; images outside are warned the same way)."""
+    if not outside:
+        return
+    finite = delent[np.isfinite(delent)]
+    span = f"{finite.min():.2f}..{finite.max():.2f}" if finite.size else "n/a"
+    every = "no tile is in a bin" if outside == len(delent) else "they are in no bin"
+    warnings.warn(
+        f"{outside} of {len(delent)} tile(s) fall outside --edges (delentropy of the tiles: "
+        f"{span}): {every}; a tile has fewer pixels than its image and measures lower, so "
+        "give edges over the tiles' range",
+        UserWarning,
+        stacklevel=4,
+    )
+
+
 def tile_report(
     table: TileTable,
     paths: Sequence[str],
@@ -166,7 +189,7 @@ def tile_report(
         row.update(confusion_scores(conf, classes))
         if ids is not None:
             interval = confusion_interval(
-                table.confusions, ids, members, bootstrap, stream=f"tiles:bin:{b.name}",
+                table.confusions, ids, members, bootstrap, stream=f"bin:{b.name}",
                 features=features,
             )  # fmt: skip
             row.update(interval)
@@ -176,9 +199,10 @@ def tile_report(
     corr = correlation(table.delent, tile_miou)
     if ids is not None:
         corr.update(correlation_interval(table.delent, tile_miou, ids, bootstrap,
-                                         stream="tiles:correlation"))  # fmt: skip
+                                         stream="correlation:delent"))  # fmt: skip
     if edges is not None:
         binning["outside"] = len(outside)
+        _warn_outside(table.delent, len(outside))
     return {
         "size": table.size,
         "num_tiles": len(table),

@@ -21,6 +21,7 @@ import torch
 
 from claravid import distributed
 from claravid.cli import USER_ERRORS, UsageError
+from claravid.dsp.tiles import check_tile_count, check_tile_size
 from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.tile_bins import TileTable
@@ -32,6 +33,7 @@ from claravid.eval.inference.label_maps import write_prediction as save_label_ma
 from claravid.eval.inference.run_model import ImageScore, evaluate_model
 from claravid.eval.inference.sources import ModelSource
 from claravid.eval.inference.windows import WindowConfig
+from claravid.jpeg_region import image_size
 
 
 @dataclass
@@ -133,6 +135,10 @@ def collect(
     if predictions is not None:
         present, skipped = check_missing(predictions, data, s.allow_missing)
     mine = [present[i] for i in distributed.shard_indices(len(present))]
+    if tile_size is not None and mine:  # before any work: a grid too fine for the first image
+        check_tile_size(tile_size)
+        width, height = image_size(data.paths[mine[0]])
+        check_tile_count((height, width), tile_size, str(data.paths[mine[0]]))
     keeper = Hardest(hardest if model is not None and save_predictions is None else 0)
     error: BaseException | None = None
     confusions: list[np.ndarray] = []

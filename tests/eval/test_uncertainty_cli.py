@@ -53,14 +53,20 @@ def _report(folder):
 
 
 def _blocks_by_hand(root, frames, size=150.0):
-    labels = []
-    for f in frames:
-        pose = modalities.read_extrinsics(frame_file(root / MISSIONS[f.mission], f.viewpoint,
-                                                     f.stem, "extrinsics"))  # fmt: skip
-        labels.append(
-            (f.mission, int(np.floor(pose[0, 3] / size)), int(np.floor(pose[1, 3] / size)))
-        )
-    return labels
+    """(mission, column, row) per frame on the grid of docs/data.md: per mission, the fewest
+    blocks whose span exceeds the extent of its camera positions, centred on it."""
+    xy = np.array([
+        modalities.read_extrinsics(frame_file(root / MISSIONS[f.mission], f.viewpoint, f.stem,
+                                              "extrinsics"))[:2, 3]
+        for f in frames
+    ])  # fmt: skip
+    missions = np.array([f.mission for f in frames])
+    origin = np.empty_like(xy)
+    for mission in set(missions.tolist()):
+        lo, hi = xy[missions == mission].min(axis=0), xy[missions == mission].max(axis=0)
+        origin[missions == mission] = (lo + hi) / 2 - (np.floor((hi - lo) / size) + 1) * size / 2
+    cells = np.floor((xy - origin) / size).astype(int).tolist()
+    return [(f.mission, x, y) for f, (x, y) in zip(frames, cells, strict=True)]
 
 
 def test_intervals_everywhere_with_block_clusters(runs, claravid_root):
