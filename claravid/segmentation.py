@@ -80,6 +80,8 @@ class ClaraVidSegmentation(Dataset):
             read. Later reads never decode the panoptic RGB PNG.
         skip_incomplete: leave out frames missing a file of a modality it reads (RGB,
             panoptic, dynamic mask), counted in one warning, instead of raising.
+        mask_dtype: the masks' dtype: int64 (default, what a loss takes) or uint8 (255
+            ignore; evaluation keeps masks small until the device).
     """
 
     def __init__(
@@ -95,10 +97,12 @@ class ClaraVidSegmentation(Dataset):
         split_config: SplitConfig | dict[str, Any] | None = None,
         label_cache: bool | str | Path = False,
         skip_incomplete: bool = False,
+        mask_dtype: torch.dtype = torch.int64,
     ) -> None:
         self.root = Path(root)
         self.palette = load_palette(palette)
         self.transforms = transforms
+        self.mask_dtype = mask_dtype
         self.split = str(split)
         self.split_config = make_split_config(split_config, "split_config.")
         fields = ["rgb", "pan_seg"] + (["dynamic_mask"] if self.palette.uses_dynamic else [])
@@ -213,13 +217,13 @@ class ClaraVidSegmentation(Dataset):
         if getattr(self.transforms, "crop", None) is not None:
             # Training transforms: draw the crop from the headers, decode the crop alone.
             window = self.transforms.draw_window(*self.frame_size(index))  # type: ignore[union-attr]
-            return finish_sample(self.read_window(index, window), self.transforms)
+            return finish_sample(self.read_window(index, window), self.transforms, self.mask_dtype)
         frame = self.frames[index]
         rgb = modalities.read_rgb(frame.paths["rgb"])
         mask = self.read_mask(index)
         if mask.shape != rgb.shape[:2]:
             self._size_mismatch(frame, rgb.shape[:2], mask.shape)
-        return finish_sample(self._sample(index, rgb, mask), self.transforms)
+        return finish_sample(self._sample(index, rgb, mask), self.transforms, self.mask_dtype)
 
     def prepare_label_cache(
         self, workers: int = 0, progress: bool = False, shard: tuple[int, int] = (0, 1)

@@ -46,6 +46,7 @@ def _claravid(cfg: DictConfig, root: str | Path, split: str) -> Dataset:
             "test_missions": tuple(d.split.test_missions),
         },
         label_cache=d.label_cache,
+        mask_dtype=torch.uint8,  # crops and validation make what they need of it
     )
 
 
@@ -59,11 +60,13 @@ def _check_root(root: str | None, key: str) -> Path:
 
 
 def _split(cfg: DictConfig, kind: str, root: Path, split: str) -> Dataset:
-    """One split of UAVid or ClaraVid, uint8 samples without transforms (the one branch both
-    builders share: training crops them in `CropDataset`, validation normalises on the
-    model's device)."""
+    """One split of UAVid or ClaraVid, uint8 images and masks without transforms (the one
+    branch both builders share: training crops them in `CropDataset`, validation normalises
+    them on the model's device)."""
     if kind == "uavid":
-        return UAVidSegmentation(root, split=split, palette=cfg.data.palette)
+        return UAVidSegmentation(
+            root, split=split, palette=cfg.data.palette, mask_dtype=torch.uint8
+        )
     return _claravid(cfg, root, split)
 
 

@@ -117,7 +117,8 @@ def _keyed(
 def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -> EvalData:
     # Labels through the label cache (prepared by claravid-cache, else built on first read):
     # a whole-frame read of its tiles costs a fraction of decoding the panoptic PNG.
-    raw = ClaraVidSegmentation(root, split=split, palette=pal, label_cache=True, **selection)
+    raw = ClaraVidSegmentation(root, split=split, palette=pal, label_cache=True,
+                               mask_dtype=torch.uint8, **selection)  # fmt: skip
     attributes = {
         "mission": [f.mission for f in raw.frames],
         "viewpoint": [f.viewpoint for f in raw.frames],
@@ -153,7 +154,7 @@ def _as_list(value: Any) -> list[str] | None:
 
 
 def _uavid(root: Path, split: str, pal: Palette, labels: bool = True) -> EvalData:
-    raw = targets.UAVidSegmentation(root, split=split, palette=pal)
+    raw = targets.UAVidSegmentation(root, split=split, palette=pal, mask_dtype=torch.uint8)
     if labels:
         if not raw.has_labels:
             raise ValueError(f"UAVid {split} has no labels to evaluate against; use val or train")
@@ -181,7 +182,9 @@ def _folder(
     if labels and palette is None:
         raise ValueError("--dataset folder needs --palette: the palette its masks are written in")
 
-    raw = targets.FolderSegmentation(root, masks, palette=pal if masks is not None else None)
+    raw = targets.FolderSegmentation(
+        root, masks, palette=pal if masks is not None else None, mask_dtype=torch.uint8
+    )
     if masks is not None:
         check_palette_fit(list(raw.masks or []), pal)
     return _keyed(

@@ -35,3 +35,17 @@ def test_per_image_confusions_match_a_direct_count(claravid_root):
         np.testing.assert_array_equal(score.confusion, expected)
         np.testing.assert_array_equal(saved[score.key], pred)
         assert score.key == sample["key"]
+
+
+def test_evaluation_samples_travel_as_uint8(claravid_root):
+    # The frame and its labels stay uint8 until the model's device (an int64 12-Mpixel mask
+    # is 96 MB); the values are the training dataset's int64 ones.
+    from claravid.eval import open_data
+
+    data = open_data(claravid_root, split="all", palette="uavid")
+    sample = data.dataset[3]
+    assert sample["image"].dtype == torch.uint8 and sample["mask"].dtype == torch.uint8
+    reference = ClaraVidSegmentation(claravid_root, split="all", palette="uavid")[3]
+    assert reference["mask"].dtype == torch.int64
+    assert torch.equal(sample["mask"].long(), reference["mask"])
+    assert torch.equal(sample["image"], reference["image"])
