@@ -23,7 +23,13 @@ import numpy as np
 
 from claravid.cli import UsageError
 from claravid.eval.analysis.bins import Bin, choose_bins
-from claravid.eval.analysis.bootstrap import Bootstrap, count_clusters, paired_gap, unpaired_gap
+from claravid.eval.analysis.bootstrap import (
+    Bootstrap,
+    cluster_ids,
+    count_clusters,
+    paired_gap,
+    unpaired_gap,
+)
 from claravid.eval.analysis.table import EvalResult
 
 
@@ -181,6 +187,4 @@ class _Pair:
 
 
 def _ids(result: EvalResult, unit: str) -> np.ndarray:
-    from claravid.eval.analysis.bootstrap import cluster_ids
-
     return cluster_ids(result.cluster_labels(unit))
