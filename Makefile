@@ -11,15 +11,17 @@ export NO_ALBUMENTATIONS_UPDATE := 1
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml constraints.txt claravid/dsp/_deldensity.c
+$(STAMP): pyproject.toml constraints.txt claravid/dsp/_deldensity.c claravid/_jpeg_region.c
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[dev]"
 	touch $(STAMP)
 
+# The evaluation is the one claravid-train suggests: the checkpoint's data, split and palette,
+# into the run folder's report/ (tests/claravid/test_demo.py checks they agree).
 demo: $(STAMP)
 	$(BIN)/claravid-demo runs/demo
 	$(BIN)/claravid-train --config demo --resume
-	$(BIN)/claravid-eval --checkpoint runs/demo/train/best.pt --data runs/demo/data --split val --output runs/demo/report
+	$(BIN)/claravid-eval --checkpoint runs/demo/train/best.pt --output runs/demo/train/report
 
 test: $(STAMP)
 	$(BIN)/ruff check .

@@ -60,7 +60,7 @@ def bare_decode(data, preds: Path) -> tuple[float, float]:
     """(wall, CPU) seconds to decode every file the predictions path must read (cv2.imread)."""
     start, cpu = time.perf_counter(), time.process_time()
     for i in range(len(data)):
-        frame = data.raw.dataset.frames[i]
+        frame = data.dataset.dataset.frames[i]
         cv2.imread(str(preds / f"{data.keys[i]}.png"), cv2.IMREAD_UNCHANGED)
         cv2.imread(str(frame.paths["pan_seg"]), cv2.IMREAD_COLOR)
         cv2.imread(str(frame.paths["dynamic_mask"]), cv2.IMREAD_UNCHANGED)

@@ -1,75 +1,84 @@
-"""Loader throughput: ClaraVidSegmentation + training transforms vs the SDK's naive way.
+"""The data path at ClaraVid's real size against what the hardware can do.
 
 Run: ``.venv/bin/python benchmarks/bench_loader.py [--frames 6] [--samples 24]``
 
-On full-size 4032×3024 frames made by the generator, measures samples/s of
-  - baseline: the official SDK's way (PIL-decode the RGB and the panoptic PNG into the
-    SDK's int32 pair, remap the full label image, then crop), then the same augmentations;
-  - ours, first epoch: OpenCV decoding, class channel only, table remap, crop-first augs;
-  - ours, label cache warm: the same with labels from the single-channel cache;
-and DataLoader scaling with 1 and 2 workers. Prints each ratio against the baseline.
+On generated 4032×3024 frames (``uavid`` palette, default augmentations), one core
+(``torch.set_num_threads(1)``, ``cv2.setNumThreads(1)``), every figure against a baseline
+measured in the same run:
+
+1. Baseline: ``cv2.imread`` of the whole RGB frame (full colour decode), frames/s.
+2. Label cache preparation (what ``claravid-cache`` does), against decoding every panoptic PNG
+   once (``cv2.imread``; target ≤ 1.3×) and against decoding every label file the palette
+   reads (the panoptic PNG and, for ``uavid``, the dynamic mask).
+3. Training sample (crop window drawn from the headers, the RGB window and the label window
+   read alone, then the augmentations), first epoch (cache just prepared) and warm, samples/s.
+   Target ≥ 2× the baseline's frames/s. For reference, the former path: a full decode of the
+   RGB and of the labels, then the crop.
+4. Evaluation sample (``claravid-eval``'s: the whole frame as uint8 and its labels from the
+   cache), time per sample. Target ≤ 1.5× the baseline's time per frame.
+5. DataLoader, training samples, 1 and 2 worker processes. Target ≥ 1.8× on 2 cores.
+6. What a 16-core node gives (16 × the one-core rate) next to what one H100 consumes training
+   the DPT head on a frozen ViT-L/14 at 630² (``bench_train``'s model-only figure where a GPU
+   ran; else an estimate from the FLOPs counted here on the meta device at 40 % of the H100's
+   dense bf16 peak).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import tempfile
 import time
 from pathlib import Path
 
 os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
 
-import numpy as np
+import cv2
 import torch
-from PIL import Image
 from torch.utils.data import DataLoader, RandomSampler
 
-from claravid.palettes import load_palette
+from claravid import jpeg_region
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.synth import synthesize
 from claravid.transforms import train_transforms
 
+H100_BF16_DENSE = 989e12  # FLOP/s, SXM, dense (no sparsity)
+MFU = 0.40  # a typical achieved share of the peak for a ViT training step
 
-class NaiveSDKDataset(torch.utils.data.Dataset):
-    """The official SDK's reading path, then remap the full image, then crop + augment."""
 
-    def __init__(self, frames, palette, transforms) -> None:
-        self.frames, self.palette, self.transforms = frames, palette, transforms
-        self.lut = palette.lut.astype(np.int64)  # static label codes are the class ids
+def per_item(fn, items, repeats: int = 1) -> float:
+    """Median seconds of ``fn(item)`` over the items (each timed ``repeats`` times)."""
+    times = []
+    for _ in range(repeats):
+        for item in items:
+            start = time.perf_counter()
+            fn(item)
+            times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+class FormerPath(torch.utils.data.Dataset):
+    """What a training sample cost before: the whole RGB and the whole label image decoded,
+    then the crop and the augmentations (the transform cuts the crop from the full frame)."""
+
+    def __init__(self, base: ClaraVidSegmentation, transforms) -> None:
+        self.base, self.transforms = base, transforms  # base: no transforms, whole frames
 
     def __len__(self) -> int:
-        return len(self.frames)
+        return len(self.base)
 
     def __getitem__(self, index: int) -> dict:
-        frame = self.frames[index]
-        rgb = np.array(Image.open(frame.paths["rgb"]).convert("RGB"))
-        pan = np.array(Image.open(frame.paths["pan_seg"]).convert("RGB")).astype(np.int32)
-        pan_seg = np.zeros((*pan.shape[:2], 2), dtype=np.int32)
-        pan_seg[..., 0] = pan[..., 2] * 256 + pan[..., 1]
-        pan_seg[..., 1] = pan[..., 0]
-        mask = self.lut[pan_seg[..., 1]]  # remap the full image
-        sample = {
-            "image": torch.from_numpy(rgb).permute(2, 0, 1),
-            "mask": torch.from_numpy(mask.astype(np.uint8)),
-        }
-        return self.transforms(sample)
+        full = self.base[index]
+        return self.transforms({"image": full["image"], "mask": full["mask"]})
 
 
-def throughput(dataset, samples: int) -> float:
-    start = time.perf_counter()
-    for i in range(samples):
-        dataset[i % len(dataset)]
-    return samples / (time.perf_counter() - start)
-
-
-def loader_throughput(dataset, workers: int, samples: int) -> float:
-    """Steady-state samples/s: one long shuffled epoch, timed after the first batches."""
-    warmup = 2 * workers
+def loader_rate(dataset, workers: int, samples: int) -> float:
+    """Steady-state samples/s of a DataLoader (worker start-up not timed)."""
+    warmup = 2 * max(1, workers)
     sampler = RandomSampler(dataset, replacement=True, num_samples=samples + warmup)
-    loader = DataLoader(dataset, batch_size=1, sampler=sampler, num_workers=workers)
-    batches = iter(loader)
-    for _ in range(warmup):  # worker start-up is not the steady state
+    batches = iter(DataLoader(dataset, batch_size=1, sampler=sampler, num_workers=workers))
+    for _ in range(warmup):
         next(batches)
     start = time.perf_counter()
     for _ in batches:
@@ -77,46 +86,100 @@ def loader_throughput(dataset, workers: int, samples: int) -> float:
     return samples / (time.perf_counter() - start)
 
 
+def step_flops(crop: int = 630) -> float:
+    """FLOPs of one training step of one image: frozen ViT-L/14 forward + DPT head forward and
+    backward, counted by PyTorch on the meta device (nothing is computed)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from claravid.models import build_model
+
+    with torch.device("meta"):
+        model = build_model("dinov2_vitl14", num_classes=8)
+        image = torch.empty(1, 3, crop, crop)
+    counter = FlopCounterMode(display=False)
+    with counter:
+        model(image).sum().backward()  # the frozen backbone has no backward
+    return float(counter.get_total_flops())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=6, help="4032×3024 frames to generate")
     parser.add_argument("--samples", type=int, default=24, help="samples timed per variant")
     args = parser.parse_args()
-    torch.set_num_threads(1)  # one sample at a time per process, like a DataLoader worker
+    torch.set_num_threads(1)
+    cv2.setNumThreads(1)
 
     with tempfile.TemporaryDirectory() as tmp:
-        root = Path(tmp) / "claravid"
+        root, cache = Path(tmp) / "claravid", Path(tmp) / "cache"
         start = time.perf_counter()
         synthesize(root, seed=0, frames_per_viewpoint=args.frames, size=(4032, 3024),
                    missions=["urban_1"], altitude=["low"], direction=["h"])  # fmt: skip
-        print(f"generated {args.frames} frames of 4032×3024 in {time.perf_counter() - start:.1f} s")
+        print(f"generated {args.frames} frames of 4032×3024 in {time.perf_counter() - start:.0f} s")
+        print(f"RGB crops: {jpeg_region.decoder()}\n")
         transforms = train_transforms()
-        palette = load_palette("claravid")
-        ours = ClaraVidSegmentation(root, split="all", transforms=transforms)
-        cached = ClaraVidSegmentation(
-            root, split="all", transforms=transforms, label_cache=Path(tmp) / "cache"
-        )
-        for i in range(len(cached)):
-            cached.read_mask(i)  # prepare the cache once
-        naive = NaiveSDKDataset(ours.frames, palette, transforms)
+        train = ClaraVidSegmentation(root, split="all", palette="uavid", transforms=transforms,
+                                     label_cache=cache)  # fmt: skip
+        frames = train.frames
+        rgb = [str(f.paths["rgb"]) for f in frames]
+        pan = [str(f.paths["pan_seg"]) for f in frames]
 
-        throughput(naive, 2)  # warm-up: imports, allocator
-        base = throughput(naive, args.samples)
-        first = throughput(ours, args.samples)
-        warm = throughput(cached, args.samples)
-        print(f"\n{'variant':<44}{'samples/s':>10}{'× baseline':>12}")
-        print(f"{'baseline (SDK way: PIL, remap full, crop)':<44}{base:>10.2f}{1.0:>12.2f}")
-        print(f"{'ours, first epoch (no label cache)':<44}{first:>10.2f}{first / base:>12.2f}")
-        print(f"{'ours, label cache warm':<44}{warm:>10.2f}{warm / base:>12.2f}")
+        decode = per_item(lambda p: cv2.imread(p, cv2.IMREAD_COLOR), rgb, repeats=2)
+        print(f"1. baseline cv2.imread, whole RGB frame: {decode * 1e3:6.1f} ms "
+              f"({1 / decode:.2f} frames/s)")  # fmt: skip
 
-        print("\nDataLoader (batch 1, label cache warm):")
-        for workers in (1, 2):
-            rate = loader_throughput(cached, workers, args.samples)
-            naive_rate = loader_throughput(naive, workers, args.samples)
+        png = sum(per_item(lambda p: cv2.imread(p, cv2.IMREAD_COLOR), [p]) for p in pan)
+        dyn = [str(f.paths["dynamic_mask"]) for f in frames]  # the uavid palette reads them too
+        grey = sum(per_item(lambda p: cv2.imread(p, cv2.IMREAD_UNCHANGED), [p]) for p in dyn)
+        summary = train.prepare_label_cache()
+        print(f"2. label cache preparation: {summary.seconds / len(frames) * 1e3:6.1f} ms/frame, "
+              f"× {summary.seconds / png:.2f} the panoptic PNG decodes (target ≤ 1.3), "
+              f"× {summary.seconds / (png + grey):.2f} the decodes of every label file the "
+              f"palette reads (panoptic + dynamic mask); {summary.bytes_per_frame / 1e3:.0f} "
+              f"kB/frame, {summary.bytes_total / 1e6:.1f} MB in all")  # fmt: skip
+
+        n = args.samples
+        indices = [i % len(train) for i in range(n)]
+        first = per_item(train.__getitem__, indices[: len(train)])  # each entry read once
+        warm = per_item(train.__getitem__, indices)
+        whole = ClaraVidSegmentation(root, split="all", palette="uavid", label_cache=cache)
+        former = per_item(FormerPath(whole, transforms).__getitem__, indices[: len(frames)])
+        print("3. training sample (uavid, default augmentations):")
+        for name, seconds in (("first epoch (cache prepared)", first), ("label cache warm", warm),
+                              ("former path (whole frames)", former)):  # fmt: skip
             print(
-                f"  {workers} worker(s): ours {rate:.2f}/s, baseline {naive_rate:.2f}/s, "
-                f"× {rate / naive_rate:.2f} ({rate / workers:.2f}/s per worker)"
+                f"   {name:<30} {seconds * 1e3:6.1f} ms  {1 / seconds:6.2f} samples/s  "
+                f"× {decode / seconds:.2f} the baseline rate (target ≥ 2)"
             )
+
+        from claravid.eval.inference.data import open_data
+
+        os.environ["CLARAVID_CACHE"] = str(cache.parent / "eval-cache")
+        data = open_data(root, split="all", palette="uavid")
+        data.dataset[0]  # the cache entry of this palette's key
+        for i in range(len(data)):
+            data.read_mask(i)
+        evaluation = per_item(data.dataset.__getitem__, range(len(data)), repeats=2)
+        print(f"4. evaluation sample (uint8 frame + labels): {evaluation * 1e3:6.1f} ms, "
+              f"× {evaluation / decode:.2f} the baseline time (target ≤ 1.5)")  # fmt: skip
+        half = per_item(lambda p: cv2.imread(p, cv2.IMREAD_REDUCED_COLOR_2), rgb, repeats=2)
+        print(
+            f"   for --scale 0.5: the decoder's own 2× scaling {half * 1e3:6.1f} ms, "
+            f"× {half / decode:.2f} the full decode (not offered: see docs/evaluation.md)"
+        )
+
+        one = loader_rate(train, 1, n)
+        two = loader_rate(train, 2, n)
+        print(f"5. DataLoader: 1 worker {one:.2f}/s, 2 workers {two:.2f}/s: × {two / one:.2f} "
+              f"(target ≥ 1.8 on 2 cores; {os.cpu_count()} cores here)")  # fmt: skip
+
+        flops = step_flops()
+        gpu = H100_BF16_DENSE * MFU / flops
+        print(
+            f"6. a 16-core node: {16 / warm:.0f} samples/s (16 × the one-core rate); one H100 "
+            f"consumes ~{gpu:.0f} crops/s (estimate: {flops / 1e12:.2f} TFLOP per crop and "
+            f"step, {MFU:.0%} of {H100_BF16_DENSE / 1e12:.0f} TFLOP/s bf16; no GPU here)"
+        )
 
 
 if __name__ == "__main__":

@@ -3,7 +3,15 @@
 A *block* is one mission's ``block_size``-metre square of camera positions (x, y from the
 extrinsics): every frame taken over it, at any altitude or direction, belongs to it, and a
 block goes whole to one split. :func:`block_ids` names each frame's block
-(``"003_urban_1/3_-2"``: mission folder, then the square's column and row).
+(``"003_urban_1/3_2"``: mission folder, then the square's column and row).
+
+Each mission's grid is laid over its own extent (:func:`mission_origins`): along x (and
+likewise y), with E = max - min of the camera positions of the mission's frames that are split
+together, the grid has the fewest blocks whose span exceeds E, n = floor(E / block_size) + 1,
+centred on the extent; column ``floor((x - origin) / block_size)`` counts from 0. A block
+larger than a mission's extent is then one block (a grid anchored at the world origin cut a
+mission around 0 into four however large the blocks), and the blocks at both edges are equal
+parts of the extent instead of a full one and a sliver.
 
 How blocks are dealt (:func:`deal_blocks`). A mission of a few hundred metres spans only a
 handful of blocks, so the shares its blocks can make are coarse: with four blocks of ~25 %
@@ -36,7 +44,7 @@ Every step is deterministic, so the same blocks, fractions and seed give the sam
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,7 +68,8 @@ class Blocks:
     Attributes:
         of_frame: int [N], the block of each frame (an index into the other arrays).
         mission: int [B], the mission of each block (an index into ``missions``).
-        cell: int [B, 2], the block's column and row (floor of position / block size).
+        cell: int [B, 2], the block's column and row (floor of (position - the mission's
+            origin) / block size).
         size: int [B], frames per block.
         missions: the mission keys present, in ClaraVid's mission order.
     """
@@ -79,12 +88,22 @@ class Blocks:
         ]
 
 
-def group_blocks(frames: Sequence[Frame], positions: np.ndarray, block_size: float) -> Blocks:
-    """Group frames into the ``block_size``-metre squares of their camera positions (N×2 m).
+def mission_origins(
+    frames: Sequence[Frame], positions: np.ndarray, block_size: float
+) -> dict[str, np.ndarray]:
+    """Each mission's grid origin (x, y metres): n blocks centred on its extent (module doc)."""
+    xy = _checked_positions(frames, positions)
+    missions = np.array([f.mission for f in frames], dtype=object)
+    origins: dict[str, np.ndarray] = {}
+    for mission in dict.fromkeys(missions.tolist()):
+        mine = xy[missions == mission]
+        lo, hi = mine.min(axis=0), mine.max(axis=0)
+        n = np.floor((hi - lo) / block_size) + 1
+        origins[mission] = (lo + hi) / 2 - n * block_size / 2
+    return origins
 
-    Raises:
-        ValueError: positions of the wrong shape or not finite.
-    """
+
+def _checked_positions(frames: Sequence[Frame], positions: np.ndarray) -> np.ndarray:
     xy = np.asarray(positions, dtype=np.float64)
     if xy.shape != (len(frames), 2):
         raise ValueError(
@@ -93,9 +112,30 @@ def group_blocks(frames: Sequence[Frame], positions: np.ndarray, block_size: flo
     if not np.isfinite(xy).all():
         bad = frames[int(np.flatnonzero(~np.isfinite(xy).all(axis=1))[0])]
         raise ValueError(f"the camera position of {bad.key} is not finite; check its extrinsics")
+    return xy
+
+
+def group_blocks(
+    frames: Sequence[Frame],
+    positions: np.ndarray,
+    block_size: float,
+    origins: Mapping[str, Sequence[float]] | None = None,
+) -> Blocks:
+    """Group frames into the ``block_size``-metre squares of their camera positions (N×2 m).
+
+    Args:
+        origins: each mission's grid origin (default :func:`mission_origins` of these frames).
+
+    Raises:
+        ValueError: positions of the wrong shape or not finite.
+    """
+    xy = _checked_positions(frames, positions)
+    if origins is None:
+        origins = mission_origins(frames, xy, block_size)
     order = {key: i for i, key in enumerate(MISSIONS)}
     mission_of = np.fromiter((order[f.mission] for f in frames), dtype=np.int64, count=len(frames))
-    cells = np.floor(xy / block_size).astype(np.int64)
+    anchor = np.array([origins[f.mission] for f in frames], dtype=np.float64).reshape(-1, 2)
+    cells = np.floor((xy - anchor) / block_size).astype(np.int64)
     keys = np.column_stack([mission_of, cells]) if len(frames) else np.zeros((0, 3), np.int64)
     # Sorted unique rows: blocks in mission order, then column, then row, whatever the frames'.
     unique, of_frame = np.unique(keys, axis=0, return_inverse=True)
@@ -109,8 +149,13 @@ def group_blocks(frames: Sequence[Frame], positions: np.ndarray, block_size: flo
     )
 
 
-def block_ids(frames: Sequence[Frame], positions: np.ndarray, block_size: float) -> list[str]:
-    """The spatial block of each frame, e.g. ``"003_urban_1/3_-2"``.
+def block_ids(
+    frames: Sequence[Frame],
+    positions: np.ndarray,
+    block_size: float,
+    origins: Mapping[str, Sequence[float]] | None = None,
+) -> list[str]:
+    """The spatial block of each frame, e.g. ``"003_urban_1/3_2"``.
 
     The unit the block split deals whole (see ``claravid.splits``) and the cluster of
     dependent frames for a bootstrap: frames of one block overlap, frames of two rarely.
@@ -120,8 +165,10 @@ def block_ids(frames: Sequence[Frame], positions: np.ndarray, block_size: float)
         positions: camera x, y per frame in metres, N×2
             (``claravid.segmentation.camera_positions(root, frames)``).
         block_size: side of the squares in metres (``SplitConfig.block_size``).
+        origins: each mission's grid origin; default :func:`mission_origins` of ``frames``
+            (pass the origins of the whole selection to name the blocks of a part of it).
     """
-    blocks = group_blocks(frames, positions, block_size)
+    blocks = group_blocks(frames, positions, block_size, origins)
     names = blocks.names()
     return [names[b] for b in blocks.of_frame.tolist()]
 

@@ -55,13 +55,14 @@ def add_debug_flag(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def add_progress_flag(parser: argparse.ArgumentParser) -> None:
+def add_progress_flag(parser: argparse.ArgumentParser, help: str = "no progress bar") -> None:
     """``--no-progress`` (``--quiet`` the same, an older spelling kept for scripts): no bar.
 
-    Sets ``args.no_progress``; ``claravid-train``'s flag means ``log.progress=false``.
+    Sets ``args.no_progress``; ``claravid-train``'s flag means ``log.progress=false``;
+    ``claravid-export``, which shows no bar, leaves out the check's numbers (``help`` says so).
     """
     parser.add_argument(
-        "--no-progress", "--quiet", dest="no_progress", action="store_true", help="no progress bar"
+        "--no-progress", "--quiet", dest="no_progress", action="store_true", help=help
     )
 
 

@@ -7,14 +7,13 @@ reduction (even one that splits static and moving vehicles) is a single 256-entr
 - a known class id ``c`` on a dynamic pixel: ``c + 128`` (Unlabeled stays 255);
 - an id outside the ClaraVid class table: ``UNKNOWN_CODE`` (254), ignored and counted.
 
-Codes are cheap to cache: ``LabelCache`` keeps them as single-channel PNGs, a fraction of the
-panoptic RGB PNG's decoding time, named after the source files' size and modification time
-so an edited source is never served stale.
+Codes are cheap to cache: ``claravid.label_cache.LabelCache`` keeps them as tiled TIFFs read by
+window, named after the source files' size and modification time so an edited source is never
+served stale.
 """
 
 from __future__ import annotations
 
-import os
 import warnings
 from hashlib import sha1
 from pathlib import Path
@@ -23,7 +22,6 @@ import cv2
 import numpy as np
 
 from claravid import modalities
-from claravid.cachedir import cache_dir
 from claravid.layout import CLASS_BY_ID, DYNAMIC_MASK_DYNAMIC, UNLABELED_ID
 
 DYNAMIC_OFFSET = 128
@@ -99,34 +97,11 @@ def source_fingerprint(*paths: Path | None) -> str:
     return sha1("|".join(parts).encode()).hexdigest()[:16]
 
 
-class LabelCache:
-    """Label codes of frames, prepared once as single-channel PNGs under ``directory``.
+def __getattr__(name: str) -> object:
+    # ``LabelCache`` moved to claravid.label_cache (which imports this module); still importable
+    # from here, resolved on first use so neither module imports the other at import time.
+    if name == "LabelCache":
+        from claravid.label_cache import LabelCache
 
-    A file is named after the fingerprint (path, size, mtime) of its source files, so
-    changing a source makes its entry miss instead of serving stale labels.
-    """
-
-    def __init__(self, directory: str | Path | None = None) -> None:
-        self.directory = Path(directory) if directory is not None else cache_dir()
-        self.directory = self.directory / "label_codes"
-
-    def path_for(self, pan_seg: Path, dynamic_mask: Path | None) -> Path:
-        key = source_fingerprint(pan_seg, dynamic_mask)
-        return self.directory / key[:2] / f"{key}.png"
-
-    def read(self, pan_seg: Path, dynamic_mask: Path | None = None) -> np.ndarray:
-        """The frame's codes: from the cache when present, else decoded and stored."""
-        path = self.path_for(pan_seg, dynamic_mask)
-        if path.is_file():
-            codes = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-            if codes is not None and codes.ndim == 2:
-                return codes
-        codes = read_label_codes(pan_seg, dynamic_mask)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        # Written under a unique name then renamed, so parallel workers never see half a file.
-        tmp = path.with_suffix(f".{os.getpid()}.tmp.png")
-        cv2.imwrite(
-            str(tmp), codes, [cv2.IMWRITE_PNG_COMPRESSION, 3]
-        )  # smallest and fastest to read
-        os.replace(tmp, path)
-        return codes
+        return LabelCache
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -50,9 +50,16 @@ def flag_precision(precision: str | None, no_amp: bool = False, *, pytorch: bool
     """``--precision`` (or the deprecated ``--no-amp``) as a `WindowConfig` precision.
 
     Raises:
-        ValueError: an unknown value, a contradiction with ``--no-amp``, or bf16 for a model
-            that is not PyTorch (an ONNX file runs at the precision it was exported in).
+        ValueError: an unknown value, a contradiction with ``--no-amp``, or any precision for a
+            model that is not PyTorch (an ONNX file runs at the precision it was exported in,
+            fp32, fp16 or int8: the flag would do nothing).
     """
+    if not pytorch and (precision is not None or no_amp):
+        flag = "--precision" if precision is not None else "--no-amp"
+        raise ValueError(
+            f"{flag} does nothing with --onnx: an ONNX file runs at the precision it was exported "
+            "in (claravid-export --precision); drop it"
+        )
     if precision is not None and precision not in FLAG_PRECISIONS:
         raise ValueError(f"--precision must be fp32 or bf16, got {precision!r}")
     if no_amp:
@@ -60,8 +67,6 @@ def flag_precision(precision: str | None, no_amp: bool = False, *, pytorch: bool
             raise ValueError("--no-amp means --precision fp32: drop --no-amp or --precision")
         warnings.warn("--no-amp is deprecated: use --precision fp32", UserWarning, stacklevel=2)
         precision = "fp32"
-    if precision == "bf16" and not pytorch:
-        raise ValueError("--precision bf16 applies to a PyTorch model (--checkpoint) only")
     return precision or "auto"
 
 

@@ -1,7 +1,8 @@
 """The sample dict that every dataset hands out, and the type of the transforms over it.
 
 A sample is ``{"image": uint8 [3,H,W], "mask": int64 [H,W], "path": str, "key": str, ...}``
-(``mask`` absent for unlabelled images). A transform takes and returns the whole dict (see
+(``mask`` absent for unlabelled images; uint8 in datasets made with ``mask_dtype=torch.uint8``,
+as evaluation makes them). A transform takes and returns the whole dict (see
 ``claravid.transforms``); datasets cast ``mask`` to int64 after it, so transforms may hand
 back uint8 masks (albumentations warps those exactly).
 """
@@ -24,10 +25,14 @@ def image_tensor(rgb: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(rgb).permute(2, 0, 1)
 
 
-def finish_sample(sample: Sample, transforms: Transform | None) -> Sample:
-    """Apply the transforms, then make the mask (if any) int64."""
+def finish_sample(
+    sample: Sample, transforms: Transform | None, mask_dtype: torch.dtype = torch.int64
+) -> Sample:
+    """Apply the transforms, then give the mask (if any) ``mask_dtype``: int64 for a loss;
+    evaluation keeps uint8 until the device (a 12-Mpixel int64 mask is 96 MB, and making it
+    costs more than reading the labels)."""
     if transforms is not None:
         sample = transforms(sample)
     if "mask" in sample:
-        sample["mask"] = torch.as_tensor(sample["mask"]).long()
+        sample["mask"] = torch.as_tensor(sample["mask"]).to(mask_dtype)
     return sample

@@ -10,12 +10,15 @@
     sample = ds[0]  # {"image": float [3,630,630], "mask": int64 [630,630], "path": ..., ...}
 
 Only the modalities it needs are read: the RGB, the panoptic PNG's class channel, and the
-dynamic mask when the palette tells moving from static objects.
+dynamic mask when the palette tells moving from static objects. With training transforms (a
+random crop), only the crop is read: the window is drawn from the frame's size in the JPEG
+header, the RGB window is decoded alone (:mod:`claravid.jpeg_region`, same pixels as a full
+decode) and the labels are read by region from the label cache (:mod:`claravid.label_cache`);
+``sample["crop"]`` says where the crop was cut from.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 from collections.abc import Sequence
@@ -29,14 +32,12 @@ from torch.utils.data import Dataset
 from tqdm.auto import tqdm
 
 from claravid import modalities
+from claravid.blocks import mission_origins
 from claravid.cachedir import cache_dir
 from claravid.index import Frame, list_frames
-from claravid.labels import (
-    LabelCache,
-    read_label_codes,
-    source_fingerprint,
-    warn_unknown,
-)
+from claravid.jpeg_region import image_size, read_rgb_window
+from claravid.label_cache import LabelCache, PrepareSummary, png_shape
+from claravid.labels import read_label_codes, source_fingerprint, warn_unknown
 from claravid.layout import MISSIONS, frame_file
 from claravid.palettes import Palette, load_palette
 from claravid.plot import plot_sample
@@ -46,9 +47,11 @@ from claravid.splits import (
     SplitConfig,
     SplitSummary,
     block_ids,
+    make_split_config,
     select_split,
     summarize_split,
 )
+from claravid.transforms import CropWindow
 
 
 class ClaraVidSegmentation(Dataset):
@@ -71,11 +74,14 @@ class ClaraVidSegmentation(Dataset):
         transforms: called on each sample dict.
         split_config: block size, fractions, seed, held-out missions (a ``SplitConfig`` or
             a dict of its fields).
-        label_cache: keep each frame's labels as a single-channel PNG under this directory
-            (True: ``$CLARAVID_CACHE`` or ``~/.cache/claravid``) after the first read;
-            later epochs skip decoding the panoptic RGB PNG.
+        label_cache: keep each frame's label codes as a tiled TIFF under this directory
+            (True: ``$CLARAVID_CACHE`` or ``~/.cache/claravid``), read by region; prepared up
+            front by :meth:`prepare_label_cache` or ``claravid-cache``, else after the first
+            read. Later reads never decode the panoptic RGB PNG.
         skip_incomplete: leave out frames missing a file of a modality it reads (RGB,
             panoptic, dynamic mask), counted in one warning, instead of raising.
+        mask_dtype: the masks' dtype: int64 (default, what a loss takes) or uint8 (255
+            ignore; evaluation keeps masks small until the device).
     """
 
     def __init__(
@@ -91,20 +97,14 @@ class ClaraVidSegmentation(Dataset):
         split_config: SplitConfig | dict[str, Any] | None = None,
         label_cache: bool | str | Path = False,
         skip_incomplete: bool = False,
+        mask_dtype: torch.dtype = torch.int64,
     ) -> None:
         self.root = Path(root)
         self.palette = load_palette(palette)
         self.transforms = transforms
+        self.mask_dtype = mask_dtype
         self.split = str(split)
-        if isinstance(split_config, dict):
-            unknown = set(split_config) - {f.name for f in dataclasses.fields(SplitConfig)}
-            if unknown:
-                raise ValueError(
-                    f"unknown split_config key(s) {sorted(unknown)}; valid: "
-                    f"{', '.join(f.name for f in dataclasses.fields(SplitConfig))}"
-                )
-            split_config = SplitConfig(**split_config)
-        self.split_config = split_config or SplitConfig()
+        self.split_config = make_split_config(split_config, "split_config.")
         fields = ["rgb", "pan_seg"] + (["dynamic_mask"] if self.palette.uses_dynamic else [])
         frames = list_frames(
             self.root, missions, altitude, direction, fields, skip_incomplete=skip_incomplete
@@ -132,31 +132,64 @@ class ClaraVidSegmentation(Dataset):
         return len(self.frames)
 
     def _label_sources(self, frame: Frame) -> tuple[Path, Path | None]:
-        """A frame's label files: the panoptic PNG, and the dynamic mask if the palette reads it."""
-        dynamic = frame.paths["dynamic_mask"] if self.palette.uses_dynamic else None
-        return frame.paths["pan_seg"], dynamic
+        """A frame's label files: the panoptic PNG, and its dynamic mask if the palette reads it,
+        or if the label cache is on and the frame has one (cached codes always carry the dynamic
+        flag when it exists, so every palette reads the entries ``claravid-cache`` prepares)."""
+        if self.palette.uses_dynamic:
+            return frame.paths["pan_seg"], frame.paths["dynamic_mask"]
+        if self.label_cache is not None:
+            dynamic = frame.paths.get("dynamic_mask") or frame_file(
+                self.root / MISSIONS[frame.mission], frame.viewpoint, frame.stem, "dynamic_mask"
+            )
+            if dynamic.is_file():
+                return frame.paths["pan_seg"], dynamic
+        return frame.paths["pan_seg"], None
+
+    def _codes(self, index: int, window: CropWindow | None = None) -> np.ndarray:
+        """Label codes of the frame, or of a window of it (by region from the cache)."""
+        pan_seg, dynamic = self._label_sources(self.frames[index])
+        if self.label_cache is not None:
+            if window is None:
+                codes = self.label_cache.read(pan_seg, dynamic)
+            else:
+                codes = self.label_cache.read_window(pan_seg, dynamic, *window)
+        else:  # a PNG cannot be decoded by region: decode it whole, keep the window
+            codes = read_label_codes(pan_seg, dynamic)
+            if window is not None:
+                x, y, w, h = window
+                codes = codes[y : y + h, x : x + w]
+        warn_unknown(codes, pan_seg)
+        return codes
 
     def read_mask(self, index: int) -> np.ndarray:
         """The frame's train ids, uint8 H×W (255 ignore), unknown class ids counted."""
-        pan_seg, dynamic = self._label_sources(self.frames[index])
-        if self.label_cache is not None:
-            codes = self.label_cache.read(pan_seg, dynamic)
-        else:
-            codes = read_label_codes(pan_seg, dynamic)
-        warn_unknown(codes, pan_seg)
-        return self.palette.remap(codes)
+        return self.palette.remap(self._codes(index))
 
-    def __getitem__(self, index: int) -> dict[str, Any]:
+    def frame_size(self, index: int) -> tuple[int, int]:
+        """The frame's (width, height) from the headers of its RGB and panoptic files (nothing
+        decoded).
+
+        Raises:
+            ValueError: the two files differ in size (the label does not belong to the image).
+        """
         frame = self.frames[index]
-        rgb = modalities.read_rgb(frame.paths["rgb"])
-        mask = self.read_mask(index)
-        if mask.shape != rgb.shape[:2]:
-            raise ValueError(
-                f"size mismatch: {frame.paths['rgb']} is {rgb.shape[1]}×{rgb.shape[0]} but "
-                f"{frame.paths['pan_seg']} is {mask.shape[1]}×{mask.shape[0]}; the label does "
-                "not belong to this image (re-extract the frame)"
-            )
-        sample: dict[str, Any] = {
+        width, height = image_size(frame.paths["rgb"])
+        labels = png_shape(frame.paths["pan_seg"])
+        if labels is not None and labels != (height, width):
+            self._size_mismatch(frame, (height, width), labels)
+        return width, height
+
+    @staticmethod
+    def _size_mismatch(frame: Frame, rgb: tuple[int, int], labels: tuple[int, int]) -> None:
+        raise ValueError(
+            f"size mismatch: {frame.paths['rgb']} is {rgb[1]}×{rgb[0]} but "
+            f"{frame.paths['pan_seg']} is {labels[1]}×{labels[0]}; the label does not belong "
+            "to this image (re-extract the frame)"
+        )
+
+    def _sample(self, index: int, rgb: np.ndarray, mask: np.ndarray) -> dict[str, Any]:
+        frame = self.frames[index]
+        return {
             "image": image_tensor(rgb),
             "mask": torch.from_numpy(mask),
             "path": str(frame.paths["rgb"]),
@@ -164,7 +197,48 @@ class ClaraVidSegmentation(Dataset):
             "viewpoint": frame.viewpoint,
             "key": frame.key,
         }
-        return finish_sample(sample, self.transforms)
+
+    def read_window(self, index: int, window: CropWindow) -> dict[str, Any]:
+        """The untransformed sample of one window of frame ``index``: only that window of the
+        RGB is decoded (same pixels as a full decode) and only that window of the labels read
+        (by region, with the label cache); ``crop`` records the window.
+
+        Args:
+            index: the frame.
+            window: ``(x, y, width, height)`` in the stored frame's pixels, inside the frame.
+        """
+        frame = self.frames[index]
+        rgb = read_rgb_window(frame.paths["rgb"], *window)
+        sample = self._sample(index, rgb, self.palette.remap(self._codes(index, window)))
+        sample["crop"] = tuple(int(v) for v in window)
+        return sample
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        if getattr(self.transforms, "crop", None) is not None:
+            # Training transforms: draw the crop from the headers, decode the crop alone.
+            window = self.transforms.draw_window(*self.frame_size(index))  # type: ignore[union-attr]
+            return finish_sample(self.read_window(index, window), self.transforms, self.mask_dtype)
+        frame = self.frames[index]
+        rgb = modalities.read_rgb(frame.paths["rgb"])
+        mask = self.read_mask(index)
+        if mask.shape != rgb.shape[:2]:
+            self._size_mismatch(frame, rgb.shape[:2], mask.shape)
+        return finish_sample(self._sample(index, rgb, mask), self.transforms, self.mask_dtype)
+
+    def prepare_label_cache(
+        self, workers: int = 0, progress: bool = False, shard: tuple[int, int] = (0, 1)
+    ) -> PrepareSummary:
+        """Build the label-cache entries this dataset's frames are missing (in ``workers``
+        processes; only every n-th frame from the k-th with ``shard=(k, n)``), so that no read
+        decodes a panoptic PNG; a second call does nothing (``claravid-cache`` calls this).
+
+        Raises:
+            ValueError: the dataset was made without ``label_cache``.
+        """
+        if self.label_cache is None:
+            raise ValueError("this dataset has no label cache (label_cache=False)")
+        sources = [self._label_sources(frame) for frame in self.frames]
+        return self.label_cache.prepare(sources, workers=workers, progress=progress, shard=shard)
 
     def class_frequencies(self, progress: bool = True) -> np.ndarray:
         """Pixels of each train id over this split (int64 [K]), computed once and cached.
@@ -209,14 +283,18 @@ class ClaraVidSegmentation(Dataset):
         return summarize_split(self._selection, self._camera_positions(), self.split_config)
 
     def block_ids(self) -> list[str]:
-        """The spatial block of each of this dataset's frames, e.g. ``"003_urban_1/3_-2"``.
+        """The spatial block of each of this dataset's frames, e.g. ``"003_urban_1/3_2"``.
 
         ``claravid.splits.block_ids`` at ``split_config.block_size``: the unit the block split
         deals whole, and the cluster of dependent frames for a bootstrap.
         """
         row = {f.key: i for i, f in enumerate(self._selection)}
-        positions = self._camera_positions()[[row[f.key] for f in self.frames]]
-        return block_ids(self.frames, positions, self.split_config.block_size)
+        everywhere = self._camera_positions()
+        positions = everywhere[[row[f.key] for f in self.frames]]
+        # The grid the split laid: over the whole selection's extent per mission.
+        size = self.split_config.block_size
+        origins = mission_origins(self._selection, everywhere, size)
+        return block_ids(self.frames, positions, size, origins)
 
     def plot(
         self,

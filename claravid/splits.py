@@ -3,7 +3,8 @@
 ClaraVid has no official split, and neighbouring frames overlap heavily, so a random frame
 split would put the same ground in train and test. The default split therefore assigns
 *spatial blocks* of camera positions: the ground plane of each mission is cut into square
-blocks of ``block_size`` metres (camera x, y from the extrinsics), and whole blocks go to
+blocks of ``block_size`` metres (camera x, y from the extrinsics; the grid laid over the
+mission's own extent, ``claravid.blocks.mission_origins``), and whole blocks go to
 one split, so every altitude and direction over a block lands in the same split
 (:func:`block_ids` names each frame's block). Frames near a block edge still see a little of
 the neighbouring block: use a larger ``block_size`` (the footprint of a frame is about 1.5×
@@ -28,7 +29,7 @@ import math
 import numbers
 import warnings
 from collections import Counter, defaultdict
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,9 +44,11 @@ __all__ = [
     "SPLITS",
     "SplitBalanceWarning",
     "SplitConfig",
+    "SplitConfigError",
     "SplitSummary",
     "assign_blocks",
     "block_ids",
+    "make_split_config",
     "read_split_file",
     "select_split",
     "split_summary",
@@ -78,46 +81,124 @@ class SplitConfig:
 
     def __post_init__(self) -> None:
         if not _is_number(self.block_size) or not 0 < self.block_size < math.inf:
-            raise ValueError(
-                f"block_size must be a positive number of metres, got {self.block_size!r}"
+            raise SplitConfigError(
+                "block_size", f"must be a positive number of metres, got {self.block_size!r}"
             )
         try:
             fractions = tuple(self.fractions) if not isinstance(self.fractions, str) else ()
         except TypeError:  # a single number
             fractions = ()
         if len(fractions) != 3 or not all(_is_number(f) for f in fractions):
-            raise ValueError(
-                f"fractions must be three numbers (train, val, test), got {self.fractions!r}"
+            raise SplitConfigError(
+                "fractions", f"must be three numbers (train, val, test), got {self.fractions!r}"
             )
         if not all(0 <= f < math.inf for f in fractions):  # NaN fails both comparisons
-            raise ValueError(f"fractions must be finite and non-negative, got {self.fractions!r}")
+            raise SplitConfigError(
+                "fractions", f"must be finite and non-negative, got {self.fractions!r}"
+            )
         total = math.fsum(fractions)
         # No silent rescaling: (0.8, 0.1, 0.2) is more likely a typo than a wish for 73/9/18 %.
         if not math.isclose(total, 1.0, abs_tol=1e-6):
-            raise ValueError(
-                f"fractions {self.fractions!r} sum to {total:g}, not 1; give train, val and "
-                "test shares that add up to 1, e.g. (0.7, 0.15, 0.15)"
+            raise SplitConfigError(
+                "fractions",
+                f"{self.fractions!r} sum to {total:g}, not 1; give train, val and test shares "
+                "that add up to 1, e.g. (0.7, 0.15, 0.15)",
             )
+        # numpy's generators take integers >= 0; a string "1" is refused, not parsed.
+        if not isinstance(self.seed, numbers.Integral) or isinstance(self.seed, bool):
+            quoted = isinstance(self.seed, str)
+            hint = " (a string: write the number without quotes)" if quoted else ""
+            raise SplitConfigError("seed", f"must be an integer >= 0, got {self.seed!r}{hint}")
+        if self.seed < 0:
+            raise SplitConfigError("seed", f"must be an integer >= 0, got {self.seed!r}")
         # A single string is one mission, as in the datasets' `missions` argument.
-        val = tuple(map(canonical_mission, _as_tuple(self.val_missions)))
-        test = tuple(map(canonical_mission, _as_tuple(self.test_missions)))
+        val = _missions("val_missions", self.val_missions)
+        test = _missions("test_missions", self.test_missions)
         both = set(val) & set(test)
         if both:
-            raise ValueError(f"missions {sorted(both)} are held out as both val and test")
+            raise SplitConfigError(
+                "val_missions",
+                f"and test_missions both hold {sorted(both)}: missions held out as both val and "
+                "test; hold each out once",
+            )
         # Frozen: normalised values are set once, here.
         object.__setattr__(self, "fractions", fractions)
+        object.__setattr__(self, "seed", int(self.seed))
         object.__setattr__(self, "val_missions", val)
         object.__setattr__(self, "test_missions", test)
 
 
-def _is_number(value: object) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+class SplitConfigError(ValueError):
+    """A :class:`SplitConfig` value that cannot work; ``setting`` names the field.
+
+    The message starts with the setting as the caller spells it: ``seed`` from
+    :class:`SplitConfig` itself, ``split_config.seed`` from :func:`make_split_config` with that
+    prefix (the datasets), ``data.split.seed`` from a training config.
+    """
+
+    def __init__(self, setting: str, detail: str, message: str | None = None) -> None:
+        super().__init__(message or f"{setting} {detail}")
+        self.setting = setting
+        self.detail = detail
 
 
-def _as_tuple(missions: Sequence[str] | str | None) -> tuple[str, ...]:
+def make_split_config(
+    values: SplitConfig | Mapping[str, Any] | None, prefix: str = "split_config."
+) -> SplitConfig:
+    """A :class:`SplitConfig` from a mapping of its fields; errors name ``prefix + field``.
+
+    Raises:
+        SplitConfigError: an unknown key, or a value :class:`SplitConfig` refuses.
+    """
+    if values is None:
+        return SplitConfig()
+    if isinstance(values, SplitConfig):
+        return values
+    if not isinstance(values, Mapping):
+        raise SplitConfigError(
+            prefix.rstrip("."),
+            f"must be a SplitConfig or a dict of its fields, got {type(values).__name__}",
+        )
+    names = [f.name for f in dataclasses.fields(SplitConfig)]
+    unknown = sorted(set(values) - set(names))
+    if unknown:
+        what = prefix.rstrip(".")
+        raise SplitConfigError(
+            f"{prefix}{unknown[0]}",
+            "is not a split setting",
+            f"unknown {what} key(s) {unknown}; valid: {', '.join(names)}",
+        )
+    try:
+        return SplitConfig(**values)
+    except SplitConfigError as exc:
+        raise SplitConfigError(prefix + exc.setting, exc.detail) from None
+
+
+def _missions(setting: str, missions: object) -> tuple[str, ...]:
+    """Canonical mission keys of a held-out list (a single string is one mission)."""
     if missions is None:
         return ()
-    return (missions,) if isinstance(missions, str) else tuple(missions)
+    if isinstance(missions, str):
+        missions = (missions,)
+    try:
+        items = tuple(missions)  # type: ignore[arg-type]
+    except TypeError:
+        items = (missions,)
+    out = []
+    for item in items:
+        if not isinstance(item, str):
+            raise SplitConfigError(
+                setting, f"must be mission names (a string or a list of them), got {missions!r}"
+            )
+        try:
+            out.append(canonical_mission(item))
+        except ValueError as exc:
+            raise SplitConfigError(setting, f"holds {exc}") from None
+    return tuple(out)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
 def assign_blocks(frames: Sequence[Frame], positions: np.ndarray, config: SplitConfig) -> list[str]:
@@ -131,6 +212,7 @@ def assign_blocks(frames: Sequence[Frame], positions: np.ndarray, config: SplitC
     if config.val_missions or config.test_missions:
         held = {canonical_mission(m): "val" for m in config.val_missions}
         held |= {canonical_mission(m): "test" for m in config.test_missions}
+        _warn_absent_held_out(frames, held)
         return [held.get(f.mission, "train") for f in frames]
     splits, names = _deal(frames, positions, config)
     summary = split_summary(frames, splits, names, config)
@@ -143,6 +225,27 @@ def assign_blocks(frames: Sequence[Frame], positions: np.ndarray, config: SplitC
             stacklevel=2,
         )
     return splits
+
+
+def _warn_absent_held_out(frames: Sequence[Frame], held: dict[str, str]) -> None:
+    """Warn when a held-out mission has no frame in the selection: its split is left empty.
+
+    A warning, not an error: the other splits are still right (e.g. training on the selected
+    missions while the held-out one is not on this machine), and an empty split is refused
+    where it is used (no frames to validate or evaluate); the warning says why it is empty.
+    """
+    present = {f.mission for f in frames}
+    absent = [(m, s) for m, s in held.items() if m not in present]
+    if frames and absent:
+        named = ", ".join(f"{MISSIONS[m]} ({s}_missions)" for m, s in absent)
+        chosen = ", ".join(MISSIONS[m] for m in MISSIONS if m in present)
+        warnings.warn(
+            f"held-out mission(s) {named} have no frame in the selection ({chosen}): "
+            f"{' and '.join(sorted({s for _, s in absent}))} holds no frame from them; add "
+            "them to the selected missions, or check the root has their folders",
+            UserWarning,
+            stacklevel=3,
+        )
 
 
 def _deal(
@@ -336,6 +439,8 @@ def _balance_message(summary: SplitSummary, suggestion: float | None) -> str:
 def read_split_file(path: str | Path) -> list[str]:
     """Frame keys listed in a split file, one per line; ``#`` starts a comment.
 
+    Read as UTF-8; a byte-order mark (as some Windows editors write) is skipped.
+
     A line is a frame key ``<mission folder>/<viewpoint>/<stem>`` or the path of any of the
     frame's files relative to the root (``003_urban_1/left_rgb/45deg_low_h/000123.jpg``).
     """
@@ -343,7 +448,7 @@ def read_split_file(path: str | Path) -> list[str]:
     if not path.is_file():
         raise FileNotFoundError(f"split file not found: {path}")
     keys = []
-    for number, line in enumerate(path.read_text().splitlines(), 1):
+    for number, line in enumerate(path.read_text(encoding="utf-8-sig").splitlines(), 1):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue

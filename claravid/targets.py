@@ -93,6 +93,8 @@ class FolderSegmentation(Dataset):
             ``uavid``, a YAML path or a ``Palette``): single-channel masks hold its ids,
             colour masks its colours. Required with ``masks``.
         transforms: called on each sample dict (see ``claravid.transforms``).
+        mask_dtype: the masks' dtype: int64 (default, what a loss takes) or uint8 (255
+            ignore; evaluation keeps masks small until the device).
 
     Raises:
         DatasetNotFoundError: a folder is missing or holds no image.
@@ -106,6 +108,7 @@ class FolderSegmentation(Dataset):
         masks: str | Path | None = None,
         palette: str | Path | Palette | None = None,
         transforms: Transform | None = None,
+        mask_dtype: torch.dtype = torch.int64,
     ) -> None:
         self.root = Path(images).expanduser()
         self.mask_root = Path(masks).expanduser() if masks is not None else None
@@ -116,6 +119,7 @@ class FolderSegmentation(Dataset):
             )
         self.palette = load_palette(palette) if palette is not None else None
         self.transforms = transforms
+        self.mask_dtype = mask_dtype
         by_key = index_folder(self.root, "images")
         self.keys = list(by_key)
         self.images = list(by_key.values())
@@ -148,7 +152,7 @@ class FolderSegmentation(Dataset):
             mask = masks.read_mask(self.masks[index], self.palette)
             _check_same_size(image, mask, path, self.masks[index])
             sample["mask"] = torch.from_numpy(mask)
-        return finish_sample(sample, self.transforms)
+        return finish_sample(sample, self.transforms, self.mask_dtype)
 
     def plot(self, sample: Sample, show_titles: bool = True, suptitle: str | None = None) -> Figure:
         """Image, mask in palette colours, and ``sample["prediction"]`` if any."""
@@ -166,6 +170,8 @@ class UAVidSegmentation(Dataset):
         palette: the palette the label files are written in: UAVid's colour-coded labels
             in ``uavid`` (the default), or label files converted to ids of another palette.
         transforms: called on each sample dict (see ``claravid.transforms``).
+        mask_dtype: the masks' dtype: int64 (default, what a loss takes) or uint8 (255
+            ignore; evaluation keeps masks small until the device).
     """
 
     def __init__(
@@ -174,12 +180,14 @@ class UAVidSegmentation(Dataset):
         split: str = "train",
         palette: str | Path | Palette = "uavid",
         transforms: Transform | None = None,
+        mask_dtype: torch.dtype = torch.int64,
     ) -> None:
         if split not in UAVID_SPLITS:
             raise ValueError(f"unknown UAVid split {split!r}; use one of {', '.join(UAVID_SPLITS)}")
         self.root = Path(root).expanduser()
         self.split = split
         self.transforms = transforms
+        self.mask_dtype = mask_dtype
         self.palette = load_palette(palette)
         folder = self.root / f"uavid_{split}"
         if not folder.is_dir():
@@ -224,7 +232,7 @@ class UAVidSegmentation(Dataset):
             mask = masks.read_mask(label_path, self.palette)
             _check_same_size(image, mask, path, label_path)
             sample["mask"] = torch.from_numpy(mask)
-        return finish_sample(sample, self.transforms)
+        return finish_sample(sample, self.transforms, self.mask_dtype)
 
     def plot(self, sample: Sample, show_titles: bool = True, suptitle: str | None = None) -> Figure:
         """Image, mask in palette colours, and ``sample["prediction"]`` if any."""

@@ -1,10 +1,14 @@
 """Augmentation pipelines over sample dicts (albumentations 2.x).
 
-Training: a random crop at native resolution first (padded with the ignore index when the
-image is smaller), then colour jitter, brightness/contrast, rotation, optical or grid
-distortion and a horizontal flip, then normalisation. Cropping first is what makes this
-cheap: augmenting a 630×630 crop takes a few ms, the full 4032×3024 frame hundreds.
-Evaluation: normalisation only, no crop. Masks are warped with nearest interpolation and
+Training: a random crop at native resolution first (padded at a random position with the
+ignore index when the image is smaller), then colour jitter, brightness/contrast, rotation,
+optical or grid distortion and a horizontal flip, then normalisation. Cropping first is what
+makes this cheap: augmenting a 630×630 crop takes a few ms, the full 4032×3024 frame hundreds.
+The crop window can be drawn before anything is decoded (:meth:`SegmentationTransform.draw_window`
+from the frame's size): a dataset that reads regions (``ClaraVidSegmentation``) then decodes
+only the window and hands it over with ``sample["crop"] = (x, y, width, height)``; a dataset
+that cannot gets its full frame cut here, from the same random draws, so both give the same
+sample. Evaluation: normalisation only, no crop. Masks are warped with nearest interpolation and
 filled with the ignore index (albumentations 2.x ``fill_mask``; the 1.x names are ignored).
 
 A transform takes and returns the whole sample dict. It receives ``image`` as uint8 [3,H,W]
@@ -16,7 +20,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")  # it phones home at import otherwise
 
@@ -80,15 +84,21 @@ def augment_config(overrides: Any = None) -> AugmentConfig:
     return AugmentConfig(**OmegaConf.to_container(merged))
 
 
+class CropWindow(NamedTuple):
+    """Where a crop is cut from, in the stored frame's pixels (the whole axis when the frame is
+    smaller than the crop on it; the crop is then padded)."""
+
+    x: int
+    y: int
+    width: int
+    height: int
+
+
 def _train_ops(cfg: AugmentConfig) -> list[A.BasicTransform]:
+    """The augmentations after the crop (the crop itself is `SegmentationTransform`'s)."""
     fill = {"border_mode": cv2.BORDER_CONSTANT, "fill": 0, "fill_mask": cfg.ignore_index}
     nearest = {"mask_interpolation": cv2.INTER_NEAREST}
-    ops: list[A.BasicTransform] = [
-        # One op: PadIfNeeded alone would cost ~20 ms on a full frame even with nothing to pad.
-        A.RandomCrop(
-            cfg.crop_height, cfg.crop_width, pad_if_needed=True, pad_position="random", **fill
-        ),
-    ]
+    ops: list[A.BasicTransform] = []
     if cfg.color_jitter_p > 0:
         ops.append(
             A.ColorJitter(
@@ -121,19 +131,71 @@ def _train_ops(cfg: AugmentConfig) -> list[A.BasicTransform]:
 
 
 class SegmentationTransform:
-    """An albumentations pipeline applied to a sample dict (image + mask), then to tensors."""
+    """A random crop (training), then an albumentations pipeline, applied to a sample dict.
 
-    def __init__(self, ops: list[A.BasicTransform], cfg: AugmentConfig) -> None:
+    Args:
+        ops: the augmentations after the crop.
+        cfg: the config (normalisation, ignore index, crop size).
+        crop: ``(height, width)`` of the random crop; None: no crop (evaluation).
+    """
+
+    def __init__(
+        self, ops: list[A.BasicTransform], cfg: AugmentConfig, crop: tuple[int, int] | None = None
+    ) -> None:
         self.cfg = cfg
+        self.crop = crop
         normalize = A.Normalize(mean=cfg.mean, std=cfg.std, max_pixel_value=255.0)
         self.pipeline = A.Compose([*ops, normalize])
+
+    def draw_window(self, width: int, height: int) -> CropWindow:
+        """The random crop window of a ``width`` × ``height`` frame, drawn before decoding.
+
+        Drawn from the pipeline's own generator, so ``pipeline.set_random_seed`` fixes the
+        window and the augmentations after it alike.
+        """
+        if self.crop is None:
+            raise ValueError("this transform does not crop (evaluation transforms)")
+        crop_h, crop_w = self.crop
+        rng = self.pipeline.random_generator
+        # Two draws whatever the sizes, so the augmentations after the crop see the same stream.
+        x = int(rng.integers(0, max(0, width - crop_w) + 1))
+        y = int(rng.integers(0, max(0, height - crop_h) + 1))
+        return CropWindow(x, y, min(width, crop_w), min(height, crop_h))
+
+    def _cut_and_pad(
+        self, image: np.ndarray, mask: np.ndarray | None, cut: bool
+    ) -> tuple[np.ndarray, np.ndarray | None, CropWindow]:
+        """Cut the window from a full frame (``cut``), then pad the crop to the crop size."""
+        assert self.crop is not None
+        if cut:
+            window = self.draw_window(image.shape[1], image.shape[0])
+            rows = slice(window.y, window.y + window.height)
+            cols = slice(window.x, window.x + window.width)
+            image = image[rows, cols]
+            mask = None if mask is None else mask[rows, cols]
+        else:
+            window = CropWindow(0, 0, image.shape[1], image.shape[0])
+        crop_h, crop_w = self.crop
+        h, w = image.shape[:2]
+        rng = self.pipeline.random_generator
+        top = int(rng.integers(0, max(0, crop_h - h) + 1))
+        left = int(rng.integers(0, max(0, crop_w - w) + 1))
+        if (h, w) != (crop_h, crop_w):  # a frame smaller than the crop: pad at random
+            pad = (top, crop_h - h - top, left, crop_w - w - left)
+            image = cv2.copyMakeBorder(
+                np.ascontiguousarray(image), *pad, cv2.BORDER_CONSTANT, value=(0, 0, 0)
+            )
+            if mask is not None:
+                fill = self.cfg.ignore_index
+                mask = cv2.copyMakeBorder(
+                    np.ascontiguousarray(mask), *pad, cv2.BORDER_CONSTANT, value=fill
+                )
+        return image, mask, window
 
     def __call__(self, sample: dict[str, Any]) -> dict[str, Any]:
         image = _to_hwc(sample["image"])
         mask = sample.get("mask")
-        if mask is None:
-            out = self.pipeline(image=image)
-        else:
+        if mask is not None:
             mask = np.asarray(mask)
             if mask.dtype != np.uint8:
                 mask = mask.astype(np.uint8)  # albumentations warps uint8 masks exactly
@@ -142,6 +204,14 @@ class SegmentationTransform:
                     f"image {image.shape[1]}×{image.shape[0]} and mask "
                     f"{mask.shape[1]}×{mask.shape[0]} of {sample.get('path', 'a sample')} differ"
                 )
+        if self.crop is not None:
+            cut = "crop" not in sample  # a dataset that read the window alone says where
+            image, mask, window = self._cut_and_pad(image, mask, cut)
+            if cut:
+                sample["crop"] = tuple(window)
+        if mask is None:
+            out = self.pipeline(image=image)
+        else:
             out = self.pipeline(image=image, mask=mask)
             sample["mask"] = torch.from_numpy(np.ascontiguousarray(out["mask"]))
         sample["image"] = torch.from_numpy(np.ascontiguousarray(out["image"].transpose(2, 0, 1)))
@@ -164,7 +234,7 @@ def _to_hwc(image: Any) -> np.ndarray:
 def train_transforms(config: Any = None) -> SegmentationTransform:
     """Random crop first, then photometric and geometric augmentations, then normalise."""
     cfg = config if isinstance(config, AugmentConfig) else augment_config(config)
-    return SegmentationTransform(_train_ops(cfg), cfg)
+    return SegmentationTransform(_train_ops(cfg), cfg, crop=(cfg.crop_height, cfg.crop_width))
 
 
 def eval_transforms(config: Any = None) -> SegmentationTransform:

@@ -23,7 +23,15 @@ The core that training validates through::
     report = stratify([s.path for s in scores], np.stack([s.confusion for s in scores]),
                       classes, {"delent": values}, bins=3)
 
-What ``claravid-eval`` does, step by step::
+What ``claravid-eval`` does, in one call (:mod:`claravid.eval.run`, :mod:`claravid.eval.reports`)::
+
+    from claravid.eval import DataChoice, ReportSettings, compare, evaluate, merge
+
+    done = evaluate("report/", checkpoint="best.pt", data=DataChoice(split="val"))
+    merge(["part0/", "part1/"], "all/", ReportSettings(edges=[4, 4.5, 5]))
+    print(compare(["all/", "other/"], "cmp/"))
+
+and step by step::
 
     from claravid.eval import build_report, collect, open_data, write_outputs
 
@@ -79,6 +87,16 @@ _LAZY: dict[str, tuple[str, str]] = {
     "open_data": ("claravid.eval.inference.data", "open_data"),
     "load_source": ("claravid.eval.inference.sources", "load_source"),
     "collect": ("claravid.eval.inference.collect", "collect"),
+    "CollectSettings": ("claravid.eval.inference.collect", "CollectSettings"),
+    # runs: what each claravid-eval mode does, in one call
+    "evaluate": ("claravid.eval.run", "evaluate"),
+    "score_metrics": ("claravid.eval.run", "score_metrics"),
+    "merge": ("claravid.eval.reports", "merge"),
+    "compare": ("claravid.eval.reports", "compare"),
+    "DataChoice": ("claravid.eval.settings", "DataChoice"),
+    "InferenceSettings": ("claravid.eval.settings", "InferenceSettings"),
+    "ReportSettings": ("claravid.eval.settings", "ReportSettings"),
+    "Evaluation": ("claravid.eval.settings", "Evaluation"),
 }
 
 __all__ = sorted(_LAZY)

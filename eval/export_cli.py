@@ -1,14 +1,22 @@
-"""The ``claravid-export`` console script: `claravid.models.export` plus the data layer.
+"""The ``claravid-export`` console script: parses, exports (`claravid.models.export`), prints.
+
+    claravid-export --checkpoint runs/exp/best.pt --output model.onnx --size 630x630
+    claravid-export --checkpoint runs/exp/best.pt --output model-int8.onnx --precision int8
+
+(``claravid-export CHECKPOINT ...`` and ``--height H --width W``, the older spellings, still
+work.)
 
 The export itself lives in ``models/``, which never imports the data layer; but the file it
 writes should carry the palette's class names and colours (not only its name) and, for static
 int8 quantisation, be calibrated on real images. Both need the data layer, so the console
-script is this thin wrapper, downstream of both, that hands ``models.export.main`` a palette
-resolver and an image reader.
+script lives here, downstream of both.
 """
 
 from __future__ import annotations
 
+import argparse
+import os
+import sys
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -16,7 +24,28 @@ from typing import Any
 
 import numpy as np
 
-from claravid.models import export
+from claravid.cli import (
+    EXIT_FAILED,
+    UsageError,
+    add_debug_flag,
+    add_progress_flag,
+    check_output_file,
+    given_once,
+    parse_size,
+    positive_float,
+    positive_int,
+    run_cli,
+)
+from claravid.models.export import (
+    DEFAULT_SIZE,
+    ExportCheckError,
+    ExportSettings,
+    Provenance,
+    export_onnx,
+)
+from claravid.models.onnx_metadata import KEY, PRECISIONS, PREFIX, normalisation_from_config
+
+PROG = "claravid-export"
 
 
 def palette_info(name: str) -> dict[str, Any] | None:
@@ -70,9 +99,164 @@ def calibration_batches(
         yield out
 
 
+def fraction(text: str) -> float:
+    """argparse type: a number in [0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1], got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``claravid-export`` argument parser."""
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Export a claravid segmenter checkpoint to ONNX, checked with ONNX Runtime.",
+        epilog="Exit status: 0 ok; 1 the export differs from PyTorch beyond --tolerance or "
+        "--min-agreement (nothing written); 2 a bad argument, an unreadable checkpoint or an "
+        "unusable --output.",
+    )
+    parser.add_argument("checkpoint_file", nargs="?", metavar="CHECKPOINT",
+                        help="the same as --checkpoint")  # fmt: skip
+    parser.add_argument("--checkpoint", help="checkpoint written by models.save_checkpoint")
+    parser.add_argument("--output", "-o", required=True, help="output .onnx file")
+    parser.add_argument("--size", type=parse_size, metavar="WxH",
+                        help="input size, width x height or N for N x N, patch multiples "
+                        f"(default {DEFAULT_SIZE})")  # fmt: skip
+    parser.add_argument("--height", type=positive_int,
+                        help="input height (older spelling; --size WxH sets both)")  # fmt: skip
+    parser.add_argument("--width", type=positive_int,
+                        help="input width (older spelling; --size WxH sets both)")  # fmt: skip
+    parser.add_argument("--dynamic", action="store_true", help="dynamic height and width")
+    parser.add_argument("--precision", choices=PRECISIONS, default="fp32",
+                        help="fp32 (default), fp16 (GPUs) or int8 (CPUs)")  # fmt: skip
+    parser.add_argument("--no-check", action="store_true", help="skip the ONNX Runtime check")
+    parser.add_argument("--tolerance", type=positive_float, default=None,
+                        help="max allowed abs difference of logits (default 1e-3 for fp32, "
+                        "0.05 for fp16, not checked for int8)")  # fmt: skip
+    parser.add_argument("--min-agreement", type=fraction, default=None,
+                        help="min fraction of pixels with PyTorch's argmax (default 0.97 for "
+                        "int8, not checked otherwise)")  # fmt: skip
+    parser.add_argument("--calibration", metavar="DATA",
+                        help="int8: static QDQ quantisation calibrated on crops of these images "
+                        "(a dataset root or an image folder); default dynamic")  # fmt: skip
+    parser.add_argument("--calibration-images", type=positive_int, metavar="N",
+                        help="int8: number of calibration crops (default 64)")  # fmt: skip
+    parser.add_argument("--per-channel", action="store_true",
+                        help="int8: one weight scale per output channel")  # fmt: skip
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace an --output claravid-export did not write"
+    )
+    add_progress_flag(parser, help="print only the file written, not the check's numbers")
+    add_debug_flag(parser)
+    return parser
+
+
+def _exported(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is an ONNX file claravid-export wrote (ours to replace)."""
+    if not Path(path).is_file():
+        return False
+    try:
+        import onnx
+
+        proto = onnx.load(str(path), load_external_data=False)
+    except Exception:  # not ONNX at all: someone else's file
+        return False
+    return any(p.key == KEY or p.key.startswith(PREFIX) for p in proto.metadata_props)
+
+
+def input_size(args: argparse.Namespace) -> tuple[int, int]:
+    """``(width, height)`` from ``--size WxH``, or from the older ``--height``/``--width``
+    (either one alone leaves the other at the default)."""
+    if args.size is not None:
+        if args.height is not None or args.width is not None:
+            raise UsageError("give --size WxH or --height/--width, not both")
+        return args.size
+    return (args.width or DEFAULT_SIZE, args.height or DEFAULT_SIZE)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from claravid.models.checkpoint import model_from_checkpoint, read_checkpoint
+
+    given = given_once(
+        args.checkpoint,
+        args.checkpoint_file,
+        flag="--checkpoint",
+        metavar="CHECKPOINT",
+        what="the checkpoint",
+    )
+    checkpoint = Path(given)
+    width, height = input_size(args)
+    output = check_output_file(args.output, what="--output")
+    if output.suffix.lower() != ".onnx":
+        # A typo here (the checkpoint's own name, an image) would replace a file of another kind.
+        raise UsageError(f"--output {output} must end in .onnx")
+    # Our own earlier export may be replaced; anyone else's file only with --overwrite.
+    check_output_file(output, overwrite=args.overwrite or _exported(output), what="--output")
+    if args.precision != "int8" and (args.calibration is not None or args.per_channel):
+        raise UsageError("--calibration and --per-channel apply to --precision int8 only")
+    if args.calibration_images is not None and args.calibration is None:
+        raise UsageError("--calibration-images does nothing without --calibration DATA; drop it")
+    if args.calibration is not None and not Path(args.calibration).is_dir():
+        raise UsageError(f"--calibration {args.calibration} is not a folder of images")
+    if output.exists() and checkpoint.exists() and output.samefile(checkpoint):
+        raise UsageError(f"--output {output} is the checkpoint itself; choose another file")
+    ckpt = read_checkpoint(checkpoint)
+    model = model_from_checkpoint(ckpt, checkpoint)
+    patch = model.patch_size
+    if width % patch or height % patch:  # said in --size terms, not as a tensor shape
+        fit = [-(-v // patch) * patch for v in (width, height)]
+        raise UsageError(
+            f"input size {width}x{height} (WxH) is not a multiple of the model's patch size "
+            f"{patch}: use --size {fit[0]}x{fit[1]}"
+        )
+    config = ckpt.get("config") if isinstance(ckpt.get("config"), dict) else None
+    step = ckpt.get("step") if isinstance(ckpt.get("step"), int) else None
+    del ckpt
+    palette = None
+    data = config.get("data") if config else None
+    name = data.get("palette") if isinstance(data, dict) else None
+    if isinstance(name, str):
+        palette = palette_info(name)
+    calibration = None
+    if args.calibration is not None:
+        normalisation = normalisation_from_config(config)
+        size = (height, width)
+        calibration = calibration_batches(
+            args.calibration, args.calibration_images or 64, size, normalisation
+        )
+    try:
+        settings = ExportSettings(
+            height=height,
+            width=width,
+            dynamic=args.dynamic,
+            precision=args.precision,
+            check=not args.no_check,
+            tolerance=args.tolerance,
+            min_agreement=args.min_agreement,
+            per_channel=args.per_channel,
+        )
+        record = Provenance(config=config, step=step, palette=palette)
+        result = export_onnx(model, output, settings, provenance=record, calibration=calibration)
+    except ExportCheckError as exc:
+        print(f"{PROG}: error: {exc}; nothing was written", file=sys.stderr)
+        return EXIT_FAILED
+    if result["check_shape"] is not None and not args.no_progress:
+        print(
+            f"onnxruntime vs PyTorch on input {list(result['check_shape'])}: max abs diff of "
+            f"logits {result['max_abs_diff']:.3g}, argmax agreement "
+            f"{100 * result['agreement']:.2f} %"
+        )
+    print(f"wrote {result['path']} ({args.precision})")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
-    """``claravid-export`` (see `claravid.models.export`)."""
-    return export.main(argv, resolve_palette=palette_info, read_calibration=calibration_batches)
+    """``claravid-export --checkpoint CKPT --output model.onnx [--size WxH | --dynamic]``."""
+    return run_cli(PROG, _run, build_parser(), argv)
 
 
 if __name__ == "__main__":

@@ -53,7 +53,6 @@ from claravid.eval.inference.windows import predict_labels
 from claravid.models.onnx_runtime import PROVIDERS
 from claravid.palettes import Palette, load_palette
 from claravid.precision import flag_precision
-from claravid.transforms import eval_transforms
 
 PROG = "claravid-predict"
 EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
@@ -61,22 +60,22 @@ ALPHA = 0.5  # overlay: half image, half class colour
 
 
 class ImageList(Dataset):
-    """Images named by ``keys``; samples ``{"image", "path", "key"}`` through ``transforms``."""
+    """Images named by ``keys``: samples ``{"image": uint8 [3,H,W], "path", "key"}`` (normalised
+    on the model's device by the sliding windows)."""
 
-    def __init__(self, paths: list[Path], keys: list[str], transforms: Any) -> None:
-        self.paths, self.keys, self.transforms = paths, keys, transforms
+    def __init__(self, paths: list[Path], keys: list[str]) -> None:
+        self.paths, self.keys = paths, keys
 
     def __len__(self) -> int:
         return len(self.paths)
 
     def __getitem__(self, index: int) -> dict[str, Any]:
         path = self.paths[index]
-        sample = {
+        return {
             "image": torch.from_numpy(modalities.read_rgb(path)).permute(2, 0, 1),
             "path": str(path),
             "key": self.keys[index],
         }
-        return self.transforms(sample)
 
 
 def list_images(inputs: list[Path]) -> tuple[list[Path], list[str]]:
@@ -190,17 +189,14 @@ def run(args: argparse.Namespace) -> int:
     )  # fmt: skip
     palette = _palette_for(settings, args.no_overlays, source.num_classes)
     config = settings.window
-    transforms = eval_transforms(settings.transforms_config)
-    loader = DataLoader(
-        ImageList(paths, keys, transforms), batch_size=None, num_workers=args.workers
-    )
+    loader = DataLoader(ImageList(paths, keys), batch_size=None, num_workers=args.workers)
     bar = tqdm(loader, total=len(paths), desc="predict", unit="img", disable=args.no_progress)
     for sample in bar:
         ids = predict_labels(source.model, sample["image"].to(device), config)
         ids = ids.to("cpu", torch.uint8).numpy()
         write_prediction(out, sample["key"], ids)
         if not args.no_overlays:
-            rgb = modalities.read_rgb(sample["path"])
+            rgb = sample["image"].permute(1, 2, 0).numpy()  # the decoded pixels, not a re-read
             blend = cv2.cvtColor(overlay(rgb, ids, palette.colors), cv2.COLOR_RGB2BGR)  # type: ignore[union-attr]
             target = out / "overlays" / f"{sample['key']}.jpg"
             write_image(target, blend, [cv2.IMWRITE_JPEG_QUALITY, 90])

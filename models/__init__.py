@@ -5,7 +5,7 @@ Public API::
     build_backbone(name, weights=None)      # DINOv2 ViT-S/B/L/g (+ _reg), official or HF weights
     build_model(backbone, num_classes, ...)  # frozen backbone + trainable DPT head
     save_checkpoint / load_checkpoint        # weights_only-safe model files
-    export_onnx(model, path, ...)            # ONNX + onnxruntime check
+    export_onnx(model, path, ExportSettings(...))  # ONNX + onnxruntime check
     OnnxSegmenter(path)                      # onnxruntime runner
 
 Names are imported on first use (PEP 562): a module that needs only the ONNX Runtime side
@@ -26,6 +26,8 @@ _LAZY = {
     "DPTHead": "claravid.models.dpt",
     "ExportCheckError": "claravid.models.export",
     "export_onnx": "claravid.models.export",
+    "ExportSettings": "claravid.models.export",
+    "Provenance": "claravid.models.export",
     "OnnxSegmenter": "claravid.models.onnx_runtime",
     "Segmenter": "claravid.models.segmenter",
     "build_model": "claravid.models.segmenter",

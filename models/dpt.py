@@ -13,7 +13,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-# Per backbone size: tapped blocks, fusion width, reassemble widths (FORMAT.md §3).
+# Per backbone size: tapped blocks, fusion width, reassemble widths (docs/models.md).
 DPT_DEFAULTS: dict[str, dict[str, object]] = {
     "vits14": {"layers": (2, 5, 8, 11), "features": 64, "out_channels": (48, 96, 192, 384)},
     "vitb14": {"layers": (2, 5, 8, 11), "features": 128, "out_channels": (96, 192, 384, 768)},

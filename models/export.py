@@ -1,4 +1,5 @@
-"""ONNX export of a segmenter, with checks, and the ``claravid-export`` command.
+"""ONNX export of a segmenter, with checks (the ``claravid-export`` command is
+:mod:`claravid.eval.export_cli`).
 
 We use the dynamo exporter (``torch.onnx.export(..., dynamo=True)``, the default in torch 2.9+,
 through onnxscript): it handles SDPA, bicubic and symbolic H/W. The batch is always dynamic; the
@@ -12,21 +13,20 @@ work.)
 
 The file carries what it takes to run the model as evaluated (`claravid.models.onnx_metadata`).
 The palette's colours come from the data layer, which ``models/`` never imports: the console
-script (``claravid.eval.export_cli``) passes a resolver into :func:`main`.
+script (``claravid.eval.export_cli``) resolves them and passes them in :class:`Provenance`.
 """
 
 from __future__ import annotations
 
-import argparse
 import logging
 import math
 import os
 import shutil
-import sys
 import tempfile
 import warnings
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,21 +34,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from claravid.cli import (
-    EXIT_FAILED,
-    UsageError,
-    add_debug_flag,
-    check_output_file,
-    given_once,
-    parse_size,
-    positive_float,
-    positive_int,
-    run_cli,
-)
 from claravid.models.onnx_metadata import (
-    KEY,
     PRECISIONS,
-    PREFIX,
     build_metadata,
     metadata_props,
     normalisation_from_config,
@@ -91,22 +78,56 @@ def _export_mode(model: Segmenter, size: tuple[int, int] | None):
         model.train(was_training)
 
 
+@dataclass(frozen=True)
+class ExportSettings:
+    """How a model is exported and checked.
+
+    Attributes:
+        height: example (and, unless dynamic, the only) input height; a patch multiple.
+        width: example input width.
+        dynamic: also make H and W dynamic (multiples of the patch size).
+        precision: ``fp32``, ``fp16`` (float16 graph, float32 input and output) or ``int8``
+            (`claravid.models.quantize`).
+        check: run ``onnx.checker`` and compare ONNX Runtime with PyTorch after export.
+        tolerance: largest allowed max-abs difference of logits between ORT and PyTorch
+            (default 1e-3 for fp32, 0.05 for fp16; int8 is judged by ``min_agreement``).
+        min_agreement: smallest allowed fraction of pixels whose argmax equals PyTorch's
+            (default 0.97 for int8, not checked otherwise).
+        per_channel: int8 only: one weight scale per output channel.
+    """
+
+    height: int = DEFAULT_SIZE
+    width: int = DEFAULT_SIZE
+    dynamic: bool = False
+    precision: str = "fp32"
+    check: bool = True
+    tolerance: float | None = None
+    min_agreement: float | None = None
+    per_channel: bool = False
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """What the file records about where the model comes from (its metadata document).
+
+    Attributes:
+        config: the checkpoint's resolved training config (windows, normalisation, hash).
+        step: the training step of the checkpoint.
+        palette: ``{"name", "names", "colors", "ignore_index"}`` as plain lists.
+    """
+
+    config: dict[str, Any] | None = None
+    step: int | None = None
+    palette: dict[str, Any] | None = None
+
+
 def export_onnx(
     model: Segmenter,
     path: str | os.PathLike,
-    height: int = 630,
-    width: int = 630,
-    dynamic: bool = False,
-    check: bool = True,
-    tolerance: float | None = None,
+    settings: ExportSettings | None = None,
     *,
-    precision: str = "fp32",
-    min_agreement: float | None = None,
-    config: dict[str, Any] | None = None,
-    step: int | None = None,
-    palette: dict[str, Any] | None = None,
+    provenance: Provenance | None = None,
     calibration: Iterable[np.ndarray] | None = None,
-    per_channel: bool = False,
 ) -> dict[str, Any]:
     """Export ``model`` to ONNX, then check it with ``onnx.checker`` and ONNX Runtime.
 
@@ -116,22 +137,10 @@ def export_onnx(
     Args:
         model: A `Segmenter`.
         path: Output ``.onnx`` (large models also write ``<path>.data`` next to it), written
-            atomically: only a complete (and, with ``check``, checked) export replaces it.
-        height: Example (and, unless dynamic, the only) input height; a patch multiple.
-        width: Example input width.
-        dynamic: Also make H and W dynamic (multiples of the patch size).
-        check: Run the checks below after export.
-        tolerance: Largest allowed max-abs difference of logits between ORT and PyTorch
-            (default 1e-3 for fp32, 0.05 for fp16; int8 is judged by ``min_agreement``).
-        precision: ``fp32``, ``fp16`` (float16 graph, float32 input and output) or ``int8``
-            (`claravid.models.quantize`).
-        min_agreement: Smallest allowed fraction of pixels whose argmax equals PyTorch's
-            (default 0.97 for int8, not checked otherwise).
-        config: The checkpoint's resolved training config (windows, normalisation, hash).
-        step: The training step of the checkpoint.
-        palette: ``{"name", "names", "colors", "ignore_index"}`` as plain lists.
+            atomically: only a complete (and, when checked, checked) export replaces it.
+        settings: size, precision and checks (default: fixed 630 x 630, fp32, checked).
+        provenance: the training config, step and palette the file records.
         calibration: int8 only: batches of normalised images for static QDQ quantisation.
-        per_channel: int8 only: one weight scale per output channel.
 
     Returns:
         ``{"path", "max_abs_diff", "agreement", "check_shape", "precision", ...}`` (the
@@ -143,6 +152,10 @@ def export_onnx(
         ExportCheckError: ORT's logits differ from PyTorch's beyond ``tolerance`` or
             ``min_agreement`` (nothing is written then).
     """
+    s = settings or ExportSettings()
+    record = provenance or Provenance()
+    height, width, dynamic, precision = s.height, s.width, s.dynamic, s.precision
+    tolerance, min_agreement, per_channel = s.tolerance, s.min_agreement, s.per_channel
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     if tolerance is None:
@@ -189,13 +202,13 @@ def export_onnx(
             num_classes=model.num_classes,
             input_size=size,
             precision=precision,
-            config=config,
-            step=step,
-            palette=palette,
+            config=record.config,
+            step=record.step,
+            palette=record.palette,
         )
         _write_metadata(staged, document)
         result.update(max_abs_diff=None, agreement=None, check_shape=None)
-        if check:
+        if s.check:
             try:
                 result.update(
                     check_export(
@@ -303,7 +316,8 @@ def check_export(
     normalisation: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """``onnx.checker``, then ORT vs PyTorch on 3 smooth random images (another size too when
-    dynamic): the max abs difference of logits and the fraction of pixels with the same argmax.
+    dynamic): the max abs difference of logits and the fraction of pixels with the same argmax
+    (returned; the command line prints them).
 
     Raises:
         ExportCheckError: the difference is above ``tolerance`` (None: not checked) or the
@@ -324,10 +338,6 @@ def check_export(
     got = OnnxSegmenter(path, providers=["CPUExecutionProvider"])(x)
     diff = float(np.abs(got - expected).max())
     agreement = float((got.argmax(1) == expected.argmax(1)).mean())
-    print(
-        f"onnxruntime vs PyTorch on input {list(shape)}: max abs diff of logits {diff:.3g}, "
-        f"argmax agreement {100 * agreement:.2f} %"
-    )
     if tolerance is not None and not diff <= tolerance:
         raise ExportCheckError(
             f"exported model {path} differs from PyTorch by {diff:.3g} (> {tolerance}) on input "
@@ -340,190 +350,3 @@ def check_export(
             f"DATA or a higher precision"
         )
     return {"max_abs_diff": diff, "agreement": agreement, "check_shape": shape}
-
-
-def fraction(text: str) -> float:
-    """argparse type: a number in [0, 1]."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0 <= value <= 1:
-        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1], got {text!r}")
-    return value
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """The ``claravid-export`` argument parser."""
-    parser = argparse.ArgumentParser(
-        prog="claravid-export",
-        description="Export a claravid segmenter checkpoint to ONNX, checked with ONNX Runtime.",
-        epilog="Exit status: 0 ok; 1 the export differs from PyTorch beyond --tolerance or "
-        "--min-agreement (nothing written); 2 a bad argument, an unreadable checkpoint or an "
-        "unusable --output.",
-    )
-    parser.add_argument("checkpoint_file", nargs="?", metavar="CHECKPOINT",
-                        help="the same as --checkpoint")  # fmt: skip
-    parser.add_argument("--checkpoint", help="checkpoint written by models.save_checkpoint")
-    parser.add_argument("--output", "-o", required=True, help="output .onnx file")
-    parser.add_argument("--size", type=parse_size, metavar="WxH",
-                        help="input size, width x height or N for N x N, patch multiples "
-                        f"(default {DEFAULT_SIZE})")  # fmt: skip
-    parser.add_argument("--height", type=positive_int,
-                        help="input height (older spelling; --size WxH sets both)")  # fmt: skip
-    parser.add_argument("--width", type=positive_int,
-                        help="input width (older spelling; --size WxH sets both)")  # fmt: skip
-    parser.add_argument("--dynamic", action="store_true", help="dynamic height and width")
-    parser.add_argument("--precision", choices=PRECISIONS, default="fp32",
-                        help="fp32 (default), fp16 (GPUs) or int8 (CPUs)")  # fmt: skip
-    parser.add_argument("--no-check", action="store_true", help="skip the ONNX Runtime check")
-    parser.add_argument("--tolerance", type=positive_float, default=None,
-                        help="max allowed abs difference of logits (default 1e-3 for fp32, "
-                        "0.05 for fp16, not checked for int8)")  # fmt: skip
-    parser.add_argument("--min-agreement", type=fraction, default=None,
-                        help="min fraction of pixels with PyTorch's argmax (default 0.97 for "
-                        "int8, not checked otherwise)")  # fmt: skip
-    parser.add_argument("--calibration", metavar="DATA",
-                        help="int8: static QDQ quantisation calibrated on crops of these images "
-                        "(a dataset root or an image folder); default dynamic")  # fmt: skip
-    parser.add_argument("--calibration-images", type=positive_int, default=64, metavar="N",
-                        help="int8: number of calibration crops (default 64)")  # fmt: skip
-    parser.add_argument("--per-channel", action="store_true",
-                        help="int8: one weight scale per output channel")  # fmt: skip
-    parser.add_argument(
-        "--overwrite", action="store_true", help="replace an --output claravid-export did not write"
-    )
-    add_debug_flag(parser)
-    return parser
-
-
-def _exported(path: str | os.PathLike) -> bool:
-    """Whether ``path`` is an ONNX file claravid-export wrote (ours to replace)."""
-    if not Path(path).is_file():
-        return False
-    try:
-        import onnx
-
-        proto = onnx.load(str(path), load_external_data=False)
-    except Exception:  # not ONNX at all: someone else's file
-        return False
-    return any(p.key == KEY or p.key.startswith(PREFIX) for p in proto.metadata_props)
-
-
-#: ``(palette name or path) -> {"name", "names", "colors", "ignore_index"}``.
-PaletteResolver = Callable[[str], dict[str, Any]]
-#: ``(folder, count, (height, width), normalisation) -> batches of normalised images``.
-CalibrationReader = Callable[[str, int, tuple[int, int], dict[str, Any]], Iterable[np.ndarray]]
-
-
-def input_size(args: argparse.Namespace) -> tuple[int, int]:
-    """``(width, height)`` from ``--size WxH``, or from the older ``--height``/``--width``
-    (either one alone leaves the other at the default)."""
-    if args.size is not None:
-        if args.height is not None or args.width is not None:
-            raise UsageError("give --size WxH or --height/--width, not both")
-        return args.size
-    return (args.width or DEFAULT_SIZE, args.height or DEFAULT_SIZE)
-
-
-def _run(
-    args: argparse.Namespace,
-    resolve_palette: PaletteResolver | None = None,
-    read_calibration: CalibrationReader | None = None,
-) -> int:
-    from claravid.models.checkpoint import model_from_checkpoint, read_checkpoint
-
-    given = given_once(
-        args.checkpoint,
-        args.checkpoint_file,
-        flag="--checkpoint",
-        metavar="CHECKPOINT",
-        what="the checkpoint",
-    )
-    checkpoint = Path(given)
-    width, height = input_size(args)
-    output = check_output_file(args.output, what="--output")
-    if output.suffix.lower() != ".onnx":
-        # A typo here (the checkpoint's own name, an image) would replace a file of another kind.
-        raise UsageError(f"--output {output} must end in .onnx")
-    # Our own earlier export may be replaced; anyone else's file only with --overwrite.
-    check_output_file(output, overwrite=args.overwrite or _exported(output), what="--output")
-    if args.precision != "int8" and (args.calibration is not None or args.per_channel):
-        raise UsageError("--calibration and --per-channel apply to --precision int8 only")
-    if args.calibration is not None and not Path(args.calibration).is_dir():
-        raise UsageError(f"--calibration {args.calibration} is not a folder of images")
-    if output.exists() and checkpoint.exists() and output.samefile(checkpoint):
-        raise UsageError(f"--output {output} is the checkpoint itself; choose another file")
-    ckpt = read_checkpoint(checkpoint)
-    model = model_from_checkpoint(ckpt, checkpoint)
-    patch = model.patch_size
-    if width % patch or height % patch:  # said in --size terms, not as a tensor shape
-        fit = [-(-v // patch) * patch for v in (width, height)]
-        raise UsageError(
-            f"input size {width}x{height} (WxH) is not a multiple of the model's patch size "
-            f"{patch}: use --size {fit[0]}x{fit[1]}"
-        )
-    config = ckpt.get("config") if isinstance(ckpt.get("config"), dict) else None
-    step = ckpt.get("step") if isinstance(ckpt.get("step"), int) else None
-    del ckpt
-    palette = None
-    data = config.get("data") if config else None
-    name = data.get("palette") if isinstance(data, dict) else None
-    if isinstance(name, str) and resolve_palette is not None:
-        palette = resolve_palette(name)
-    calibration = None
-    if args.calibration is not None:
-        if read_calibration is None:
-            raise UsageError("--calibration needs the claravid-export console script")
-        normalisation = normalisation_from_config(config)
-        size = (height, width)
-        calibration = read_calibration(
-            args.calibration, args.calibration_images, size, normalisation
-        )
-    try:
-        result = export_onnx(
-            model,
-            output,
-            height=height,
-            width=width,
-            dynamic=args.dynamic,
-            check=not args.no_check,
-            tolerance=args.tolerance,
-            precision=args.precision,
-            min_agreement=args.min_agreement,
-            config=config,
-            step=step,
-            palette=palette,
-            calibration=calibration,
-            per_channel=args.per_channel,
-        )
-    except ExportCheckError as exc:
-        print(f"claravid-export: error: {exc}; nothing was written", file=sys.stderr)
-        return EXIT_FAILED
-    print(f"wrote {result['path']} ({args.precision})")
-    return 0
-
-
-def main(
-    argv: list[str] | None = None,
-    *,
-    resolve_palette: PaletteResolver | None = None,
-    read_calibration: CalibrationReader | None = None,
-) -> int:
-    """``claravid-export --checkpoint CKPT --output model.onnx [--size WxH | --dynamic]``.
-
-    Args:
-        argv: The arguments (default ``sys.argv[1:]``).
-        resolve_palette: Turns the checkpoint's palette name into plain data for the
-            metadata (without it the file records no palette).
-        read_calibration: Reads ``--calibration`` images as normalised batches.
-    """
-
-    def run(args: argparse.Namespace) -> int:
-        return _run(args, resolve_palette, read_calibration)
-
-    return run_cli("claravid-export", run, build_parser(), argv)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

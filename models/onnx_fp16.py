@@ -37,9 +37,7 @@ def convert_to_fp16(src: str, dst: str, keep_ops: frozenset[str] = KEEP_FP32) ->
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 
-    model = onnx.load(src)
-    graph = model.graph
-    model = onnx.shape_inference.infer_shapes(model)  # every value's element type
+    model = onnx.shape_inference.infer_shapes(onnx.load(src))  # every value's element type
     graph = model.graph
     FLOAT, HALF = TensorProto.FLOAT, TensorProto.FLOAT16
     types: dict[str, int] = {}

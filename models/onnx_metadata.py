@@ -4,7 +4,7 @@
 ``claravid`` (plus a few readable ``claravid.*`` keys for tools that list the metadata), so the
 file alone says how the model was evaluated::
 
-    {"format": "claravid-onnx", "version": 1,
+    {"format": "claravid-onnx", "version": 2,
      "precision": "fp32" | "fp16" | "int8",
      "patch_size": 14, "num_classes": 8, "input_size": [630, 630] | null,
      "model_args": {... build_model arguments ...},
@@ -13,6 +13,10 @@ file alone says how the model was evaluated::
                        "formula": "(x / 255 - mean) / std"},
      "window": {"size": [h, w], "stride": [h, w], "scale", "batch_size"} (known keys only),
      "training": {"step", "config_sha256"} (known keys only)}
+
+Lists in the document are in tensor order ([h, w]); the readable ``claravid.input_size`` is
+``WxH``, like every size the project prints or parses (version 1 wrote it ``HxW``:
+:func:`read_input_size` reads both).
 
 Everything here is plain data: the models never import the data layer, so the caller passes the
 palette already resolved (see ``claravid.eval.export_cli``).
@@ -26,7 +30,9 @@ from collections.abc import Mapping
 from typing import Any
 
 FORMAT = "claravid-onnx"
-VERSION = 1
+VERSION = 2
+#: The first version whose readable ``claravid.input_size`` is WxH (version 1 wrote HxW).
+WXH_SINCE = 2
 KEY = "claravid"  # the metadata_props key holding the JSON document
 PREFIX = "claravid."  # readable keys: claravid.patch_size, claravid.palette, ...
 PRECISIONS = ("fp32", "fp16", "int8")
@@ -182,7 +188,8 @@ def metadata_props(document: Mapping[str, Any]) -> dict[str, str]:
         PREFIX + "precision": document["precision"],
     }
     if document.get("input_size"):
-        props[PREFIX + "input_size"] = "{}x{}".format(*document["input_size"])
+        height, width = document["input_size"]
+        props[PREFIX + "input_size"] = f"{width}x{height}"  # WxH, the project's convention
     if document.get("palette"):
         props[PREFIX + "palette"] = document["palette"]["name"]
     if document.get("window"):
@@ -211,3 +218,22 @@ def read_metadata(props: Mapping[str, str]) -> dict[str, Any] | None:
             f"reads ({VERSION}); upgrade claravid"
         )
     return document
+
+
+def read_input_size(props: Mapping[str, str]) -> tuple[int, int] | None:
+    """The fixed input size ``(height, width)`` of a file's metadata map; None when dynamic.
+
+    The document's ``input_size`` ([h, w]) first; else the readable ``claravid.input_size``,
+    ``WxH`` from version 2 on and ``HxW`` in version-1 files (and in files without a document,
+    which only version 1 wrote).
+    """
+    document = read_metadata(props)
+    if document is not None and document.get("input_size"):
+        height, width = document["input_size"]
+        return int(height), int(width)
+    text = props.get(PREFIX + "input_size")
+    if not text:
+        return None
+    first, second = (int(v) for v in text.lower().split("x"))
+    version = document.get("version", 1) if document is not None else 1
+    return (second, first) if version >= WXH_SINCE else (first, second)

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from claravid.models.inputs import check_image_batch
-from claravid.models.onnx_metadata import read_metadata
+from claravid.models.onnx_metadata import read_input_size, read_metadata
 
 META_PREFIX = "claravid."
 
@@ -124,10 +124,7 @@ class OnnxSegmenter:
         self.patch_size = int(meta.get(META_PREFIX + "patch_size", 14))
         self.num_classes = int(meta.get(META_PREFIX + "num_classes", 0)) or None
         self.model_args: dict[str, Any] = json.loads(meta.get(META_PREFIX + "model_args", "{}"))
-        fixed = meta.get(META_PREFIX + "input_size")
-        self.input_size: tuple[int, int] | None = (
-            tuple(int(v) for v in fixed.split("x")) if fixed else None  # type: ignore[assignment]
-        )
+        self.input_size: tuple[int, int] | None = read_input_size(meta)
         if self.num_classes is None:  # a foreign file: K from the output shape when static
             dim = self.session.get_outputs()[0].shape[1]
             self.num_classes = dim if isinstance(dim, int) and dim > 0 else None
@@ -188,8 +185,8 @@ class OnnxSegmenter:
         h, w = images.shape[-2:]
         if self.input_size is not None and (h, w) != self.input_size:
             raise ValueError(
-                f"this ONNX model was exported for {self.input_size[0]}x{self.input_size[1]} "
-                f"inputs, got {h}x{w}: resize/crop to that size or re-export with --dynamic"
+                f"this ONNX model was exported for {self.input_size[1]}x{self.input_size[0]} "
+                f"(WxH) inputs, got {w}x{h}: resize/crop to that size or re-export with --dynamic"
             )
 
     def __call__(self, images: Any) -> np.ndarray:

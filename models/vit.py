@@ -35,12 +35,15 @@ BACKBONE_NAMES: tuple[str, ...] = tuple(
 
 
 def _is_exporting() -> bool:
-    """True while tracing, exporting or compiling, when Python-side shape checks must not run."""
+    """True while tracing or exporting, when Python-side shape checks must not run.
+
+    Not while compiling (``torch.compile``): dynamo traces the check like any Python code and
+    guards on its outcome, so a compiled model refuses what the eager one refuses. Exporting
+    (``torch.export``, under the ONNX exporter) must skip it: there a dynamic H and W are
+    symbols the check would pin to the example's size.
+    """
     return bool(
-        torch.jit.is_tracing()
-        or torch.onnx.is_in_onnx_export()
-        or torch.compiler.is_exporting()
-        or torch.compiler.is_compiling()
+        torch.jit.is_tracing() or torch.onnx.is_in_onnx_export() or torch.compiler.is_exporting()
     )
 
 
@@ -254,7 +257,8 @@ class DinoVisionTransformer(nn.Module):
     def check_input(self, x: Any) -> None:
         """Raise ``TypeError``/``ValueError`` unless ``x`` is float [B,3,H,W] on the patch grid.
 
-        Skipped while tracing, exporting or compiling (shapes may be symbolic there).
+        Skipped while tracing or exporting (shapes may be symbolic there); it holds under
+        ``torch.compile``.
         """
         if not _is_exporting():
             check_image_batch(x, self.patch_size, torch.Tensor)

@@ -5,25 +5,32 @@ Parsed, not run: what each flag then does is tested with its command.
 
 import pytest
 
-from claravid import demo, synth
+from claravid import cache_cli, demo, synth
 from claravid.dsp import cli as dsp
 from claravid.eval import cli as evaluate
-from claravid.eval import predict
-from claravid.models import export
+from claravid.eval import export_cli, predict
 from claravid.train import cli as train
 
 # Each command's parser and the arguments it needs besides the ones under test.
 COMMANDS = {
     "claravid-synth": (synth.build_parser, []),
+    "claravid-cache": (cache_cli.build_parser, ["ROOT"]),
     "claravid-demo": (demo.build_parser, []),
     "claravid-dsp": (dsp.build_parser, []),
-    "claravid-export": (export.build_parser, []),
+    "claravid-export": (export_cli.build_parser, []),
     "claravid-eval": (evaluate.build_parser, []),
     "claravid-predict": (predict.build_parser, ["a.jpg"]),
     "claravid-train": (train.build_parser, ["--config", "demo"]),
 }
-WITH_PROGRESS = [c for c in COMMANDS if c != "claravid-export"]  # export shows no bar
-WITH_WORKERS = ["claravid-demo", "claravid-dsp", "claravid-eval", "claravid-predict"]
+WITH_PROGRESS = list(COMMANDS)  # export shows no bar: its --quiet leaves out the check's numbers
+WITH_WORKERS = [
+    "claravid-cache",
+    "claravid-demo",
+    "claravid-dsp",
+    "claravid-eval",
+    "claravid-predict",
+    "claravid-synth",
+]
 
 
 def _parse(command, *argv):
@@ -52,6 +59,16 @@ def test_workers_mean_the_same_everywhere(command):
     action = next(a for a in COMMANDS[command][0]()._actions if a.dest == "workers")
     assert action.help.startswith("worker processes for ")
     assert action.help.endswith(" (default 0: all in this process)")
+
+
+def test_train_workers_are_the_data_loader_workers():
+    """``claravid-train --workers N`` is ``data.num_workers=N``; without it the config's."""
+    from claravid.train.cli import overrides
+
+    assert _parse("claravid-train").workers is None
+    assert overrides(_parse("claravid-train", "--workers", "3")) == ["data.num_workers=3"]
+    action = next(a for a in train.build_parser()._actions if a.dest == "workers")
+    assert action.help.startswith("worker processes for ")
 
 
 @pytest.mark.parametrize(

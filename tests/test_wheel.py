@@ -104,7 +104,8 @@ def test_wheel_installed_outside_checkout_loads_palettes_and_a_sample(tmp_path):
     train = subprocess.run(
         [str(target / "bin" / "claravid-train"), "--config", "demo", f"data.root={data}",
          "train.steps=2", "train.batch_size=2", "data.num_workers=0", "val.every=0",
-         "val.bins=1",  # 6 frames in 4 blocks: val holds 1 of them (4/1/1 for 70/15/15 %)
+         # 6 frames of one mission make one 150 m block, all of it train: validate on all.
+         "val.bins=1", "data.val_split=all",
          f"out_dir={user / 'run'}"],
         capture_output=True, text=True, cwd=user, env=env, timeout=600,
     )  # fmt: skip

@@ -1,7 +1,9 @@
 """``claravid-train --config CONFIG [key=value ...] [--resume]`` (``python -m claravid.train``).
 
-``-o DIR`` is ``out_dir=DIR`` and ``--no-progress`` (or ``--quiet``) ``log.progress=false``, the
-flags every console script shares.
+``-o DIR`` is ``out_dir=DIR`` (the path as given: a ``${`` in it is no interpolation),
+``--workers N`` ``data.num_workers=N`` and ``--no-progress`` (or ``--quiet``)
+``log.progress=false``, the flags every console script shares. ``key=value`` overrides may stand
+before or after the flags.
 
 CONFIG is a YAML file or the name of a shipped config (``demo``, ``claravid_dpt_vitl14``, ...).
 Multi-GPU: ``torchrun --nproc_per_node=N -m claravid.train --config ...``. The last lines say
@@ -14,15 +16,23 @@ import argparse
 import shlex
 import sys
 
-from claravid.cli import UsageError, add_debug_flag, add_progress_flag, run_cli
+from claravid.cli import UsageError, add_debug_flag, add_progress_flag, non_negative_int, run_cli
 from claravid.resources import shipped_names
 
 PROG = "claravid-train"
 
 
+class _IntermixedParser(argparse.ArgumentParser):
+    """``key=value`` overrides before, between or after the flags (``--resume out_dir=x``):
+    argparse alone takes positionals in one run only."""
+
+    def parse_args(self, args=None, namespace=None):  # type: ignore[override]
+        return self.parse_intermixed_args(args, namespace)
+
+
 def build_parser() -> argparse.ArgumentParser:
     configs = ", ".join(n for n in shipped_names() if n != "augment")
-    parser = argparse.ArgumentParser(
+    parser = _IntermixedParser(
         prog=PROG,
         description="Train a DPT segmentation head on a frozen DINOv2 backbone from a YAML config.",
         epilog="Examples: claravid-train --config demo --resume; claravid-train --config "
@@ -37,6 +47,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "-o", "--output", metavar="DIR", help="run folder (the same as out_dir=DIR)"
+    )
+    parser.add_argument(
+        "--workers",
+        type=non_negative_int,
+        metavar="N",
+        help="worker processes for data loading, the same as data.num_workers=N "
+        "(default: the config's; 0: all in this process)",
     )
     add_progress_flag(parser)
     add_debug_flag(parser)
@@ -78,12 +95,16 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def overrides(args: argparse.Namespace) -> list[str]:
-    """The ``key=value`` overrides with ``-o`` and ``--no-progress`` spelled as keys."""
+    """The ``key=value`` overrides with ``-o``, ``--workers`` and ``--no-progress`` spelled as
+    keys."""
     given = list(args.overrides)
     flags = []
     if args.output is not None:
-        quoted = "'" + str(args.output).replace("'", "''") + "'"  # YAML: the path as given
-        flags.append(("-o/--output", "out_dir", quoted))
+        # YAML single quotes keep the path as given; OmegaConf reads ``\${`` as a literal ``${``.
+        path = str(args.output).replace("'", "''").replace("${", "\\${")
+        flags.append(("-o/--output", "out_dir", f"'{path}'"))
+    if getattr(args, "workers", None) is not None:
+        flags.append(("--workers", "data.num_workers", str(args.workers)))
     if args.no_progress:
         flags.append(("--no-progress", "log.progress", "false"))
     for flag, key, value in flags:

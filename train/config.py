@@ -64,7 +64,9 @@ class DataConfig:
     val_dataset: str = "claravid"  # claravid | uavid (synthetic-to-real validation)
     val_root: str | None = None  # null: data.root
     val_limit: int | None = None  # validate on the first N images only (null: all)
-    label_cache: bool = True  # decoded labels kept as small PNGs under $CLARAVID_CACHE
+    label_cache: bool = (
+        True  # label codes kept as tiled TIFFs under $CLARAVID_CACHE, read by region
+    )
     num_workers: int = 4  # DataLoader processes per rank (0: in the training process)
     crops_per_frame: int = 1  # k random crops from each decoded frame (1: the paper)
     class_weights: str = "none"  # none | inverse | median_frequency | log_inverse
@@ -252,15 +254,33 @@ def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] | str =
             ) from None
         raise ConfigError(f"cannot parse {source}: {exc}") from None
     _check_loaded(loaded, source)
+    _one_item_lists(cfg, loaded)
     cfg = _merge(cfg, loaded, source)
     if isinstance(overrides, str):  # "train.steps=5 val.every=0": one string, split on spaces
         overrides = overrides.split()
     bad = [o for o in overrides if "=" not in o or o.startswith("=")]
     if bad:
         raise ConfigError(f"override {bad[0]!r} is not key=value (e.g. train.steps=100)")
-    cfg = _merge(cfg, OmegaConf.from_dotlist(list(overrides)), "command line")
+    given = OmegaConf.from_dotlist(list(overrides))
+    _one_item_lists(cfg, given)
+    cfg = _merge(cfg, given, "command line")
     check_config(cfg)
     return cfg
+
+
+def _one_item_lists(schema: DictConfig, given: DictConfig) -> None:
+    """A single value where the schema has a list is a list of one, in place
+    (``data.split.test_missions=urban_high_1``, as ``SplitConfig`` takes a single string)."""
+    for key in list(given.keys()):
+        if key not in schema:
+            continue  # an unknown key: _merge names it
+        node, value = schema._get_node(str(key)), given._get_node(key)
+        if isinstance(node, DictConfig) and isinstance(value, DictConfig):
+            _one_item_lists(node, value)
+        elif isinstance(node, ListConfig) and not isinstance(value, (ListConfig, DictConfig)):
+            item = given[key]
+            if item is not None:
+                given[key] = [item]
 
 
 def _safe_load(text: str) -> Any:
@@ -275,6 +295,17 @@ def _require(ok: bool, key: str, value: Any, rule: str) -> None:
         raise ConfigError(f"bad value for {key}: {value!r} ({rule})")
 
 
+def _check_split(split: DictConfig) -> None:
+    """``data.split`` as ``claravid.splits.SplitConfig`` checks it, named ``data.split.*``."""
+    from claravid.splits import SplitConfigError, make_split_config
+
+    values = OmegaConf.to_container(split, resolve=True)
+    try:
+        make_split_config(values, "data.split.")
+    except SplitConfigError as exc:
+        raise ConfigError(str(exc)) from None
+
+
 def check_config(cfg: DictConfig) -> None:
     """Values the types alone do not rule out: choices, ranges, required keys."""
     for key in ("out_dir", "data.root"):
@@ -285,6 +316,7 @@ def check_config(cfg: DictConfig) -> None:
             "required: set it in the file or as key=value",
         )
     d, t, v, m = cfg.data, cfg.train, cfg.val, cfg.model
+    _check_split(d.split)
     _require(d.dataset in DATASETS, "data.dataset", d.dataset, f"one of {', '.join(DATASETS)}")
     _require(
         d.val_dataset in DATASETS,

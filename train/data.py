@@ -12,12 +12,13 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.data import DataLoader, Dataset
 
+from claravid import jpeg_region
 from claravid.masks import read_mask
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.splits import SPLITS
 from claravid.targets import UAVidSegmentation
 from claravid.train.sampler import StepSampler
-from claravid.transforms import AugmentConfig, eval_transforms, train_transforms
+from claravid.transforms import AugmentConfig, train_transforms
 
 
 class EmptySplitError(ValueError):
@@ -28,11 +29,7 @@ def _augment(cfg: DictConfig) -> AugmentConfig:
     return AugmentConfig(**OmegaConf.to_container(cfg.data.augment))  # type: ignore[arg-type]
 
 
-def _uavid(root: str | Path, split: str, palette: str, transforms: Any) -> UAVidSegmentation:
-    return UAVidSegmentation(root, split=split, palette=palette, transforms=transforms)
-
-
-def _claravid(cfg: DictConfig, root: str | Path, split: str, transforms: Any) -> Dataset:
+def _claravid(cfg: DictConfig, root: str | Path, split: str) -> Dataset:
     d = cfg.data
     return ClaraVidSegmentation(
         root,
@@ -41,7 +38,6 @@ def _claravid(cfg: DictConfig, root: str | Path, split: str, transforms: Any) ->
         altitude=list(d.altitude) if d.altitude is not None else None,
         direction=list(d.direction) if d.direction is not None else None,
         palette=d.palette,
-        transforms=transforms,
         split_config={
             "block_size": d.split.block_size,
             "fractions": tuple(d.split.fractions),
@@ -50,6 +46,7 @@ def _claravid(cfg: DictConfig, root: str | Path, split: str, transforms: Any) ->
             "test_missions": tuple(d.split.test_missions),
         },
         label_cache=d.label_cache,
+        mask_dtype=torch.uint8,  # crops and validation make what they need of it
     )
 
 
@@ -62,6 +59,17 @@ def _check_root(root: str | None, key: str) -> Path:
     return Path(root)
 
 
+def _split(cfg: DictConfig, kind: str, root: Path, split: str) -> Dataset:
+    """One split of UAVid or ClaraVid, uint8 images and masks without transforms (the one
+    branch both builders share: training crops them in `CropDataset`, validation normalises
+    them on the model's device)."""
+    if kind == "uavid":
+        return UAVidSegmentation(
+            root, split=split, palette=cfg.data.palette, mask_dtype=torch.uint8
+        )
+    return _claravid(cfg, root, split)
+
+
 def build_train_dataset(cfg: DictConfig) -> Dataset:
     """The training split, without transforms (`CropDataset` augments it).
 
@@ -70,10 +78,7 @@ def build_train_dataset(cfg: DictConfig) -> Dataset:
         EmptySplitError: the split selects no frame.
     """
     root = _check_root(cfg.data.root, "data.root")
-    if cfg.data.dataset == "uavid":
-        ds = _uavid(root, cfg.data.train_split, cfg.data.palette, None)
-    else:
-        ds = _claravid(cfg, root, cfg.data.train_split, None)
+    ds = _split(cfg, cfg.data.dataset, root, cfg.data.train_split)
     if len(ds) == 0:
         raise EmptySplitError(
             f"the {cfg.data.train_split!r} split of {root} holds no frame with this selection "
@@ -83,20 +88,31 @@ def build_train_dataset(cfg: DictConfig) -> Dataset:
 
 
 def build_val_dataset(cfg: DictConfig) -> Dataset:
-    """The validation split with evaluation transforms (normalisation only)."""
+    """The validation split, uint8 frames without transforms: the validation windows normalise
+    them on the model's device (``val_window``'s mean and std are ``data.augment``'s)."""
     key = "data.val_root" if cfg.data.val_root is not None else "data.root"
     root = _check_root(cfg.data.val_root or cfg.data.root, key)
-    transforms = eval_transforms(_augment(cfg))
-    if cfg.data.val_dataset == "uavid":
-        ds = _uavid(root, cfg.data.val_split, cfg.data.palette, transforms)
-    else:
-        ds = _claravid(cfg, root, cfg.data.val_split, transforms)
+    ds = _split(cfg, cfg.data.val_dataset, root, cfg.data.val_split)
     if len(ds) == 0:
         raise EmptySplitError(
             f"the {cfg.data.val_split!r} split of {root} holds no frame with this selection; "
             "widen the selection or change data.split (validation needs images)"
         )
     return ds
+
+
+def prepare_label_caches(datasets: list[Dataset], workers: int, say: Any = print) -> None:
+    """Build the label-cache entries the ClaraVid datasets miss, before the first step, so no
+    epoch decodes a panoptic PNG (``claravid-cache`` does the same ahead of time). Says what
+    was built and how large the cache is."""
+    for dataset in datasets:
+        if isinstance(dataset, ClaraVidSegmentation) and dataset.label_cache is not None:
+            summary = dataset.prepare_label_cache(workers=workers)
+            if summary.built:
+                say(
+                    f"label cache: {summary.built} frame(s) prepared in {summary.seconds:.1f} s, "
+                    f"{summary.bytes_per_frame / 1e3:.0f} kB per frame, in {summary.directory}"
+                )
 
 
 def split_table(dataset: Dataset) -> str | None:
@@ -114,33 +130,56 @@ def image_paths(dataset: Dataset) -> list[str]:
 
 
 class CropDataset(Dataset):
-    """k augmented crops of one decoded frame per item, each crop from its own seed.
+    """k augmented crops of one frame per item, each crop from its own seed.
 
-    Decoding a full frame costs far more than cropping and augmenting it (a 4032×3024 JPEG is
-    ~95 ms, a 630² crop's augmentations a few ms), so k > 1 multiplies images per decode.
+    A dataset that reads windows (``ClaraVidSegmentation.read_window``) decodes each crop's
+    window alone: the window is drawn from the frame's size in its headers, then only those
+    pixels of the JPEG and of the label cache are read (same pixels as a full decode). Other
+    datasets, or any dataset when the window decoder is not built, decode the frame once per
+    item and every crop is cut from it. Either way the window and the augmentations after it
+    come from the crop's seed alone, so both give the same crops, and a resumed run draws
+    exactly the crops an uninterrupted one does.
 
     Args:
         base: a dataset of uint8 samples (no transforms).
         augment: the augmentation config (crop size, probabilities ...).
         crops_per_frame: k.
+        by_window: read windows (True) or cut crops from full frames (False); None: windows
+            when the dataset reads them and the JPEG window decoder is built.
     """
 
-    def __init__(self, base: Dataset, augment: AugmentConfig, crops_per_frame: int = 1) -> None:
+    def __init__(
+        self,
+        base: Dataset,
+        augment: AugmentConfig,
+        crops_per_frame: int = 1,
+        by_window: bool | None = None,
+    ) -> None:
         self.base = base
         self.transform = train_transforms(augment)
         self.k = crops_per_frame
+        if by_window is None:
+            fast = jpeg_region.decoder() == jpeg_region.REGION_DECODE
+            by_window = fast and hasattr(base, "read_window")
+        self.by_window = by_window
 
     def __len__(self) -> int:
         return len(self.base)  # type: ignore[arg-type]
 
     def __getitem__(self, item: tuple[int, int]) -> dict[str, torch.Tensor]:
         index, seed = item
-        sample = self.base[index]
+        size = self.base.frame_size(index) if self.by_window else None  # type: ignore[attr-defined]
+        frame = None if self.by_window else self.base[index]
         images, masks = [], []
         for j in range(self.k):
             # Seeding the pipeline per crop makes the crop a function of (position, j) alone.
             self.transform.pipeline.set_random_seed((seed + j) % 2**32)
-            out = self.transform({"image": sample["image"], "mask": sample["mask"]})
+            if size is not None:
+                window = self.transform.draw_window(*size)
+                sample = self.base.read_window(index, window)  # type: ignore[attr-defined]
+            else:
+                sample = {"image": frame["image"], "mask": frame["mask"]}
+            out = self.transform({k: sample[k] for k in ("image", "mask", "crop") if k in sample})
             images.append(out["image"])
             masks.append(out["mask"].long())
         return {"image": torch.stack(images), "mask": torch.stack(masks)}

@@ -38,7 +38,7 @@ from omegaconf import DictConfig
 from torch import nn
 from tqdm.auto import tqdm
 
-from claravid import models
+from claravid import jpeg_region, models
 from claravid.cli import check_device
 from claravid.distributed import DistInfo, barrier, init_distributed
 from claravid.eval import IGNORE_INDEX, WindowConfig
@@ -60,6 +60,7 @@ from claravid.train.data import (
     class_frequencies,
     class_weights,
     image_paths,
+    prepare_label_caches,
     split_table,
 )
 from claravid.train.logs import RunLog, plot_curves, read_metrics
@@ -208,77 +209,33 @@ def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
 
     Returns a :class:`RunResult` instead when ``out_dir`` holds a finished run (nothing to do).
     """
-    check_device(cfg.train.device, "train.device")  # one line, not CUDA's traceback
-    info = init_distributed(cfg.train.device)
-    main = info.is_main
-    say = say if main else (lambda *a, **k: None)
-    device = info.device
-    torch.backends.cudnn.benchmark = device.type == "cuda"
-    if cfg.train.threads:
-        torch.set_num_threads(cfg.train.threads)
-    _seed_everything(cfg.seed)
-
+    info, say = _start_process(cfg, say)
+    device, main = info.device, info.is_main
     frames_per_step = check_batch(cfg, info.world_size)
-    train_set = build_train_dataset(cfg)
-    if cfg.data.dataset == "uavid":  # label files in a palette: the right one?
-        check_palette_fit([train_set.label_path(p) for p in train_set.images],
-                          load_palette(cfg.data.palette), "data.palette")  # fmt: skip
+    train_set = _training_data(cfg)
     cfg.train.steps = C.derive_steps(cfg, len(train_set))  # resolved: stored in config.yaml
     total = int(cfg.train.steps)
-    out = Path(cfg.out_dir)
-    # Rank 0 checks and claims out_dir; the others then read the same checkpoint (if any).
-    ckpt = prepare_out_dir(out, cfg, resume, say=say) if main else None
-    barrier()
-    if not main and resume and (out / "last.pt").is_file():
-        ckpt = load_training_checkpoint(out / "last.pt")
+    out, ckpt = _claim_out_dir(cfg, resume, info, say)
     start = int(ckpt["step"]) if ckpt else 0
     if start >= total:
-        say(f"{out}: this run is already finished (step {start}/{total}); nothing to do")
-        if (ckpt.get("metrics") or {}).get("step") != start:
-            say(f"its final validation did not complete: claravid-eval --checkpoint "
-                f"{shlex.quote(str(out / 'last.pt'))} evaluates it")  # fmt: skip
-        return RunResult(out, start, total, ckpt.get("best_miou"), ckpt.get("best_step"),
-                         ckpt.get("metrics") or {}, already_finished=True)  # fmt: skip
-    val_set = build_val_dataset(cfg)
-    if (shares := split_table(train_set)) is not None:
-        say(shares)
-    palette = load_palette(cfg.data.palette)
-    if cfg.data.val_dataset == "uavid":  # UAVid val labels in data.palette: the right one?
-        check_palette_fit([val_set.label_path(p) for p in val_set.images], palette,
-                          "data.palette")  # fmt: skip
-
-    m = cfg.model
-    model = models.build_model(
-        m.backbone,
-        num_classes=palette.num_classes,
-        weights=m.weights,
-        layers=list(m.layers) if m.layers is not None else None,
-        features=m.features,
-        out_channels=list(m.out_channels) if m.out_channels is not None else None,
-        use_cls=m.use_cls,
-        backbone_kwargs=dict(m.backbone_kwargs),
-    )
+        return _finished(out, ckpt, start, total, say)
+    val_set, palette = _validation_data(cfg, train_set, say)
+    if info.is_main:  # one process builds the label cache; the others wait and then read it
+        prepare_label_caches([train_set, val_set], cfg.data.num_workers, say)
+        say(f"RGB crops: {jpeg_region.decoder()}")
+    barrier()
+    model = _build_model(cfg, palette.num_classes)
     dtype = amp_dtype(cfg.train.amp, device)
     # Checked before the first step, not at the first validation.
     window = _val_window(cfg, model.patch_size, precision_name(dtype))
-    trained: nn.Module = model if m.freeze_backbone else EndToEnd(model)
+    trained: nn.Module = model if cfg.model.freeze_backbone else EndToEnd(model)
     model.to(device)
     optimizer = build_optimizer(model, cfg)
     scheduler = build_scheduler(optimizer, cfg, total)
     # fp16 overflows without loss scaling; bf16 has float32's range and needs none.
     scaler = torch.amp.GradScaler(device.type, enabled=dtype == torch.float16)
     say(f"precision: {precision_name(dtype)} (train.amp={cfg.train.amp}, {device.type})")
-
-    weights = None
-    if cfg.data.class_weights != "none":  # counting decodes every label file of the split
-        # Class frequencies are cached on disk: rank 0 counts, the others then read the cache.
-        if main:
-            counts = class_frequencies(train_set, palette.num_classes)
-        barrier()
-        if not main:
-            counts = class_frequencies(train_set, palette.num_classes)
-        weights = class_weights(counts, cfg.data.class_weights).to(device)  # type: ignore[union-attr]
-
+    weights = _class_weights(cfg, train_set, palette.num_classes, info)
     best_miou, best_step, last_val = None, None, {}
     if ckpt:
         restore_model(model, ckpt)
@@ -289,37 +246,129 @@ def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
         best_miou, best_step = ckpt.get("best_miou"), ckpt.get("best_step")
         last_val = ckpt.get("metrics") or {}
         say(f"resuming {out / 'last.pt'} at step {start}/{total}")
+    module, ddp = _wrap(trained, cfg, info)
+    validator = Validator(val_set, list(palette.names), window, cfg.val.bins, cfg.data.val_limit,
+                          device)  # fmt: skip
+    batches = _batches(cfg, train_set, info, start)
+    if ckpt:  # after the loader drew its base seed from the torch RNG
+        set_rng_state(ckpt["rng"])
+    return Run(
+        cfg=cfg, info=info, out=out, start=start, total=total, model=model, module=module,
+        ddp=ddp, optimizer=optimizer, scheduler=scheduler, scaler=scaler, dtype=dtype,
+        weights=weights, validator=validator, batches=batches,
+        log=RunLog(out, start, cfg.log.tensorboard) if main else None,
+        frames_per_step=frames_per_step, say=say, best_miou=best_miou, best_step=best_step,
+        last_val=last_val,
+    )  # fmt: skip
 
+
+def _start_process(cfg: DictConfig, say: Any) -> tuple[DistInfo, Any]:
+    """Device, process group, threads and seeds; only rank 0 speaks."""
+    check_device(cfg.train.device, "train.device")  # one line, not CUDA's traceback
+    info = init_distributed(cfg.train.device)
+    torch.backends.cudnn.benchmark = info.device.type == "cuda"
+    if cfg.train.threads:
+        torch.set_num_threads(cfg.train.threads)
+    _seed_everything(cfg.seed)
+    return info, say if info.is_main else (lambda *a, **k: None)
+
+
+def _training_data(cfg: DictConfig) -> Any:
+    """The training split, its UAVid labels checked against ``data.palette``."""
+    train_set = build_train_dataset(cfg)
+    if cfg.data.dataset == "uavid":  # label files in a palette: the right one?
+        check_palette_fit([train_set.label_path(p) for p in train_set.images],
+                          load_palette(cfg.data.palette), "data.palette")  # fmt: skip
+    return train_set
+
+
+def _claim_out_dir(
+    cfg: DictConfig, resume: bool, info: DistInfo, say: Any
+) -> tuple[Path, dict[str, Any] | None]:
+    """Rank 0 checks and claims ``out_dir``; the others then read the same checkpoint."""
+    out = Path(cfg.out_dir)
+    ckpt = prepare_out_dir(out, cfg, resume, say=say) if info.is_main else None
+    barrier()
+    if not info.is_main and resume and (out / "last.pt").is_file():
+        ckpt = load_training_checkpoint(out / "last.pt")
+    return out, ckpt
+
+
+def _finished(out: Path, ckpt: dict[str, Any], start: int, total: int, say: Any) -> RunResult:
+    say(f"{out}: this run is already finished (step {start}/{total}); nothing to do")
+    if (ckpt.get("metrics") or {}).get("step") != start:
+        say(f"its final validation did not complete: claravid-eval --checkpoint "
+            f"{shlex.quote(str(out / 'last.pt'))} evaluates it")  # fmt: skip
+    return RunResult(out, start, total, ckpt.get("best_miou"), ckpt.get("best_step"),
+                     ckpt.get("metrics") or {}, already_finished=True)  # fmt: skip
+
+
+def _validation_data(cfg: DictConfig, train_set: Any, say: Any) -> tuple[Any, Any]:
+    """The validation split and the palette, the split's balance said once."""
+    val_set = build_val_dataset(cfg)
+    if (shares := split_table(train_set)) is not None:
+        say(shares)
+    palette = load_palette(cfg.data.palette)
+    if cfg.data.val_dataset == "uavid":  # UAVid val labels in data.palette: the right one?
+        check_palette_fit([val_set.label_path(p) for p in val_set.images], palette,
+                          "data.palette")  # fmt: skip
+    return val_set, palette
+
+
+def _build_model(cfg: DictConfig, num_classes: int) -> models.Segmenter:
+    m = cfg.model
+    return models.build_model(
+        m.backbone,
+        num_classes=num_classes,
+        weights=m.weights,
+        layers=list(m.layers) if m.layers is not None else None,
+        features=m.features,
+        out_channels=list(m.out_channels) if m.out_channels is not None else None,
+        use_cls=m.use_cls,
+        backbone_kwargs=dict(m.backbone_kwargs),
+    )
+
+
+def _class_weights(
+    cfg: DictConfig, train_set: Any, num_classes: int, info: DistInfo
+) -> torch.Tensor | None:
+    if cfg.data.class_weights == "none":
+        return None
+    # Counting decodes every label file of the split; the counts are cached on disk: rank 0
+    # counts, the others then read the cache.
+    if info.is_main:
+        counts = class_frequencies(train_set, num_classes)
+    barrier()
+    if not info.is_main:
+        counts = class_frequencies(train_set, num_classes)
+    return class_weights(counts, cfg.data.class_weights).to(info.device)  # type: ignore[union-attr]
+
+
+def _wrap(
+    trained: nn.Module, cfg: DictConfig, info: DistInfo
+) -> tuple[nn.Module, nn.parallel.DistributedDataParallel | None]:
+    """What the steps call: the model under DDP (several ranks) and compiled (train.compile)."""
     module: nn.Module = trained
     ddp = None
     if info.world_size > 1:
-        ids = [device.index] if device.type == "cuda" else None
+        ids = [info.device.index] if info.device.type == "cuda" else None
         module = ddp = nn.parallel.DistributedDataParallel(trained, device_ids=ids)
     if cfg.train.compile:
         module = torch.compile(module)
     module.train()
+    return module, ddp
 
-    v = cfg.val
-    validator = Validator(val_set, list(palette.names), window, v.bins, cfg.data.val_limit,
-                          device)  # fmt: skip
+
+def _batches(cfg: DictConfig, train_set: Any, info: DistInfo, start: int) -> Any:
+    """The training loader's iterator from step ``start`` (complexity-balanced if asked)."""
     groups = None
     if cfg.data.sampler == "complexity_balanced":
         groups = complexity_groups(image_paths(train_set), cfg.data.sampler_bins)
     loader = build_train_loader(
         train_set, cfg, rank=info.rank, world_size=info.world_size, start_step=start,
-        pin_memory=device.type == "cuda", groups=groups,
+        pin_memory=info.device.type == "cuda", groups=groups,
     )  # fmt: skip
-    log = RunLog(out, start, cfg.log.tensorboard) if main else None
-    batches = iter(loader)  # draws the loader's base seed from the torch RNG: restore after it
-    if ckpt:
-        set_rng_state(ckpt["rng"])
-    return Run(
-        cfg=cfg, info=info, out=out, start=start, total=total, model=model, module=module,
-        ddp=ddp, optimizer=optimizer, scheduler=scheduler, scaler=scaler, dtype=dtype,
-        weights=weights, validator=validator, batches=batches, log=log,
-        frames_per_step=frames_per_step, say=say, best_miou=best_miou, best_step=best_step,
-        last_val=last_val,
-    )  # fmt: skip
+    return iter(loader)  # draws the loader's base seed from the torch RNG
 
 
 def optimiser_step(run: Run, step: int, lr: float) -> tuple[float, float]:
@@ -409,7 +458,9 @@ def _val_window(cfg: DictConfig, patch_size: int, precision: str) -> WindowConfi
     """
     v = cfg.val
     try:
-        window = WindowConfig(v.window, v.stride, v.scale, v.batch_size, precision)
+        augment = cfg.data.augment  # the normalisation the training crops get
+        window = WindowConfig(v.window, v.stride, v.scale, v.batch_size, precision,
+                              mean=tuple(augment.mean), std=tuple(augment.std))  # fmt: skip
         window.check_patch(patch_size)
     except ValueError as exc:
         raise ValueError(

@@ -309,8 +309,11 @@ def preprocess(gray: np.ndarray, blur: bool = True, ksize: int = 3) -> np.ndarra
 
 
 def gray_complexity(gray: np.ndarray, metric: str = "delent") -> float:
-    """Apply the metric named ``metric`` (``delent``, ``glcment``, ``pixent``) to a uint8 image."""
-    return _FUNCTIONS[check_metric(metric)](gray)
+    """Apply the metric named ``metric`` (``delent``, ``glcment``, ``pixent``) to a uint8 image.
+
+    An image of one grey level has entropy 0, never −0.0 (``−Σ p log p`` of p = 1).
+    """
+    return float(_FUNCTIONS[check_metric(metric)](gray)) + 0.0
 
 
 def image_complexity(

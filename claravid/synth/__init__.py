@@ -13,6 +13,7 @@ something. Output is byte-identical for a seed.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -23,6 +24,7 @@ from claravid import modalities
 from claravid.cli import (
     add_debug_flag,
     add_progress_flag,
+    add_workers_flag,
     given_once,
     non_negative_int,
     parse_size,
@@ -137,6 +139,7 @@ def synthesize(
     direction: str | Sequence[str] | None = None,
     progress: bool = False,
     overwrite: bool = False,
+    workers: int = 0,
 ) -> Path:
     """Write a synthetic ClaraVid tree and return its root.
 
@@ -152,6 +155,9 @@ def synthesize(
         direction: ``h``, ``v`` (one or a list); default both.
         progress: show a tqdm progress bar over frames.
         overwrite: write into a non-empty folder the generator did not write.
+        workers: render the viewpoints (altitude×direction of a mission) in this many worker
+            processes; 0 renders them here. Every frame has its own seed: the files are the
+            same either way.
 
     Raises:
         ValueError: a bad size, frame count, seed, mission, altitude or direction.
@@ -176,33 +182,50 @@ def synthesize(
 
         bar = tqdm(total=total, desc="claravid-synth", unit="frame")
     res = _ground_resolution((width, height))
-    mission_index = {k: i for i, k in enumerate(MISSIONS)}
+    jobs = [(root, key, seed, res, alt, direction, frames_per_viewpoint, (width, height))
+            for key in keys for alt in alts for direction in dirs]  # fmt: skip
     try:
-        for key in keys:
-            m = mission_index[key]
-            world = build_world(key, seed, res)
-            for alt in alts:
-                for direction in dirs:
-                    # Seeded by the keys' fixed indices, so a subset renders the same frames.
-                    a_i, d_i = list(ALTITUDES).index(alt), list(DIRECTIONS).index(direction)
-                    rng = np.random.default_rng([seed, m, 2, a_i, d_i])
-                    poses = flight_poses(frames_per_viewpoint, alt, direction, rng)
-                    for i, pose in enumerate(poses):
-                        noise = np.random.default_rng([seed, m, 3, a_i, d_i, i])
-                        frame = render(world, pose, (width, height), noise)
-                        _write(
-                            root / MISSIONS[key],
-                            viewpoint_folder(alt, direction),
-                            f"{i:06d}",
-                            frame,
-                            pose,
-                        )
-                        if bar is not None:
-                            bar.update()
+        if workers > 0 and len(jobs) > 1:
+            import concurrent.futures as cf
+
+            with cf.ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
+                for done in cf.as_completed([pool.submit(_render_viewpoint, *j) for j in jobs]):
+                    count = done.result()  # a worker's error is raised here
+                    if bar is not None:
+                        bar.update(count)
+        else:
+            for job in jobs:
+                count = _render_viewpoint(*job)
+                if bar is not None:
+                    bar.update(count)
     finally:
         if bar is not None:
             bar.close()
     return root
+
+
+@functools.lru_cache(maxsize=1)
+def _world(key: str, seed: int, res: float):
+    """One mission's world, kept for its next viewpoint (in this process or a worker)."""
+    return build_world(key, seed, res)
+
+
+def _render_viewpoint(
+    root: Path, key: str, seed: int, res: float, alt: str, direction: str, frames: int,
+    size: tuple[int, int],
+) -> int:  # fmt: skip
+    """Render and write the frames of one altitude×direction of a mission; their count."""
+    m = list(MISSIONS).index(key)
+    world = _world(key, seed, res)
+    # Seeded by the keys' fixed indices, so a subset renders the same frames.
+    a_i, d_i = list(ALTITUDES).index(alt), list(DIRECTIONS).index(direction)
+    rng = np.random.default_rng([seed, m, 2, a_i, d_i])
+    poses = flight_poses(frames, alt, direction, rng)
+    for i, pose in enumerate(poses):
+        noise = np.random.default_rng([seed, m, 3, a_i, d_i, i])
+        frame = render(world, pose, size, noise)
+        _write(root / MISSIONS[key], viewpoint_folder(alt, direction), f"{i:06d}", frame, pose)
+    return len(poses)
 
 
 def _write(mission_dir: Path, viewpoint: str, stem: str, frame, pose: np.ndarray) -> None:
@@ -239,6 +262,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--overwrite", action="store_true", help="write into a non-empty folder that is not ours"
     )
+    add_workers_flag(parser, "rendering (one viewpoint each at a time)")
     add_progress_flag(parser)
     add_debug_flag(parser)
     return parser
@@ -257,6 +281,7 @@ def _run(args: argparse.Namespace) -> int:
         direction=args.direction,
         progress=not args.no_progress,
         overwrite=args.overwrite,
+        workers=args.workers,
     )
     print(root, file=sys.stdout)
     return 0

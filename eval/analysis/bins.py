@@ -1,4 +1,4 @@
-"""Complexity bins: which images fall in which delentropy range (FORMAT.md §8).
+"""Complexity bins: which images fall in which delentropy range (docs/evaluation.md).
 
 - Quantile bins: sort images by (complexity, path) and split the order into K contiguous groups
   the way ``numpy.array_split`` does (the first ``n % K`` groups get one more image). Ties are
@@ -14,6 +14,7 @@ import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -50,29 +51,70 @@ def parse_edges(text: str | Sequence[float]) -> list[float]:
     return edges
 
 
-def quantile_bins(values: Sequence[float], paths: Sequence[str], k: int) -> list[Bin]:
+def quantile_bins(
+    values: Sequence[float],
+    paths: Sequence[str],
+    k: int,
+    *,
+    order: Sequence[int] | None = None,
+    what: str = "images",
+) -> list[Bin]:
     """K bins of (almost) equal size over the images sorted by (value, path).
 
+    Args:
+        values: one value per item.
+        paths: one path per item (the tie-break).
+        k: the number of bins.
+        order: the items already sorted by another tie-break (tiles: value, path, row,
+            column); default (value, path).
+        what: what the items are, for the message.
+
     Raises:
-        ValueError: ``k < 1``, more bins than images, a NaN value, or lengths differ.
+        ValueError: ``k < 1``, more bins than items, a NaN value, or lengths differ.
     """
     values = np.asarray(values, dtype=np.float64)
-    if len(values) != len(paths):
+    if order is None and len(values) != len(paths):
         raise ValueError(f"{len(values)} values for {len(paths)} paths")
     if k < 1:
         raise ValueError(f"the number of bins must be at least 1, got {k}")
     if k > len(values):
         raise ValueError(
-            f"{k} bins for {len(values)} images: use at most {len(values)} bins (--bins)"
+            f"{k} bins for {len(values)} {what}: use at most {len(values)} bins (--bins)"
         )
     if np.isnan(values).any():
         raise ValueError("complexity values contain NaN: every image needs a complexity value")
-    order = sorted(range(len(values)), key=lambda i: (values[i], str(paths[i])))
+    if order is None:
+        order = sorted(range(len(values)), key=lambda i: (values[i], str(paths[i])))
     groups = np.array_split(np.asarray(order, dtype=np.int64), k)
     return [
         Bin(name, float(values[g].min()), float(values[g].max()), tuple(int(i) for i in g))
         for name, g in zip(bin_names(k), groups, strict=True)
     ]
+
+
+def choose_bins(
+    values: Sequence[float],
+    paths: Sequence[str],
+    measure: str,
+    *,
+    bins: int = 3,
+    edges: Sequence[float] | None = None,
+    order: Sequence[int] | None = None,
+    what: str = "images",
+) -> tuple[list[Bin], list[int], dict[str, Any]]:
+    """The bins of a report: between fixed ``edges`` when given, else ``bins`` quantile bins.
+
+    Returns:
+        ``(bins, outside, binning)``: the bins, the items outside every fixed bin, and the
+        report's ``binning`` entry (``measure``, ``method``, ``edges`` or ``bins``) without
+        what is outside (a report lists images, a tile report counts tiles).
+    """
+    if edges is not None:
+        bin_list, outside = fixed_bins(values, edges)
+        binning = {"measure": measure, "method": "fixed", "edges": [float(e) for e in edges]}
+        return bin_list, outside, binning
+    bin_list = quantile_bins(values, paths, bins, order=order, what=what)
+    return bin_list, [], {"measure": measure, "method": "quantile", "bins": bins}
 
 
 def fixed_bins(values: Sequence[float], edges: Sequence[float]) -> tuple[list[Bin], list[int]]:

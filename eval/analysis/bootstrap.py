@@ -1,4 +1,4 @@
-"""Cluster percentile bootstrap for the report's numbers (FORMAT.md §8, "Uncertainty").
+"""Cluster percentile bootstrap for the report's numbers (docs/evaluation.md).
 
 Neighbouring ClaraVid frames overlap, so images are not independent samples: the resampled
 unit is a *cluster* of dependent images (a spatial block, a UAVid sequence, a folder, or the
@@ -21,6 +21,7 @@ and its own images only, never on the other bins; the same seed gives identical 
 
 from __future__ import annotations
 
+import os
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -35,6 +36,15 @@ METHOD = "cluster percentile bootstrap"
 _CHUNK = 256
 #: Cells counted per bincount in :func:`draw_counts` (~L2-sized).
 _CACHE_CELLS = 32768
+#: The fewest resamples an interval may rest on. A 95 % percentile interval reads the 2.5th and
+#: 97.5th percentiles: with 100 resamples each end rests on 2-3 values (with 1, 2 or 5 it is
+#: an extreme value or an interpolation that can exclude the estimate). Efron & Tibshirani
+#: advise 1000 or more for percentile intervals; 100 is the floor, 1000 the default.
+MIN_RESAMPLES = 100
+#: The fewest image pairs, and clusters, a correlation interval is computed from: with 3
+#: points every resample holding all three gives the same r (a zero-width "interval"), and 3
+#: clusters have only 10 distinct resamples.
+MIN_CORRELATION = 4
 
 
 @dataclass(frozen=True)
@@ -54,20 +64,32 @@ class Bootstrap:
     cluster: str = "image"
 
     def __post_init__(self) -> None:
+        # The one validation of these settings: the command line builds a Bootstrap from its
+        # flags, so each message names the flag beside the setting.
         if isinstance(self.resamples, bool) or not isinstance(self.resamples, (int, np.integer)):
-            raise ValueError(f"bootstrap resamples must be an integer, got {self.resamples!r}")
+            raise ValueError(f"--bootstrap (resamples) must be an integer, got {self.resamples!r}")
         if self.resamples < 0:
             raise ValueError(
-                f"bootstrap resamples must be >= 0 (0 switches intervals off), got {self.resamples}"
+                f"--bootstrap (resamples) must be >= 0 (0 switches intervals off), got "
+                f"{self.resamples}"
+            )
+        if 0 < self.resamples < MIN_RESAMPLES:
+            raise ValueError(
+                f"--bootstrap (resamples) {self.resamples} is too few for a percentile interval: "
+                f"use at least {MIN_RESAMPLES} (1000 is usual), or 0 to switch intervals off"
             )
         if not 0.0 < float(self.level) < 1.0:
-            raise ValueError(f"the interval level must be between 0 and 1, got {self.level}")
+            raise ValueError(
+                f"--ci-level (the interval level) must be between 0 and 1 (e.g. 0.95), got "
+                f"{self.level}"
+            )
         if self.cluster not in CLUSTER_UNITS:
             raise ValueError(
-                f"unknown cluster unit {self.cluster!r}; choose one of {', '.join(CLUSTER_UNITS)}"
+                f"unknown --cluster {self.cluster!r} (the resampled unit); use one of "
+                f"{', '.join(CLUSTER_UNITS)}"
             )
         if self.seed < 0:
-            raise ValueError(f"the seed must be >= 0, got {self.seed}")
+            raise ValueError(f"--seed (the bootstrap seed) must be >= 0, got {self.seed}")
 
     @property
     def enabled(self) -> bool:
@@ -108,6 +130,7 @@ def draw_counts(num_clusters: int, resamples: int, rng: np.random.Generator) -> 
         sums to C.
     """
     c, r = int(num_clusters), int(resamples)
+    check_memory(r * c * 4, f"the draw counts of {r} resamples x {c} clusters")
     counts = np.zeros((r, c), dtype=np.int32)
     if c == 0 or r == 0:
         return counts
@@ -123,12 +146,50 @@ def draw_counts(num_clusters: int, resamples: int, rng: np.random.Generator) -> 
     return counts
 
 
+def count_clusters(ids: np.ndarray) -> int:
+    """The number of clusters of ids numbered 0..C-1 (:func:`cluster_ids`); 0 for no image."""
+    ids = np.asarray(ids)
+    return int(ids.max()) + 1 if ids.size else 0
+
+
+def check_memory(nbytes: int, what: str) -> None:
+    """Refuse, before allocating it, an array larger than the memory available now.
+
+    Raises:
+        ValueError: ``nbytes`` exceeds the memory available (a user's mistake, one line naming
+            the size and the flag to lower, instead of a ``MemoryError`` traceback).
+    """
+    try:
+        free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):  # not a POSIX system: let numpy decide
+        return
+    if nbytes > free:
+        raise ValueError(
+            f"{what} need {nbytes / 2**30:.1f} GiB and {free / 2**30:.1f} GiB are free: lower "
+            "--bootstrap (1000 resamples is usual)"
+        )
+
+
 def _local_clusters(clusters: np.ndarray, members: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
     """Members' indices and their local cluster index 0..C-1 (sorted cluster-id order)."""
     members = np.asarray(members, dtype=np.int64).reshape(-1)
     labels = np.asarray(clusters)[members]
     _, local = np.unique(labels, return_inverse=True)
     return members, local.reshape(-1).astype(np.int64)
+
+
+def _set_clusters(
+    clusters: np.ndarray,
+    members: Sequence[int],
+    settings: Bootstrap,
+    counts: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, int, str | None]:
+    """A set's members, their local clusters, the number of clusters, and why the set gets no
+    interval (None: it gets one). Fixed ``counts`` (tests) need 2 clusters but no settings."""
+    members, local = _local_clusters(clusters, members)
+    num = count_clusters(local)
+    note = _note(settings, num) if counts is None or num < 2 else None
+    return members, local, num, note
 
 
 def _per_cluster(rows: np.ndarray, local: np.ndarray, num_clusters: int) -> np.ndarray:
@@ -235,9 +296,7 @@ def confusion_interval(
         ``{"miou_ci": [lo, hi] | None, "pixel_acc_ci": [lo, hi] | None, "ci_note": str | None}``.
     """
     confusions = np.asarray(confusions)
-    members, local = _local_clusters(clusters, members)
-    num = int(local.max()) + 1 if local.size else 0
-    note = _note(settings, num) if counts is None else (None if num >= 2 else _note(settings, num))
+    members, local, num, note = _set_clusters(clusters, members, settings, counts)
     if note is not None:
         return {"miou_ci": None, "pixel_acc_ci": None, "ci_note": note}
     k = confusions.shape[-1]
@@ -273,9 +332,7 @@ def mean_interval(
     members = np.asarray(members, dtype=np.int64).reshape(-1)
     members = members[np.isfinite(values[members])]
     mean = float(values[members].mean()) if members.size else None
-    members, local = _local_clusters(clusters, members)
-    num = int(local.max()) + 1 if local.size else 0
-    note = _note(settings, num) if counts is None else (None if num >= 2 else _note(settings, num))
+    members, local, num, note = _set_clusters(clusters, members, settings, counts)
     if note is not None:
         return {"mean": mean, "ci": None, "ci_note": note}
     rows = np.stack([values[members], np.ones(len(members))], axis=1)
@@ -337,11 +394,13 @@ def correlation_interval(
     """
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     keep = np.flatnonzero(np.isfinite(x) & np.isfinite(y))
-    members, local = _local_clusters(clusters, keep)
-    num = int(local.max()) + 1 if local.size else 0
-    note = _note(settings, num) if counts is None else (None if num >= 2 else _note(settings, num))
-    if note is not None or len(members) < 3:
-        note = note or f"{len(members)} image pairs: a correlation needs at least 3"
+    members, local, num, note = _set_clusters(clusters, keep, settings, counts)
+    if note is None and min(len(members), num) < MIN_CORRELATION:
+        note = (
+            f"{len(members)} image pairs in {num} {settings.cluster} clusters: a correlation "
+            f"interval needs at least {MIN_CORRELATION} of each"
+        )
+    if note is not None:
         return {"pearson_ci": None, "spearman_ci": None, "ci_note": note}
     draws = _counts_for(num, settings, counts, stream)
     xs, ys = x[members], y[members]
@@ -415,7 +474,7 @@ def paired_gap(
     conf_a, conf_b = np.asarray(conf_a), np.asarray(conf_b)
     if conf_a.shape != conf_b.shape:
         raise ValueError(f"paired confusions differ in shape: {conf_a.shape} vs {conf_b.shape}")
-    members, local = _local_clusters(clusters, members)
+    members, local, num, note = _set_clusters(clusters, members, settings, counts)
     gap = _point_miou(conf_b, members) - _point_miou(conf_a, members)
     out: dict[str, Any] = {
         "gap": gap if np.isfinite(gap) else None,
@@ -423,8 +482,6 @@ def paired_gap(
         "p_value": None,
         "ci_note": None,
     }
-    num = int(local.max()) + 1 if local.size else 0
-    note = _note(settings, num) if counts is None else (None if num >= 2 else _note(settings, num))
     if note is not None:
         return {**out, "ci_note": note}
     k = conf_a.shape[-1]
@@ -466,11 +523,9 @@ def unpaired_gap(
         ("a", conf_a, clusters_a, members_a),
         ("b", conf_b, clusters_b, members_b),
     ):
-        members, local = _local_clusters(clusters, members)
+        members, local, num, note = _set_clusters(clusters, members, settings)
         k = conf.shape[-1]
         point.append(_point_miou(conf, members))
-        num = int(local.max()) + 1 if local.size else 0
-        note = _note(settings, num)
         if note is not None:
             notes.append(note)
             continue

@@ -5,6 +5,12 @@ Each report B after the first (the baseline A) gets its mIoU gap B − A, overal
 A and B cover the same images (same paths): the same clusters are resampled for both and the gap
 is taken per resample, which removes the spread between images. *Unpaired* otherwise: each
 report resamples its own clusters independently (a wider interval), and the comparison says so.
+
+*Not comparable* (no gap, interval or p-value computed, and the reason given): reports of
+different class sets (palettes), whose mIoUs average different classes; and the same run seen
+twice, a report against its own re-binning or merge: the same images with the same per-image
+confusion for every image, i.e. the same predictions (any gap is 0 and any "significance" an
+artefact of the binning).
 """
 
 from __future__ import annotations
@@ -16,8 +22,14 @@ from typing import Any
 import numpy as np
 
 from claravid.cli import UsageError
-from claravid.eval.analysis.bins import Bin, fixed_bins, quantile_bins
-from claravid.eval.analysis.bootstrap import Bootstrap, cluster_ids, paired_gap, unpaired_gap
+from claravid.eval.analysis.bins import Bin, choose_bins
+from claravid.eval.analysis.bootstrap import (
+    Bootstrap,
+    cluster_ids,
+    count_clusters,
+    paired_gap,
+    unpaired_gap,
+)
 from claravid.eval.analysis.table import EvalResult
 
 
@@ -51,15 +63,32 @@ def comparison_warnings(reports: Sequence[dict[str, Any]], names: Sequence[str])
     return out
 
 
+def not_comparable(a: EvalResult, b: EvalResult, name_a: str, name_b: str) -> str | None:
+    """Why B's gap to A means nothing (None: it does): other classes, or the same predictions."""
+    if a.classes != b.classes:
+        return (f"{name_b} and {name_a} score different class sets ({len(b.classes)} vs "
+                f"{len(a.classes)} classes, other palettes): their mIoUs average different "
+                "classes")  # fmt: skip
+    a_ids, b_ids = a.image_ids(), b.image_ids()
+    if sorted(a_ids) != sorted(b_ids):
+        return None
+    where = {p: i for i, p in enumerate(b_ids)}
+    order = np.asarray([where[p] for p in a_ids], dtype=np.int64)
+    if np.array_equal(a.confusions, b.confusions[order]):
+        return (f"{name_b} and {name_a} hold the same predictions of the same images (one run, "
+                "re-binned or merged): a model against itself")  # fmt: skip
+    return None
+
+
 def report_bins(result: EvalResult, report: dict[str, Any]) -> list[Bin]:
     """The bins of a report, re-derived from its per-image table and its recorded binning."""
     binning = report["source"].get("binning", {})
     values = result.complexity.get(binning.get("measure", ""))
     if values is None or not binning.get("method"):
         return []
-    if binning["method"] == "fixed":
-        return fixed_bins(values, binning["edges"])[0]
-    return quantile_bins(values, result.paths, int(binning["bins"]))
+    edges = binning["edges"] if binning["method"] == "fixed" else None
+    bins = int(binning.get("bins") or 1)
+    return choose_bins(values, result.paths, binning["measure"], bins=bins, edges=edges)[0]
 
 
 def cluster_unit(results: Sequence[EvalResult], names: Sequence[str], wanted: str | None) -> str:
@@ -95,6 +124,11 @@ def gap_analysis(
     for j, (result, report, name) in enumerate(
         zip(results[1:], reports[1:], names[1:], strict=True), 1
     ):
+        reason = not_comparable(base, result, names[0], name)
+        if reason is not None:
+            comparisons.append({"report": name, "comparable": False, "reason": reason,
+                                "paired": False, "overall": None, "bins": []})  # fmt: skip
+            continue
         pair = _Pair(base, result, base_ids, settings)
         other_bins = report_bins(result, report)
         entry: dict[str, Any] = {
@@ -117,7 +151,7 @@ def gap_analysis(
     return {
         "baseline": names[0],
         "comparisons": comparisons,
-        "uncertainty": settings.describe(int(base_ids.max()) + 1 if base_ids.size else 0),
+        "uncertainty": settings.describe(count_clusters(base_ids)),
     }
 
 
@@ -126,11 +160,14 @@ class _Pair:
 
     def __init__(self, a: EvalResult, b: EvalResult, a_ids: np.ndarray, settings: Bootstrap):
         self.a, self.b, self.a_ids, self.settings = a, b, a_ids, settings
-        self.paired = sorted(b.paths) == sorted(a.paths) and b.classes == a.classes
+        # Images are known by their key below the data root, so two spellings of one root
+        # (a symlink, ../s) still pair.
+        a_ids, b_ids = a.image_ids(), b.image_ids()
+        self.paired = sorted(b_ids) == sorted(a_ids) and b.classes == a.classes
         if self.paired:
             # B's rows in A's image order; both resample A's clusters.
-            where = {p: i for i, p in enumerate(b.paths)}
-            order = np.asarray([where[p] for p in a.paths], dtype=np.int64)
+            where = {p: i for i, p in enumerate(b_ids)}
+            order = np.asarray([where[p] for p in a_ids], dtype=np.int64)
             self.b_conf = b.confusions[order]
             self.b_to_a = np.argsort(order)
         else:

@@ -15,11 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from claravid.eval.analysis.bins import Bin, fixed_bins, quantile_bins
+from claravid.eval.analysis.bins import Bin, choose_bins
 from claravid.eval.analysis.bootstrap import (
     Bootstrap,
     cluster_ids,
     correlation_interval,
+    count_clusters,
     mean_interval,
 )
 from claravid.eval.analysis.measures import PRIMARY_MEASURE
@@ -78,12 +79,7 @@ def metric_report(
     }  # fmt: skip
     bin_list: list[Bin] = []
     if values is not None:
-        if edges is not None:
-            bin_list, outside = fixed_bins(values, edges)
-            binning = {"measure": measure, "method": "fixed", "edges": [float(e) for e in edges]}
-        else:
-            bin_list, outside = quantile_bins(values, paths, bins), []
-            binning = {"measure": measure, "method": "quantile", "bins": bins}
+        bin_list, outside, binning = choose_bins(values, paths, measure, bins=bins, edges=edges)
         binning["outside"] = [paths[i] for i in outside]
         report["binning"] = binning
     report["bins"] = []
@@ -118,7 +114,7 @@ def metric_report(
             report["correlation"][m][name] = entry
     report["metrics"] = list(metrics)
     report["convention"] = CONVENTION
-    uncertainty = settings.describe(int(ids.max()) + 1 if ids.size else 0)
+    uncertainty = settings.describe(count_clusters(ids))
     uncertainty["warnings"] = []
     for name in metrics:
         rows = [{"name": r["name"], **r["scores"][name]} for r in report["bins"]]

@@ -1,9 +1,9 @@
 """From per-image confusions and complexities to the report's numbers.
 
 Overall, per complexity bin and per group (mission or viewpoint): number of images, range, mIoU,
-per-class IoU and pixel accuracy, each from the group's summed confusion (FORMAT.md §8); per
-image: its own mIoU and pixel accuracy; Pearson and Spearman correlations between each
-complexity measure and per-image mIoU, with n. With a
+per-class IoU and pixel accuracy, each from the group's summed confusion (see
+docs/report-format.md); per image: its own mIoU and pixel accuracy; Pearson and Spearman
+correlations between each complexity measure and per-image mIoU, with n. With a
 :class:`~claravid.eval.analysis.bootstrap.Bootstrap` and a cluster label per image, every mIoU,
 pixel accuracy and correlation also gets its cluster percentile bootstrap interval (``miou_ci``,
 ``pixel_acc_ci``, ``pearson_ci``, ``spearman_ci``; ``ci_note`` says why one is null). Everything
@@ -18,13 +18,14 @@ from typing import Any
 
 import numpy as np
 
-from claravid.eval.analysis.bins import Bin, fixed_bins, quantile_bins
+from claravid.eval.analysis.bins import Bin, choose_bins
 from claravid.eval.analysis.bootstrap import (
     Bootstrap,
     cluster_ids,
     confusion_features,
     confusion_interval,
     correlation_interval,
+    count_clusters,
 )
 from claravid.eval.analysis.measures import PRIMARY_MEASURE
 from claravid.eval.analysis.metrics import (
@@ -110,12 +111,7 @@ def stratify(
     bin_list: list[Bin] = []
     outside: list[int] = []
     if values is not None:
-        if edges is not None:
-            bin_list, outside = fixed_bins(values, edges)
-            binning = {"measure": measure, "method": "fixed", "edges": [float(e) for e in edges]}
-        else:
-            bin_list = quantile_bins(values, paths, bins)
-            binning = {"measure": measure, "method": "quantile", "bins": bins}
+        bin_list, outside, binning = choose_bins(values, paths, measure, bins=bins, edges=edges)
         binning["outside"] = [paths[i] for i in outside]
         report["binning"] = binning
     report["bins"] = []
@@ -183,7 +179,7 @@ def add_intervals(
                 values, per_image_miou, ids, settings, stream=f"correlation:{measure}"
             )
         )
-    uncertainty = settings.describe(int(ids.max()) + 1 if ids.size else 0)
+    uncertainty = settings.describe(count_clusters(ids))
     uncertainty["warnings"] = order_warnings(report["bins"], "miou_ci", "miou")
     report["uncertainty"] = uncertainty
 

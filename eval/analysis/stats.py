@@ -35,11 +35,28 @@ def correlation(x: Sequence[float], y: Sequence[float]) -> dict[str, Any]:
 
 
 def group_profile(values: np.ndarray) -> dict[str, Any]:
-    """The DSP profile (μ, σ, α, β) of a group's delentropy values, None where undefined."""
+    """The DSP profile (μ, σ, α, β) of a group's delentropy values, None where undefined.
+
+    α and β need at least :data:`MIN_BETA_FIT` values: the fit scales the range to [0, 1], so two
+    values are always its two ends and their "fit" (α = β ≈ 0) says nothing. Then α and β are
+    None and ``note`` says why.
+    """
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateProfileWarning)
         profile = fit_profile(values.tolist())
-    return {k: finite_or_none(getattr(profile, k)) for k in ("mu", "sigma", "alpha", "beta")}
+    out = {k: finite_or_none(getattr(profile, k)) for k in ("mu", "sigma", "alpha", "beta")}
+    n = int(np.isfinite(np.asarray(values, dtype=float)).sum())
+    if n < MIN_BETA_FIT:
+        out["alpha"] = out["beta"] = None
+        out["note"] = (f"a Beta fit needs at least {MIN_BETA_FIT} images, the group has {n}: its "
+                       "two ends are scaled to 0 and 1, which fixes no shape")  # fmt: skip
+    elif out["alpha"] is None and out["sigma"] == 0:
+        out["note"] = "all delentropy values are equal: no Beta shape"
+    return out
+
+
+#: The fewest values a group's Beta fit (α, β) is reported for.
+MIN_BETA_FIT = 3
 
 
 def order_warnings(rows: Sequence[Mapping[str, Any]], ci: str, value: str) -> list[str]:

@@ -9,6 +9,7 @@ every tile's delentropy and confusion. An evaluation builds it
 
 from __future__ import annotations
 
+import posixpath
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -40,6 +41,10 @@ class EvalResult:
         palette: the palette's name.
         source: where the numbers came from (written to the report as is).
         tiles: every tile's delentropy and confusion (``--tiles``), or None.
+        identity: what identifies each image across reports: the real file behind its path
+            (symlinks and ``..`` resolved, :func:`claravid.eval.report.files.load_result`), so
+            one image reached through two spellings of the data root is one image; None: the
+            normalised path.
     """
 
     paths: list[str]
@@ -51,6 +56,7 @@ class EvalResult:
     palette: str
     source: dict[str, Any] = field(default_factory=dict)
     tiles: TileTable | None = None
+    identity: list[str] | None = None
 
     def groups(self, by: str | None) -> dict[str, list[int]] | None:
         """Image indices per unit (:func:`~claravid.eval.analysis.units.group_indices`), or None."""
@@ -63,6 +69,13 @@ class EvalResult:
     def cluster_labels(self, unit: str) -> list[str]:
         """The bootstrap cluster of each image for ``unit`` (:func:`unit_labels`)."""
         return unit_labels(self.paths, self.attributes, unit)
+
+    def image_ids(self) -> list[str]:
+        """What identifies each image across reports (:attr:`identity`, else the path with
+        ``.`` and ``..`` resolved)."""
+        if self.identity is not None:
+            return list(self.identity)
+        return [posixpath.normpath(str(p).replace("\\", "/")) for p in self.paths]
 
     def default_cluster(self) -> str:
         """The dataset's default cluster unit, or the first fallback these images carry."""
@@ -83,10 +96,13 @@ def merge_results(results: Sequence[EvalResult], names: Sequence[str]) -> EvalRe
                 f"cannot merge {name} (palette {result.palette}, {len(result.classes)} classes) "
                 f"with {names[0]} (palette {first.palette}, {len(first.classes)} classes)"
             )
-        for path in result.paths:
-            if path in seen:
-                raise UsageError(f"{path} is in both {seen[path]} and {name}: merge disjoint runs")
-            seen[path] = name
+        for image, path in zip(result.image_ids(), result.paths, strict=True):
+            if image in seen:
+                raise UsageError(
+                    f"{path} (image {image}) is in both {seen[image]} and {name}: merge "
+                    "disjoint runs"
+                )
+            seen[image] = name
     measures = [m for m in first.complexity if all(m in r.complexity for r in results)]
     attributes = [a for a in first.attributes if all(a in r.attributes for r in results)]
     order = np.argsort(np.asarray([p for r in results for p in r.paths], dtype=str), kind="stable")
@@ -108,4 +124,5 @@ def merge_results(results: Sequence[EvalResult], names: Sequence[str]) -> EvalRe
         palette=first.palette,
         source=source,
         tiles=concat_tables([r.tiles for r in results], [len(r.paths) for r in results], order),
+        identity=cat([r.image_ids() for r in results]),
     )

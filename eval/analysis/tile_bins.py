@@ -8,17 +8,23 @@ row, column), split as ``numpy.array_split``; or fixed edges), with each bin's m
 summed confusion and its cluster bootstrap interval (a tile is resampled with its image's
 cluster), and correlates tile delentropy with the tile's own mIoU (classes with union 0 left
 out; tiles without a valid pixel left out of the correlation and counted).
+
+A tile bin's interval draws from the generator of the image bin of the same name
+(``bin:<name>``), the tiles' correlation from the images' (``correlation:delent``): the same
+clusters are drawn the same number of times for both, so tiles the size of the image (one per
+image) give exactly the images' bins, intervals and correlation.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from claravid.eval.analysis.bins import Bin, bin_names, fixed_bins
+from claravid.eval.analysis.bins import Bin, choose_bins
 from claravid.eval.analysis.bootstrap import (
     Bootstrap,
     cluster_ids,
@@ -117,23 +123,33 @@ def concat_tables(
 
 def tile_bins(
     table: TileTable, paths: Sequence[str], bins: int, edges: Sequence[float] | None
-) -> tuple[list[Bin], list[int]]:
-    """The tiles' bins (and the tiles outside fixed edges).
+) -> tuple[list[Bin], list[int], dict[str, Any]]:
+    """The tiles' bins, the tiles outside fixed edges, and the ``binning`` entry.
 
     Quantile bins: tiles sorted by (delentropy, image path, row, column), split as
     ``numpy.array_split``; fixed edges: as images (:func:`claravid.eval.analysis.bins.fixed_bins`).
     """
-    if edges is not None:
-        return fixed_bins(table.delent, edges)
-    if bins > len(table):
-        raise ValueError(f"{bins} bins for {len(table)} tiles: use at most {len(table)} (--bins)")
     path_rank = np.argsort(np.argsort(np.asarray(paths, dtype=str), kind="stable"), kind="stable")
     order = np.lexsort((table.col, table.row, path_rank[table.image], table.delent))
-    out = []
-    for name, members in zip(bin_names(bins), np.array_split(order, bins), strict=True):
-        values = table.delent[members]
-        out.append(Bin(name, float(values.min()), float(values.max()), tuple(members.tolist())))
-    return out, []
+    return choose_bins(table.delent, paths, "delent", bins=bins, edges=edges, order=order,
+                       what="tiles")  # fmt: skip
+
+
+def _warn_outside(delent: np.ndarray, outside: int) -> None:
+    """Say when fixed edges leave tiles in no bin, with the tiles' delentropy range (the
+    report only counts them; images outside are warned the same way)."""
+    if not outside:
+        return
+    finite = delent[np.isfinite(delent)]
+    span = f"{finite.min():.2f}..{finite.max():.2f}" if finite.size else "n/a"
+    every = "no tile is in a bin" if outside == len(delent) else "they are in no bin"
+    warnings.warn(
+        f"{outside} of {len(delent)} tile(s) fall outside --edges (delentropy of the tiles: "
+        f"{span}): {every}; a tile has fewer pixels than its image and measures lower, so "
+        "give edges over the tiles' range",
+        UserWarning,
+        stacklevel=4,
+    )
 
 
 def tile_report(
@@ -159,7 +175,7 @@ def tile_report(
     Returns:
         ``{"size", "num_tiles", "num_without_labels", "binning", "bins", "correlation"}``.
     """
-    bin_list, outside = tile_bins(table, paths, bins, edges)
+    bin_list, outside, binning = tile_bins(table, paths, bins, edges)
     ids = None
     if bootstrap is not None:
         labels = list(paths) if clusters is None else list(clusters)
@@ -173,7 +189,7 @@ def tile_report(
         row.update(confusion_scores(conf, classes))
         if ids is not None:
             interval = confusion_interval(
-                table.confusions, ids, members, bootstrap, stream=f"tiles:bin:{b.name}",
+                table.confusions, ids, members, bootstrap, stream=f"bin:{b.name}",
                 features=features,
             )  # fmt: skip
             row.update(interval)
@@ -183,12 +199,10 @@ def tile_report(
     corr = correlation(table.delent, tile_miou)
     if ids is not None:
         corr.update(correlation_interval(table.delent, tile_miou, ids, bootstrap,
-                                         stream="tiles:correlation"))  # fmt: skip
-    binning: dict[str, Any] = {"measure": "delent"}
+                                         stream="correlation:delent"))  # fmt: skip
     if edges is not None:
-        binning.update(method="fixed", edges=[float(e) for e in edges], outside=len(outside))
-    else:
-        binning.update(method="quantile", bins=bins)
+        binning["outside"] = len(outside)
+        _warn_outside(table.delent, len(outside))
     return {
         "size": table.size,
         "num_tiles": len(table),

@@ -21,6 +21,7 @@ import torch
 
 from claravid import distributed
 from claravid.cli import USER_ERRORS, UsageError
+from claravid.dsp.tiles import check_tile_count, check_tile_size
 from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.tile_bins import TileTable
@@ -32,6 +33,7 @@ from claravid.eval.inference.label_maps import write_prediction as save_label_ma
 from claravid.eval.inference.run_model import ImageScore, evaluate_model
 from claravid.eval.inference.sources import ModelSource
 from claravid.eval.inference.windows import WindowConfig
+from claravid.jpeg_region import image_size
 
 
 @dataclass
@@ -73,20 +75,40 @@ def _raise_any(error: BaseException | None) -> None:
             raise (UsageError if user else RuntimeError)(f"another rank failed: {message}")
 
 
+@dataclass(frozen=True)
+class CollectSettings:
+    """How :func:`collect` works through the images.
+
+    Attributes:
+        window: sliding windows (model only; default :class:`WindowConfig`'s).
+        measures: complexity measures, ``delent`` first.
+        tile_size: also each tile's delentropy and confusion (see
+            :mod:`claravid.eval.analysis.tile_bins`).
+        hardest: how many of the hardest images' predictions to keep for overlays.
+        workers: processes for complexity and for decoding images (0: threads only).
+        device: where the model runs.
+        save_predictions: also write the model's label maps here.
+        allow_missing: skip images without a prediction instead of failing.
+        progress: show a progress bar.
+    """
+
+    window: WindowConfig | None = None
+    measures: Sequence[str] = ("delent",)
+    tile_size: int | None = None
+    hardest: int = 4
+    workers: int = 0
+    device: torch.device | str = "cpu"
+    save_predictions: str | Path | None = None
+    allow_missing: bool = False
+    progress: bool = False
+
+
 def collect(
     data: EvalData,
     *,
     model: ModelSource | None = None,
     predictions: str | Path | None = None,
-    window: WindowConfig | None = None,
-    measures: Sequence[str] = ("delent",),
-    workers: int = 0,
-    device: torch.device | str = "cpu",
-    save_predictions: str | Path | None = None,
-    allow_missing: bool = False,
-    hardest: int = 4,
-    tile_size: int | None = None,
-    progress: bool = False,
+    settings: CollectSettings | None = None,
     source: dict[str, Any] | None = None,
 ) -> Collected:
     """Per-image confusions and complexities of ``data`` from a model or saved predictions.
@@ -98,26 +120,25 @@ def collect(
         data: the images (:func:`claravid.eval.inference.data.open_data`).
         model: a loaded model (exclusive with ``predictions``).
         predictions: the folder of saved label maps.
-        window: sliding windows (model only).
-        measures: complexity measures, ``delent`` first.
-        workers: processes for complexity and for decoding images (0: threads only).
-        device: where the model runs.
-        save_predictions: also write the model's label maps here.
-        allow_missing: skip images without a prediction instead of failing.
-        hardest: how many of the hardest images' predictions to keep for overlays.
-        tile_size: also each tile's delentropy and confusion (see
-            :mod:`claravid.eval.analysis.tile_bins`).
-        progress: show a progress bar.
+        settings: windows, measures, tiles, workers, device... (default
+            :class:`CollectSettings`).
         source: the report's ``source`` entries.
     """
+    s = settings or CollectSettings()
+    measures, workers, tile_size, hardest = s.measures, s.workers, s.tile_size, s.hardest
+    save_predictions = s.save_predictions
     if (model is None) == (predictions is None):
         raise ValueError("give exactly one of a model and a predictions folder")
     k = data.palette.num_classes
     skipped: list[int] = []
     present = list(range(len(data)))
     if predictions is not None:
-        present, skipped = check_missing(predictions, data, allow_missing)
+        present, skipped = check_missing(predictions, data, s.allow_missing)
     mine = [present[i] for i in distributed.shard_indices(len(present))]
+    if tile_size is not None and mine:  # before any work: a grid too fine for the first image
+        check_tile_size(tile_size)
+        width, height = image_size(data.paths[mine[0]])
+        check_tile_count((height, width), tile_size, str(data.paths[mine[0]]))
     keeper = Hardest(hardest if model is not None and save_predictions is None else 0)
     error: BaseException | None = None
     confusions: list[np.ndarray] = []
@@ -150,12 +171,12 @@ def collect(
                 model.model,
                 data.dataset,
                 k,
-                window,
-                device=device,
+                s.window,
+                device=s.device,
                 indices=mine,
                 num_workers=workers,
                 tile_size=tile_size,
-                progress=progress,
+                progress=s.progress,
                 on_score=on_score,
             )
             confusions = [s.confusion for s in scores]
@@ -163,7 +184,7 @@ def collect(
         else:
             threads = max(1, workers)
             scored = label_map_confusions(
-                data, predictions, mine, threads=threads, tile_size=tile_size, progress=progress
+                data, predictions, mine, threads=threads, tile_size=tile_size, progress=s.progress
             )
             confusions, tile_confs = [c for c, _ in scored], [t for _, t in scored]
         values = job.result()

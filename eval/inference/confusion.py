@@ -20,7 +20,6 @@ def confusion_matrix(
     prediction: torch.Tensor | np.ndarray,
     target: torch.Tensor | np.ndarray,
     num_classes: int,
-    ignore_index: int = IGNORE_INDEX,
 ) -> torch.Tensor:
     """Pixel confusion of one image or batch: int64 [K, K], rows = truth, columns = prediction.
 
@@ -30,9 +29,10 @@ def confusion_matrix(
 
     Args:
         prediction: predicted train ids, any integer shape.
-        target: ground-truth train ids of the same shape; ``ignore_index`` pixels are skipped.
+        target: ground-truth train ids of the same shape; pixels of
+            :data:`~claravid.eval.analysis.metrics.IGNORE_INDEX` (255, the one ignore id every
+            palette uses) are skipped.
         num_classes: K.
-        ignore_index: the ground-truth value to skip.
 
     Raises:
         ValueError: shapes differ, or an id outside ``[0, K)`` (other than the ignore index in
@@ -46,29 +46,29 @@ def confusion_matrix(
     on_cpu = all(
         not isinstance(a, torch.Tensor) or a.device.type == "cpu" for a in (prediction, target)
     )
-    if on_cpu and num_classes < 255 and 0 <= ignore_index < 256:
+    if on_cpu and num_classes < 255:
         pred = _as_uint8(prediction)
         truth = _as_uint8(target)
         if pred is not None and truth is not None:
-            return torch.from_numpy(_confusion_uint8(pred, truth, num_classes, ignore_index))
+            return torch.from_numpy(_confusion_uint8(pred, truth, num_classes))
     prediction = torch.as_tensor(prediction)
     target = torch.as_tensor(target, device=prediction.device)
     target = target.reshape(-1).long()
     prediction = prediction.reshape(-1).long()
-    valid = target != ignore_index
+    valid = target != IGNORE_INDEX
     target, prediction = target[valid], prediction[valid]
     for name, ids in (("ground truth", target), ("prediction", prediction)):
         if ids.numel() and (int(ids.min()) < 0 or int(ids.max()) >= num_classes):
             bad = ids[(ids < 0) | (ids >= num_classes)].unique()[:8].tolist()
-            _raise_outside(name, bad, num_classes, ignore_index)
+            _raise_outside(name, bad, num_classes)
     counts = torch.bincount(target * num_classes + prediction, minlength=num_classes**2)
     return counts.reshape(num_classes, num_classes)
 
 
-def _raise_outside(name: str, bad: list[int], num_classes: int, ignore_index: int) -> None:
+def _raise_outside(name: str, bad: list[int], num_classes: int) -> None:
     raise ValueError(
         f"{name} holds ids {bad} outside the palette's {num_classes} classes "
-        f"(ignore index {ignore_index})"
+        f"(ignore index {IGNORE_INDEX})"
     )
 
 
@@ -85,17 +85,15 @@ def _as_uint8(ids: torch.Tensor | np.ndarray) -> np.ndarray | None:
     return np.ascontiguousarray(array.reshape(1, -1) if array.ndim != 2 else array)
 
 
-def _confusion_uint8(
-    pred: np.ndarray, truth: np.ndarray, num_classes: int, ignore_index: int
-) -> np.ndarray:
+def _confusion_uint8(pred: np.ndarray, truth: np.ndarray, num_classes: int) -> np.ndarray:
     k = num_classes
     if pred.size == 0:
         return np.zeros((k, k), dtype=np.int64)
     top = int(pred.max())
     if top >= k:  # only an error where the truth is not ignored
-        bad = np.unique(pred[(truth != ignore_index) & (pred >= k)])[:8].tolist()
+        bad = np.unique(pred[(truth != IGNORE_INDEX) & (pred >= k)])[:8].tolist()
         if bad:
-            _raise_outside("prediction", bad, k, ignore_index)
+            _raise_outside("prediction", bad, k)
     # Fused index = base[truth] + prediction: class c starts row c * k; the ignore index and
     # ids outside the palette get ranges past the K×K cells, the latter counted to be reported.
     if top < k and k * k + 2 * k <= 256:
@@ -106,7 +104,7 @@ def _confusion_uint8(
         ignored, outside, span, dtype, depth = k * k, k * k + 256, 256, np.uint16, cv2.CV_16U
     base = np.full(256, outside, dtype=dtype)
     base[:k] = np.arange(k, dtype=dtype) * k
-    base[ignore_index] = ignored
+    base[IGNORE_INDEX] = ignored
     bins = outside + span
     if pred.size < 1 << 24:  # float32 histogram counts are exact below 2^24
         index = cv2.add(cv2.LUT(truth, base), pred, dtype=depth)
@@ -114,8 +112,8 @@ def _confusion_uint8(
     else:
         counts = np.bincount((base[truth].astype(np.int64) + pred).ravel(), minlength=bins)
     if counts[outside:].any():
-        bad = np.unique(truth[(truth != ignore_index) & (truth >= k)])[:8].tolist()
-        _raise_outside("ground truth", bad, k, ignore_index)
+        bad = np.unique(truth[(truth != IGNORE_INDEX) & (truth >= k)])[:8].tolist()
+        _raise_outside("ground truth", bad, k)
     return counts[: k * k].reshape(k, k)
 
 
@@ -124,7 +122,6 @@ def tile_confusions(
     target: torch.Tensor | np.ndarray,
     num_classes: int,
     size: int,
-    ignore_index: int = IGNORE_INDEX,
 ) -> np.ndarray:
     """The confusion of every tile of one image: int64 [rows, cols, K, K].
 
@@ -141,7 +138,7 @@ def tile_confusions(
     for r in range(len(ys) - 1):
         for c in range(len(xs) - 1):
             window = (slice(ys[r], ys[r + 1]), slice(xs[c], xs[c + 1]))
-            conf = confusion_matrix(prediction[window], target[window], num_classes, ignore_index)
+            conf = confusion_matrix(prediction[window], target[window], num_classes)
             out[r, c] = conf.cpu().numpy()
     return out
 
@@ -151,14 +148,13 @@ def image_confusion(
     target: torch.Tensor | np.ndarray,
     num_classes: int,
     tile_size: int | None = None,
-    ignore_index: int = IGNORE_INDEX,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """An image's confusion (int64 [K, K]) and, with ``tile_size``, its tiles' confusions.
 
     The tiles cover every pixel once, so their sum is the image's confusion: counted once.
     """
     if tile_size is None:
-        conf = confusion_matrix(prediction, target, num_classes, ignore_index)
+        conf = confusion_matrix(prediction, target, num_classes)
         return conf.cpu().numpy(), None
-    tiles = tile_confusions(prediction, target, num_classes, tile_size, ignore_index)
+    tiles = tile_confusions(prediction, target, num_classes, tile_size)
     return tiles.sum(axis=(0, 1)), tiles

@@ -11,7 +11,6 @@ sequence, and every image's parent folder. :class:`EvalData` gathers these behin
 from __future__ import annotations
 
 import contextlib
-import copy
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -29,7 +28,6 @@ from claravid.masks import check_palette_fit
 from claravid.masks import read_mask as read_label_mask
 from claravid.palettes import Palette, load_palette
 from claravid.segmentation import ClaraVidSegmentation
-from claravid.transforms import eval_transforms
 
 
 class KeyedDataset(Dataset):
@@ -56,8 +54,8 @@ class EvalData:
     Attributes:
         name: ``claravid``, ``uavid`` or ``folder``.
         palette: the label palette (train ids, names, colours).
-        dataset: samples with normalised images (``eval_transforms``), ``key`` and ``index``.
-        raw: the same samples without transforms (uint8 image), for overlays.
+        dataset: samples with uint8 images [3,H,W] (normalised on the model's device, see
+            :mod:`claravid.eval.inference.windows`), ``mask``, ``key`` and ``index``.
         paths: the RGB file of each index.
         keys: the prediction name of each index.
         attributes: per-index unit labels (:mod:`claravid.eval.analysis.units`): ``mission``,
@@ -68,7 +66,6 @@ class EvalData:
     name: str
     palette: Palette
     dataset: Dataset
-    raw: Dataset
     paths: list[str]
     keys: list[str]
     read_mask_fn: Callable[[int], Any]
@@ -96,40 +93,42 @@ def folder_labels(paths: list[str], root: Path) -> list[str]:
     return [Path(image_key(Path(p), root)).parent.as_posix() or "." for p in paths]
 
 
-@dataclass
-class _Opened:
-    raw: Any
-    transformed: Dataset
-    paths: list[str]
-    keys: list[str]
-    read_mask: Callable[[int], Any]
-    attributes: dict[str, list[str]] = field(default_factory=dict)
+def _keyed(
+    name: str,
+    pal: Palette,
+    raw: Any,
+    paths: list[str],
+    keys: list[str],
+    read_mask: Callable[[int], Any],
+    attributes: dict[str, list[str]] | None = None,
+) -> EvalData:
+    """The opened dataset as :class:`EvalData`, its uint8 samples keyed."""
+    return EvalData(
+        name=name,
+        palette=pal,
+        dataset=KeyedDataset(raw, keys),
+        paths=paths,
+        keys=keys,
+        read_mask_fn=read_mask,
+        attributes=attributes or {},
+    )
 
 
-def _with_transforms(dataset: Any, transforms: Any) -> Any:
-    """The same dataset (frame list shared, nothing listed or read again) with ``transforms``.
-
-    Building it a second time would list the tree and, for ClaraVid splits, read every
-    extrinsics file again.
-    """
-    view = copy.copy(dataset)
-    view.transforms = transforms
-    return view
-
-
-def _claravid(
-    root: Path, split: str, pal: Palette, selection: dict[str, Any], norm: Any = None
-) -> _Opened:
-    raw = ClaraVidSegmentation(root, split=split, palette=pal, **selection)
+def _claravid(root: Path, split: str, pal: Palette, selection: dict[str, Any]) -> EvalData:
+    # Labels through the label cache (prepared by claravid-cache, else built on first read):
+    # a whole-frame read of its tiles costs a fraction of decoding the panoptic PNG.
+    raw = ClaraVidSegmentation(root, split=split, palette=pal, label_cache=True,
+                               mask_dtype=torch.uint8, **selection)  # fmt: skip
     attributes = {
         "mission": [f.mission for f in raw.frames],
         "viewpoint": [f.viewpoint for f in raw.frames],
     }
     with contextlib.suppress(OSError, ValueError):  # blocks need the frames' extrinsics
         attributes["block"] = raw.block_ids()
-    return _Opened(
+    return _keyed(
+        "claravid",
+        pal,
         raw,
-        _with_transforms(raw, eval_transforms(norm)),
         [str(f.paths["rgb"]) for f in raw.frames],
         [f.key for f in raw.frames],
         raw.read_mask,
@@ -154,15 +153,16 @@ def _as_list(value: Any) -> list[str] | None:
     return [value] if isinstance(value, str) else [str(v) for v in value]
 
 
-def _uavid(root: Path, split: str, pal: Palette, norm: Any = None, labels: bool = True) -> _Opened:
-    raw = targets.UAVidSegmentation(root, split=split, palette=pal)
+def _uavid(root: Path, split: str, pal: Palette, labels: bool = True) -> EvalData:
+    raw = targets.UAVidSegmentation(root, split=split, palette=pal, mask_dtype=torch.uint8)
     if labels:
         if not raw.has_labels:
             raise ValueError(f"UAVid {split} has no labels to evaluate against; use val or train")
         check_palette_fit([raw.label_path(p) for p in raw.images], pal)
-    return _Opened(
+    return _keyed(
+        "uavid",
+        pal,
         raw,
-        _with_transforms(raw, eval_transforms(norm)),
         [str(p) for p in raw.images],
         [image_key(p, root) for p in raw.images],  # as the samples' "key"
         lambda i: read_label_mask(raw.label_path(raw.images[i]), pal),
@@ -175,20 +175,22 @@ def _folder(
     masks: Path | None,
     palette: Any,
     pal: Palette,
-    norm: Any = None,
     labels: bool = True,
-) -> _Opened:
+) -> EvalData:
     if labels and masks is None:
         raise ValueError("--dataset folder needs --masks: the folder of label images")
     if labels and palette is None:
         raise ValueError("--dataset folder needs --palette: the palette its masks are written in")
 
-    raw = targets.FolderSegmentation(root, masks, palette=pal if masks is not None else None)
+    raw = targets.FolderSegmentation(
+        root, masks, palette=pal if masks is not None else None, mask_dtype=torch.uint8
+    )
     if masks is not None:
         check_palette_fit(list(raw.masks or []), pal)
-    return _Opened(
+    return _keyed(
+        "folder",
+        pal,
         raw,
-        _with_transforms(raw, eval_transforms(norm)),
         [str(p) for p in raw.images],
         list(raw.keys),
         lambda i: read_label_mask(raw.masks[i], pal),
@@ -203,7 +205,6 @@ def open_data(
     palette: str | Path | None = None,
     masks: str | Path | None = None,
     selection: dict[str, Any] | None = None,
-    normalisation: dict[str, Any] | None = None,
     labels: bool = True,
 ) -> EvalData:
     """Open the images to evaluate.
@@ -218,7 +219,6 @@ def open_data(
         masks: the folder of label images mirroring ``root`` (``folder`` only).
         selection: ClaraVid ``missions``, ``altitude``, ``direction`` and ``split_config``
             (e.g. what a training checkpoint used).
-        normalisation: ``{"mean", "std"}`` of the model's input (default ImageNet's).
         labels: False opens the images alone (``--scores``: no labels, no masks needed).
 
     Raises:
@@ -230,25 +230,16 @@ def open_data(
     pal = load_palette(palette or ("claravid" if dataset == "claravid" else "uavid"))
     describe: dict[str, Any] = {"dataset": dataset, "data": str(root), "split": str(split)}
     if dataset == "claravid":
-        opened = _claravid(root, split, pal, selection or {}, normalisation)
-        describe["selection"] = _selection_used(opened.raw, selection or {})
+        data = _claravid(root, split, pal, selection or {})
+        describe["selection"] = _selection_used(data.dataset.dataset, selection or {})
     elif dataset == "uavid":
-        opened = _uavid(root, split, pal, normalisation, labels)
+        data = _uavid(root, split, pal, labels)
     else:
         mask_root = None if masks is None else Path(masks).absolute()
-        opened = _folder(root, mask_root, palette, pal, normalisation, labels)
+        data = _folder(root, mask_root, palette, pal, labels)
         describe.update(split=None, masks=None if mask_root is None else str(mask_root))
-    if not opened.paths:
+    if not data.paths:
         raise ValueError(f"no images to evaluate in {root} (split {split})")
-    opened.attributes["folder"] = folder_labels(opened.paths, root)
-    return EvalData(
-        name=dataset,
-        palette=pal,
-        dataset=KeyedDataset(opened.transformed, opened.keys),
-        raw=KeyedDataset(opened.raw, opened.keys),
-        paths=opened.paths,
-        keys=opened.keys,
-        read_mask_fn=opened.read_mask,
-        attributes=opened.attributes,
-        describe=describe,
-    )
+    data.attributes["folder"] = folder_labels(data.paths, root)
+    data.describe = describe
+    return data

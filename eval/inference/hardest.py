@@ -80,7 +80,7 @@ def hardest_items(
     for pos in order:
         key = result.keys[pos]
         pred = kept.get(int(pos))
-        sample = data.raw[index_of[key]]
+        sample = data.dataset[index_of[key]]
         mask = np.asarray(sample["mask"], dtype=np.uint8)
         if pred is None:
             for folder in prediction_dirs:
@@ -106,10 +106,8 @@ def hardest_items(
     return items
 
 
-def error_map(
-    prediction: np.ndarray, mask: np.ndarray, ignore_index: int = IGNORE_INDEX
-) -> np.ndarray:
-    """uint8 [H, W]: 1 where the prediction is wrong, 0 where right, 2 where ignored."""
+def error_map(prediction: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """uint8 [H, W]: 1 where the prediction is wrong, 0 where right, 2 where ignored (255)."""
     out = (np.asarray(prediction) != np.asarray(mask)).astype(np.uint8)
-    out[np.asarray(mask) == ignore_index] = 2
+    out[np.asarray(mask) == IGNORE_INDEX] = 2
     return out

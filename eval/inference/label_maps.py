@@ -100,7 +100,8 @@ def predictions_defaults(directory: str | Path, palette: str | None = None) -> d
     claravid-predict); a ``palette`` given by the user must agree with it.
 
     Raises:
-        UsageError: the folder does not exist, or ``palette`` contradicts the marker.
+        UsageError: the folder does not exist, ``palette`` contradicts the marker, or neither
+            the marker nor ``palette`` names the palette.
     """
     directory = Path(directory)
     if not directory.exists():
@@ -110,9 +111,14 @@ def predictions_defaults(directory: str | Path, palette: str | None = None) -> d
     try:
         marker = json.loads((directory / MARKER).read_text(encoding="utf-8"))
     except (OSError, ValueError):  # no marker (label maps of another program): nothing known
-        return {}
+        marker = None
     written = marker.get("palette") if isinstance(marker, dict) else None
     if not isinstance(written, str):
+        if palette is None:  # a default palette would score another palette's ids silently
+            raise UsageError(
+                f"--predictions {directory} has no {MARKER} saying which palette its ids "
+                "belong to: pass --palette (e.g. --palette uavid)"
+            )
         return {}
     if palette is not None:
         classes = marker.get("classes")

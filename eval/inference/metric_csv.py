@@ -1,8 +1,9 @@
 """Per-image metrics from a CSV file: the input of ``claravid-eval --scores FILE.csv``.
 
 The CSV holds a ``path`` column (relative to the data root, or absolute) and one or more numeric
-columns (PSNR, SSIM, a depth error...). Rows are numbered as in a spreadsheet: the header is
-row 1. Every error names the rows it is about.
+columns (PSNR, SSIM, a depth error...). Rows are numbered as a spreadsheet numbers them, by the
+file's lines: the header is row 1 and blank lines count (a record after two blank lines below the
+header is row 4). Every error names the rows it is about.
 """
 
 from __future__ import annotations
@@ -12,10 +13,12 @@ import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from claravid.cli import UsageError
+from claravid.dsp import METRICS as MEASURES
 
 PATH_COLUMN = "path"
 _SHOWN = 5  # rows named in an error
@@ -27,18 +30,43 @@ def _rows(numbers: Sequence[int]) -> str:
     return f"row{'s' if len(numbers) > 1 else ''} {shown}{more}"
 
 
-def read_metrics_csv(path: str | Path, root: str | Path) -> tuple[list[str], dict[str, np.ndarray]]:
+class MetricsCSV(NamedTuple):
+    """A scores CSV: image paths (absolute, normalised, in CSV order), metric column -> float64
+    [N], and each image's row as a spreadsheet numbers it (the line it starts on)."""
+
+    paths: list[str]
+    metrics: dict[str, np.ndarray]
+    rows: list[int]
+
+
+def _read_records(path: Path) -> tuple[list[str], list[list[str]], list[int]]:
+    """Header cells, the non-blank records and the line each starts on (blank lines count)."""
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        reader = csv.reader(f)
+        header = next(reader, [])
+        records, rows = [], []
+        while True:
+            start = reader.line_num + 1
+            cells = next(reader, None)
+            if cells is None:
+                return header, records, rows
+            if cells:  # a blank line is a row of the file, not a record
+                records.append(cells)
+                rows.append(start)
+
+
+def read_metrics_csv(path: str | Path, root: str | Path) -> MetricsCSV:
     """Read a scores CSV.
 
-    Rows are numbered as in a spreadsheet: the header is row 1.
+    Rows are numbered as a spreadsheet numbers them: the header is row 1, blank lines count.
 
     Args:
         path: the CSV file.
         root: the data root relative paths are taken from.
 
     Returns:
-        ``(paths, metrics)``: absolute, normalised image paths in CSV order, and metric
-        column -> float64 [N].
+        ``(paths, metrics, rows)``: absolute, normalised image paths in CSV order, metric
+        column -> float64 [N], and each image's row.
 
     Raises:
         UsageError: unreadable file, no ``path`` column, no metric column, an empty path,
@@ -46,10 +74,8 @@ def read_metrics_csv(path: str | Path, root: str | Path) -> tuple[list[str], dic
     """
     path, root = Path(path), Path(root).absolute()
     try:
-        with open(path, newline="", encoding="utf-8-sig") as f:
-            reader = csv.DictReader(f)
-            header = [h.strip() for h in (reader.fieldnames or [])]
-            records = list(reader)
+        raw_names, records, row_numbers = _read_records(path)
+        header = [h.strip() for h in raw_names]
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise UsageError(f"cannot read the scores CSV {path} ({exc})") from None
     if PATH_COLUMN not in header:
@@ -57,33 +83,47 @@ def read_metrics_csv(path: str | Path, root: str | Path) -> tuple[list[str], dic
             f"{path} has no '{PATH_COLUMN}' column (header: {', '.join(header) or 'none'}); "
             f"write a header like path,psnr,ssim"
         )
-    raw_names = reader.fieldnames or []
-    columns = [(raw, h) for raw, h in zip(raw_names, header, strict=True) if h != PATH_COLUMN]
+    repeated = sorted({h for h in header if header.count(h) > 1})
+    if repeated:
+        raise UsageError(
+            f"{path}: column {', '.join(repr(h) for h in repeated)} appears more than once in the "
+            "header; name each column once"
+        )
+    taken = [h for h in header if h in MEASURES]
+    if taken:
+        raise UsageError(
+            f"{path}: column {taken[0]!r} is named like a complexity measure (the report's own "
+            f"{taken[0]} of each image); rename it (e.g. {taken[0]}_csv)"
+        )
+    columns = [(j, h) for j, h in enumerate(header) if h != PATH_COLUMN]
     if not columns:
         raise UsageError(f"{path} has no metric column beside '{PATH_COLUMN}' (e.g. psnr)")
     if not records:
         raise UsageError(f"{path} lists no image")
-    path_key = raw_names[header.index(PATH_COLUMN)]
+    path_key = header.index(PATH_COLUMN)
     paths: list[str] = []
     metrics = {name: np.empty(len(records)) for _, name in columns}
     empty, bad, extra = [], [], []
-    for i, record in enumerate(records):
-        row = i + 2
-        if None in record:  # more cells than header columns
+
+    def cell(record: list[str], j: int) -> str:
+        return record[j].strip() if j < len(record) else ""
+
+    for i, (record, row) in enumerate(zip(records, row_numbers, strict=True)):
+        if len(record) > len(header):  # more cells than header columns
             extra.append(row)
-        text = (record.get(path_key) or "").strip()
+        text = cell(record, path_key)
         if not text:
             empty.append(row)
         file = Path(text).expanduser()
         paths.append(str(Path(_normal(file if file.is_absolute() else root / file))))
-        for raw, name in columns:
-            cell = (record.get(raw) or "").strip()
+        for j, name in columns:
+            given = cell(record, j)
             try:
-                value = float(cell)
+                value = float(given)
             except ValueError:
                 value = math.nan
             if not math.isfinite(value):
-                bad.append(f"row {row} {name}={cell!r}")
+                bad.append(f"row {row} {name}={given!r}")
             metrics[name][i] = value
     if extra:
         raise UsageError(f"{path}: more cells than header columns in {_rows(extra)}")
@@ -98,13 +138,13 @@ def read_metrics_csv(path: str | Path, root: str | Path) -> tuple[list[str], dic
     duplicates = []
     for i, p in enumerate(paths):
         if p in seen:
-            duplicates.append(f"row {i + 2} repeats row {seen[p] + 2}")
+            duplicates.append(f"row {row_numbers[i]} repeats row {row_numbers[seen[p]]}")
         seen.setdefault(p, i)
     if duplicates:
         raise UsageError(
             f"{path}: duplicate paths: {', '.join(duplicates[:_SHOWN])}; give each image once"
         )
-    return paths, metrics
+    return MetricsCSV(paths, metrics, row_numbers)
 
 
 def _normal(path: Path) -> str:
@@ -112,18 +152,24 @@ def _normal(path: Path) -> str:
     return os.path.normpath(str(path))
 
 
-def match_images(csv_paths: Sequence[str], data_paths: Sequence[str], csv_file: Path) -> list[int]:
-    """The data index of each CSV image.
+def match_images(
+    csv_paths: Sequence[str],
+    data_paths: Sequence[str],
+    csv_file: Path,
+    rows: Sequence[int] | None = None,
+) -> list[int]:
+    """The data index of each CSV image (``rows``: each one's row, default header + 1 + index).
 
     Raises:
         UsageError: CSV images that are not in the data (selected split), rows named.
     """
     index = {_normal(Path(p).absolute()): i for i, p in enumerate(data_paths)}
+    rows = list(rows) if rows is not None else [i + 2 for i in range(len(csv_paths))]
     missing = [i for i, p in enumerate(csv_paths) if p not in index]
     if missing:
-        shown = ", ".join(f"row {i + 2} {csv_paths[i]}" for i in missing[:3])
+        shown = ", ".join(f"row {rows[i]} {csv_paths[i]}" for i in missing[:3])
         raise UsageError(
             f"{csv_file}: {len(missing)} image(s) are not in the data (root, --dataset, "
-            f"--split): {_rows([i + 2 for i in missing])}, e.g. {shown}"
+            f"--split): {_rows([rows[i] for i in missing])}, e.g. {shown}"
         )
     return [index[p] for p in csv_paths]

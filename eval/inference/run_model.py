@@ -16,7 +16,6 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm.auto import tqdm
 
-from claravid.eval.analysis.metrics import IGNORE_INDEX
 from claravid.eval.inference.confusion import image_confusion
 from claravid.eval.inference.label_maps import image_key
 from claravid.eval.inference.windows import Model, WindowConfig, predict_labels
@@ -49,10 +48,8 @@ def evaluate_model(
     device: torch.device | str = "cpu",
     indices: Sequence[int] | None = None,
     num_workers: int = 0,
-    ignore_index: int = IGNORE_INDEX,
     tile_size: int | None = None,
     progress: bool = False,
-    on_prediction: Callable[[dict[str, Any], torch.Tensor], None] | None = None,
     on_score: Callable[[dict[str, Any], torch.Tensor, ImageScore], None] | None = None,
 ) -> list[ImageScore]:
     """Predict every image of ``dataset`` with sliding windows and count its confusion.
@@ -66,12 +63,10 @@ def evaluate_model(
         device: where images go and confusions are counted.
         indices: evaluate only these dataset indices (a rank's shard).
         num_workers: DataLoader workers decoding the next images while the model runs.
-        ignore_index: ground-truth value left out of the confusion.
         tile_size: also count each tile's confusion (:mod:`claravid.eval.analysis.tile_bins`).
         progress: show a progress bar.
-        on_prediction: called with each sample and its predicted ids [H,W] (to save them).
-        on_score: called with each sample, its predicted ids and its `ImageScore` (e.g. to
-            keep the hardest images' predictions for a report).
+        on_score: called with each sample, its predicted ids [H,W] and its `ImageScore` (to
+            save the prediction, or keep the hardest images' for a report).
 
     Returns:
         One `ImageScore` per image, in dataset order.
@@ -94,11 +89,9 @@ def evaluate_model(
         if prediction.device.type == "cpu" and num_classes <= 255:
             # Byte ids take metrics' fast CPU path (an int64 map would be checked and cast).
             prediction = prediction.to(torch.uint8)
-        conf, tiles = image_confusion(prediction, target, num_classes, tile_size, ignore_index)
+        conf, tiles = image_confusion(prediction, target, num_classes, tile_size)
         score = ImageScore(str(sample["path"]), sample_key(sample), conf, tiles)
         results.append(score)
-        if on_prediction is not None:
-            on_prediction(sample, prediction)
         if on_score is not None:
             on_score(sample, prediction, score)
     return results

@@ -158,11 +158,6 @@ class RunSettings:
     normalisation: dict[str, Any]
     origins: dict[str, str]
 
-    @property
-    def transforms_config(self) -> dict[str, Any]:
-        """The ``eval_transforms`` overrides that apply this normalisation."""
-        return {"mean": list(self.normalisation["mean"]), "std": list(self.normalisation["std"])}
-
     def describe(self) -> dict[str, Any]:
         """The report's ``source["settings"]``: every value used and where it came from."""
         w = self.window
@@ -232,19 +227,21 @@ def resolve_settings(
     # A recorded stride belongs to the recorded window: with --window the default follows it.
     record_stride = None if window is not None else _pair(recorded.get("stride"))
     step = pick("stride", _pair(stride), record_stride, None)
+    name = pick("palette", palette, recorded.get("palette"), None)
+    info = recorded.get("palette_info") if palette is None else None
+    default_norm = normalisation_from_config(None)
+    normalisation = pick("normalisation", None, recorded.get("normalisation"), default_norm)
     config = WindowConfig(
         size=size,
         stride=step,
         scale=pick("scale", scale, recorded.get("scale"), DEFAULT_SCALE),
         batch_size=pick("batch_size", batch_size, recorded.get("batch_size"), DEFAULT_BATCH),
         precision=precision,
+        mean=tuple(normalisation["mean"]),
+        std=tuple(normalisation["std"]),
     )
     if source.patch_size:
         config.check_patch(source.patch_size)
-    name = pick("palette", palette, recorded.get("palette"), None)
-    info = recorded.get("palette_info") if palette is None else None
-    default_norm = normalisation_from_config(None)
-    normalisation = pick("normalisation", None, recorded.get("normalisation"), default_norm)
     return RunSettings(config, name, info, normalisation, origins)
 
 

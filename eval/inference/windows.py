@@ -1,6 +1,10 @@
 """Sliding-window inference: full-size logits from a model that sees fixed-size windows.
 
-The image (normalised float [3,H,W]) is optionally resized by ``scale``, cut into windows of
+The image travels as uint8 [3,H,W] (what the datasets hand out without transforms) and is
+normalised where the model runs, with the config's ``mean``/``std``: a 12-Mpixel frame is 36 MB
+on its way to the device, not 145 MB of float32 made on the CPU. An image already normalised
+(float [3,H,W], e.g. from ``eval_transforms``) is taken as it is. It is optionally resized by
+``scale``, cut into windows of
 ``window`` pixels (630×630 by default, the paper's crop) every ``stride`` pixels, the last window
 of a row or column flush with the border; windows go through the model in batches, their logits
 are summed into a full-size buffer and divided by how many windows covered each pixel. An image
@@ -28,6 +32,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from claravid.models.onnx_metadata import IMAGENET_MEAN, IMAGENET_STD
 from claravid.precision import PRECISIONS, autocast, autocast_dtype
 
 Model = Callable[[torch.Tensor], Any]
@@ -42,8 +47,10 @@ class WindowConfig:
         stride: step between windows; default two thirds of the window (overlap 1/3).
         scale: resize factor applied to the image first (the paper reports at 0.5).
         batch_size: windows per forward pass.
-        precision: ``auto``, ``fp32``, ``bf16`` or ``fp16`` (see the module docstring). The
+        precision: ``auto``, ``fp32``, ``bf16`` or ``fp16`` (:mod:`claravid.precision`). The
             former boolean ``amp`` reads as ``True`` → ``auto``, ``False`` → ``fp32``.
+        mean, std: the model's input normalisation of uint8 images (per channel, RGB, on the
+            0–1 scale); a float image is taken as normalised already.
     """
 
     size: tuple[int, int] = (630, 630)
@@ -51,6 +58,8 @@ class WindowConfig:
     scale: float = 1.0
     batch_size: int = 4
     precision: str = "auto"
+    mean: tuple[float, float, float] = IMAGENET_MEAN
+    std: tuple[float, float, float] = IMAGENET_STD
 
     def __post_init__(self) -> None:
         if isinstance(self.precision, bool):  # the former `amp: bool` in this position
@@ -67,6 +76,13 @@ class WindowConfig:
             raise ValueError(f"scale must be in (0, 8], got {self.scale}")
         if self.batch_size < 1:
             raise ValueError(f"batch size must be at least 1, got {self.batch_size}")
+        for name in ("mean", "std"):
+            values = tuple(float(v) for v in getattr(self, name))
+            if len(values) != 3 or not all(math.isfinite(v) for v in values):
+                raise ValueError(f"{name} must be 3 finite numbers (R, G, B), got {values}")
+            object.__setattr__(self, name, values)
+        if min(self.std) <= 0:
+            raise ValueError(f"std must be positive, got {self.std}")
         if any(s > w for s, w in zip(self.stride, self.size, strict=True)):  # type: ignore[arg-type]
             raise ValueError(
                 f"stride {self.stride} larger than the window {self.size} would skip pixels"
@@ -100,6 +116,16 @@ def window_starts(length: int, window: int, stride: int) -> list[int]:
     return starts
 
 
+def normalise(image: torch.Tensor, config: WindowConfig) -> torch.Tensor:
+    """A uint8 image [3,H,W] as the model's float32 input, on the image's device; a float image
+    is returned as it is (normalised already)."""
+    if image.is_floating_point():
+        return image
+    mean = torch.tensor(config.mean, dtype=torch.float32, device=image.device).view(3, 1, 1)
+    std = torch.tensor(config.std, dtype=torch.float32, device=image.device).view(3, 1, 1)
+    return (image.to(torch.float32) / 255.0 - mean) / std
+
+
 def _forward(model: Model, batch: torch.Tensor, config: WindowConfig) -> torch.Tensor:
     # (An ONNX Runtime session runs at its file's precision: autocast does not reach it.)
     dtype = autocast_dtype(config.precision, batch.device)
@@ -113,18 +139,25 @@ def _forward(model: Model, batch: torch.Tensor, config: WindowConfig) -> torch.T
 def sliding_window_logits(
     model: Model, image: torch.Tensor, config: WindowConfig | None = None
 ) -> torch.Tensor:
-    """Logits [K,H,W] (float32, on the image's device) of a normalised image [3,H,W].
+    """Logits [K,H,W] (float32, on the image's device) of an image [3,H,W].
 
     Args:
         model: maps [B,3,h,w] float to [B,K,h,w] logits (tensor or numpy).
-        image: the normalised image, on the device the model runs on.
-        config: window size, stride, scale, batch size, precision.
+        image: uint8 (normalised here, with ``config.mean``/``std``) or already normalised
+            float, on the device the model runs on.
+        config: window size, stride, scale, batch size, precision, normalisation.
     """
     config = config or WindowConfig()
-    if image.ndim != 3 or image.shape[0] != 3 or not image.is_floating_point():
+    if (
+        image.ndim != 3
+        or image.shape[0] != 3
+        or not (image.is_floating_point() or image.dtype == torch.uint8)
+    ):
         raise ValueError(
-            f"expected a normalised float image [3,H,W], got {tuple(image.shape)} {image.dtype}"
+            f"expected a uint8 or normalised float image [3,H,W], got {tuple(image.shape)} "
+            f"{image.dtype}"
         )
+    image = normalise(image, config)
     full_h, full_w = image.shape[-2:]
     if config.scale != 1.0:
         size = (max(1, round(full_h * config.scale)), max(1, round(full_w * config.scale)))
@@ -160,5 +193,6 @@ def sliding_window_logits(
 def predict_labels(
     model: Model, image: torch.Tensor, config: WindowConfig | None = None
 ) -> torch.Tensor:
-    """Train ids [H,W] (int64) of a normalised image [3,H,W]: argmax of the window logits."""
+    """Train ids [H,W] (int64) of an image [3,H,W] (uint8 or normalised float): argmax of the
+    window logits."""
     return sliding_window_logits(model, image, config).argmax(0)

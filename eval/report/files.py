@@ -16,6 +16,8 @@
 from __future__ import annotations
 
 import json
+import os
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -46,8 +48,9 @@ KEYS = (
 REQUIRED_KEYS = KEYS[:-2]
 
 
-def save_confusions(path: str | Path, result: EvalResult) -> Path:
-    """Write the per-image table as a compressed npz (no pickles), atomically."""
+def save_confusions(path: str | Path, result: EvalResult, report_id: str | None = None) -> Path:
+    """Write the per-image table as a compressed npz (no pickles), atomically, with the
+    ``report_id`` of the ``report.json`` it belongs to."""
     arrays: dict[str, np.ndarray] = {
         "paths": np.asarray(result.paths, dtype=str),
         "keys": np.asarray(result.keys, dtype=str),
@@ -55,6 +58,8 @@ def save_confusions(path: str | Path, result: EvalResult) -> Path:
         "classes": np.asarray(result.classes, dtype=str),
         "palette": np.asarray(result.palette, dtype=str),
     }
+    if report_id is not None:
+        arrays["report_id"] = np.asarray(report_id, dtype=str)
     for measure, values in result.complexity.items():
         arrays[f"complexity_{measure}"] = np.asarray(values, dtype=np.float64)
     for name, values in result.attributes.items():
@@ -87,6 +92,8 @@ def load_result(path: str | Path) -> EvalResult:
     path = Path(path)
     folder = path.parent if path.name == REPORT or path.suffix == ".json" else path
     report_file, npz_file = folder / REPORT, folder / CONFUSIONS
+    if report_file.is_file() and not npz_file.is_file():
+        read_report(report_file)  # a --scores report (no confusions) is named as one
     if not report_file.is_file() or not npz_file.is_file():
         raise UsageError(
             f"{path} is not a claravid-eval report folder (needs {REPORT} and {CONFUSIONS})"
@@ -113,11 +120,24 @@ def load_result(path: str | Path) -> EvalResult:
             },
             classes=classes,
             palette=str(data["palette"]),
-            source={k: v for k, v in report["source"].items() if k != "binning"},
+            source={k: v for k, v in report["source"].items() if k not in ("binning", "report_id")},
             tiles=_load_tiles(data),
+            # The real file behind each path: a symlinked or ../ spelling of the data root
+            # is the same image (merge refuses it twice, compare pairs it).
+            identity=[os.path.realpath(str(p)) for p in data["paths"]],
         )
-    except (KeyError, ValueError, OSError) as exc:
-        raise UsageError(f"{npz_file} is damaged or not written by claravid-eval ({exc})") from None
+    except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise UsageError(
+            f"{npz_file} is damaged or not written by claravid-eval ({exc}); evaluate again"
+        ) from None
+    # Older reports carry no id; a folder written since carries one in both files.
+    ids = (str(data["report_id"]) if "report_id" in data else None,
+           report["source"].get("report_id"))  # fmt: skip
+    if ids[0] != ids[1]:
+        raise UsageError(
+            f"{npz_file} does not belong to {report_file} (their report ids differ: the folder "
+            "was written by two runs); evaluate or merge into it again"
+        )
     n, k = len(result.paths), len(classes)
     if confusions.shape != (n, k, k) or classes != list(report["classes"]):
         raise UsageError(f"{npz_file} does not match {report_file} (classes or image count)")
@@ -154,12 +174,44 @@ def read_report(path: str | Path) -> dict[str, Any]:
         report = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise UsageError(f"cannot read {path} as a claravid-eval report ({exc})") from None
+    source = report.get("source") if isinstance(report, dict) else None
+    if isinstance(source, dict) and source.get("kind") == "scores":
+        metrics = ", ".join(report.get("metrics") or []) or "?"
+        raise UsageError(
+            f"{path} is a --scores report (per-image metrics {metrics}, no mIoU or confusions): "
+            "--merge and --compare take mIoU reports; run --scores again on the merged CSV, or "
+            "with the other's --edges, and read the metric means side by side"
+        )
     if not isinstance(report, dict) or not set(REQUIRED_KEYS) <= set(report):
         raise UsageError(
             f"{path} is not a claravid-eval report.json (expected the keys "
             f"{', '.join(REQUIRED_KEYS)})"
         )
     return report
+
+
+def check_report_kind(folder: str | Path, scores: bool, overwrite: bool = False) -> None:
+    """Refuse to replace a ``--scores`` report with an mIoU report, or the other way round,
+    without ``overwrite``: a folder of one kind is not the other's to replace.
+
+    Raises:
+        UsageError: ``folder`` holds a report of the other kind and ``overwrite`` is off.
+    """
+    path = Path(folder) / REPORT
+    if overwrite or not path.is_file():
+        return
+    try:
+        old = json.loads(path.read_text(encoding="utf-8"))
+        kind = old["source"]["kind"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return  # not readable as a report: check_output_dir's marker rule applies
+    if (kind == "scores") != scores:
+        held = "a --scores report" if kind == "scores" else "an mIoU report"
+        new = "a --scores report" if scores else "an mIoU report"
+        raise UsageError(
+            f"output {folder} holds {held}; writing {new} there would replace it: choose a new "
+            "folder or pass --overwrite"
+        )
 
 
 def write_json(path: str | Path, report: dict[str, Any]) -> Path:

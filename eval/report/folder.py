@@ -1,18 +1,25 @@
 """Writing a report folder: the JSON, the confusions, the plots and ``report.md``.
 
-``report.json`` is written last: its presence marks the folder as this tool's, complete.
+A folder is replaced whole or not at all (:func:`staged_folder`): written aside, then renamed
+into place. ``report.json`` and ``confusions.npz`` carry one random ``report_id``, so a reader
+knows the two belong together.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
 import re
-from collections.abc import Sequence
+import shutil
+import tempfile
+import uuid
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from claravid.cli import atomic_write_text
+from claravid.cli import atomic_write_text, current_umask
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.report.files import CONFUSIONS, REPORT, save_confusions, write_json
 from claravid.eval.report.markdown import metric_markdown, report_markdown
@@ -27,6 +34,46 @@ from claravid.eval.report.plots import (
     plot_tiles,
 )
 
+#: Files a report folder of this tool holds (``--scores`` plots match the patterns below):
+#: replaced with the folder. Anything else found there (a user's notes, a predictions folder)
+#: is moved into the new folder.
+_OURS = {REPORT, CONFUSIONS, "report.md", *PLOTS.values()}
+_OUR_PATTERNS = (re.compile(r".+_per_bin\.png$"), re.compile(r".+_vs_delent\.png$"))
+
+
+def _ours(name: str) -> bool:
+    return name in _OURS or any(p.match(name) for p in _OUR_PATTERNS)
+
+
+@contextlib.contextmanager
+def staged_folder(out: str | Path) -> Iterator[Path]:
+    """Write a report folder aside, then put it in place whole.
+
+    The new folder is written into a hidden sibling; once complete, the old folder is renamed
+    aside and the new one into place (two renames: ``out`` never holds new files beside an old
+    report), files of the old folder that are not report files are moved over, and the old
+    folder is removed. An interrupted write (Ctrl-C, a full disk) leaves ``out`` as it was.
+    """
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.new-", dir=out.parent))
+    try:
+        yield staging
+        staging.chmod(0o777 & ~current_umask())  # mkdtemp's 0700 is not a report folder's mode
+        if not out.exists():
+            os.replace(staging, out)
+            return
+        aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+        old = aside / out.name
+        os.replace(out, old)
+        os.replace(staging, out)
+        for entry in old.iterdir():
+            if not _ours(entry.name) and not (out / entry.name).exists():
+                os.replace(entry, out / entry.name)
+        shutil.rmtree(aside, ignore_errors=True)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
 
 def write_outputs(
     out: str | Path,
@@ -37,11 +84,25 @@ def write_outputs(
 ) -> dict[str, Path]:
     """Write the report folder: ``report.json``, ``confusions.npz``, plots, ``report.md``.
 
-    ``report.json`` is written last: it marks the folder as this tool's, complete.
+    The folder is written aside and put in place whole (:func:`staged_folder`); ``report`` gets
+    a new ``source.report_id``, also stored in ``confusions.npz``.
     """
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    written = {"confusions": save_confusions(out / CONFUSIONS, result)}
+    report["source"]["report_id"] = uuid.uuid4().hex
+    with staged_folder(out) as folder:
+        written = _write_report(folder, report, result, hardest, colors)
+    return {name: Path(out) / path.name for name, path in written.items()}
+
+
+def _write_report(
+    out: Path,
+    report: dict[str, Any],
+    result: EvalResult,
+    hardest: Sequence[dict[str, Any]],
+    colors: np.ndarray | None,
+) -> dict[str, Path]:
+    written = {
+        "confusions": save_confusions(out / CONFUSIONS, result, report["source"]["report_id"])
+    }
     plots: dict[str, str] = {}
     if report["bins"]:
         written["bins"] = plot_bins(report, out / PLOTS["bins"])
@@ -53,11 +114,8 @@ def write_outputs(
     tiled = [item for item in hardest if "tiles" in item]
     if tiled:
         written["tiles"] = plot_tiles(tiled, out / PLOTS["tiles"])
-    for name in ("bins", "scatter", "heatmap", "hardest", "tiles"):
-        if name in written:
-            plots[name] = PLOTS[name]
-        else:  # a plot of an earlier report in this folder would no longer match it
-            (out / PLOTS[name]).unlink(missing_ok=True)
+    plots = {name: PLOTS[name] for name in ("bins", "scatter", "heatmap", "hardest", "tiles")
+             if name in written}  # fmt: skip
     written["markdown"] = atomic_write_text(out / "report.md", report_markdown(report, plots))
     written["report"] = write_json(out / REPORT, report)
     return written
@@ -70,17 +128,17 @@ def _slug(name: str) -> str:
 def write_metric_outputs(out: str | Path, report: dict[str, Any]) -> str:
     """Write a ``--scores`` report folder: per metric its bins and scatter plots, ``report.md``
     and ``report.json`` (last: it marks the folder complete). Returns the Markdown text."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    plots = {}
-    for name in report["metrics"]:
-        slug = _slug(name)
-        if report["bins"]:
-            plots[f"{name} per bin"] = plot_metric_bins(report, name, out / f"{slug}_per_bin.png")
-        if "delent" in report["correlation"]:
-            file = out / f"{slug}_vs_delent.png"
-            plots[f"{name} vs delent"] = plot_metric_scatter(report, name, file)
-    text = metric_markdown(report, {k: Path(v).name for k, v in plots.items()})
-    atomic_write_text(out / "report.md", text)
-    write_json(out / REPORT, report)
+    with staged_folder(out) as folder:
+        plots = {}
+        for name in report["metrics"]:
+            slug = _slug(name)
+            if report["bins"]:
+                file = folder / f"{slug}_per_bin.png"
+                plots[f"{name} per bin"] = plot_metric_bins(report, name, file)
+            if "delent" in report["correlation"]:
+                file = folder / f"{slug}_vs_delent.png"
+                plots[f"{name} vs delent"] = plot_metric_scatter(report, name, file)
+        text = metric_markdown(report, {k: Path(v).name for k, v in plots.items()})
+        atomic_write_text(folder / "report.md", text)
+        write_json(folder / REPORT, report)
     return text

@@ -123,9 +123,10 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         rows = []
         for g in report["groups"]:
             p = g.get("profile") or {}
-            rows.append([g["name"], str(g["num_images"]), _f(p.get("mu")), _f(p.get("alpha"), 2),
-                         _f(p.get("beta"), 2), *_scores(g)])  # fmt: skip
+            rows.append([g["name"], str(g["num_images"]), _f(p.get("mu")), _shape(p, "alpha", 2),
+                         _shape(p, "beta", 2), *_scores(g)])  # fmt: skip
         lines += _table(["group", "images", "DSP μ", "α", "β", "mIoU", "pixel acc"], rows)
+        lines += _profile_notes(report["groups"])
 
     lines += ["## IoU per class", ""]
     header = ["class", "overall", *[r["name"] for r in report["bins"]]]
@@ -179,6 +180,19 @@ def tile_section(tiles: dict[str, Any] | None) -> list[str]:
         "",
     ]
     return lines
+
+
+def _shape(profile: dict[str, Any], key: str, digits: int = 3) -> str:
+    """α or β of a group's profile: "n/a" where the Beta fit says nothing (see its note)."""
+    value = profile.get(key)
+    return "n/a" if value is None and profile.get("mu") is not None else _f(value, digits)
+
+
+def _profile_notes(groups: Sequence[dict[str, Any]]) -> list[str]:
+    """Why a group's α and β are n/a, one line per group."""
+    notes = [f"- {g['name']}: α, β n/a ({g['profile']['note']})"
+             for g in groups if (g.get("profile") or {}).get("note")]  # fmt: skip
+    return [*notes, ""] if notes else []
 
 
 def _scores(row: dict[str, Any]) -> list[str]:
@@ -269,7 +283,9 @@ def _gap_cell(row: dict[str, Any], resamples: int) -> list[str]:
     if ci:
         text += f" [{points[1]:+.{d}f}, {points[2]:+.{d}f}]"
     p = row.get("p_value")
-    excludes = bool(ci) and (ci[0] > 0 or ci[1] < 0)
+    if not ci:  # no interval (--bootstrap 0, too few clusters): nothing to exclude
+        return [text, _p(p, resamples), "–"]
+    excludes = ci[0] > 0 or ci[1] < 0
     return [text, _p(p, resamples), "**yes**" if excludes else "no"]
 
 
@@ -278,6 +294,10 @@ def _gap_tables(analysis: dict[str, Any]) -> list[str]:
     unc = analysis["uncertainty"]
     lines = [uncertainty_line(unc) or "", ""]
     for comp in analysis["comparisons"]:
+        if comp.get("comparable") is False:
+            lines += [f"Gap {comp['report']} − {analysis['baseline']}: **not comparable**: "
+                      f"{comp['reason']}; no gaps or p-values computed.", ""]  # fmt: skip
+            continue
         kind = "paired (same images, same resampled clusters)" if comp["paired"] else (
             "unpaired (different images, resampled independently)")  # fmt: skip
         lines += [f"Gap {comp['report']} − {analysis['baseline']} in mIoU points, {kind}; "
@@ -327,8 +347,9 @@ def metric_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         for g in groups:
             p = g.get("profile") or {}
             rows.append([g["name"], str(g["num_images"]), _f(p.get("mu")), _f(p.get("sigma")),
-                         _f(p.get("alpha")), _f(p.get("beta")), *cells(g)])  # fmt: skip
+                         _shape(p, "alpha"), _shape(p, "beta"), *cells(g)])  # fmt: skip
         lines += _table(["group", "images", "DSP μ", "σ", "α", "β", *metrics], rows)
+        lines += _profile_notes(groups)
 
     lines += ["## Correlations", ""]
     rows = []

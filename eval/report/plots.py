@@ -79,10 +79,11 @@ def plot_bins(report: dict[str, Any], path: str | Path) -> Path:
     return _save(fig, path)
 
 
-def plot_scatter(report: dict[str, Any], path: str | Path, measure: str = "delent") -> Path:
-    """Per-image mIoU against ``measure``, the fitted line, and Pearson/Spearman in the title."""
-    x = np.array([np.nan if r.get(measure) is None else r[measure] for r in report["images"]])
-    y = np.array([np.nan if r["miou"] is None else r["miou"] for r in report["images"]])
+def _scatter(
+    x: np.ndarray, y: np.ndarray, corr: dict[str, Any], title: str, xlabel: str, ylabel: str,
+    fit_format: str,
+) -> Figure:  # fmt: skip
+    """Points (x, y) with finite values, the least-squares line, Pearson/Spearman and n."""
     keep = np.isfinite(x) & np.isfinite(y)
     fig = Figure(figsize=(6, 4.5), layout="constrained")
     ax = fig.subplots()
@@ -90,16 +91,25 @@ def plot_scatter(report: dict[str, Any], path: str | Path, measure: str = "delen
     if keep.sum() >= 2 and np.ptp(x[keep]) > 0:
         slope, intercept = np.polyfit(x[keep], y[keep], 1)
         xs = np.linspace(x[keep].min(), x[keep].max(), 50)
-        ax.plot(xs, slope * xs + intercept, color="tab:red", label=f"fit: {slope:+.3f} per bit")
+        ax.plot(xs, slope * xs + intercept, color="tab:red",
+                label=f"fit: {slope:{fit_format}} per bit")  # fmt: skip
         ax.legend(loc="best")
-    corr = report["correlation"].get(measure, {})
     ax.set_title(
-        f"per-image mIoU vs {measure}: Pearson {_fmt(corr.get('pearson'))}, "
+        f"{title}: Pearson {_fmt(corr.get('pearson'))}, "
         f"Spearman {_fmt(corr.get('spearman'))}, n={corr.get('n', int(keep.sum()))}"
     )
-    ax.set_xlabel(f"{measure} (bits)")
-    ax.set_ylabel("mIoU")
-    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    return fig
+
+
+def plot_scatter(report: dict[str, Any], path: str | Path, measure: str = "delent") -> Path:
+    """Per-image mIoU against ``measure``, the fitted line, and Pearson/Spearman in the title."""
+    x = np.array([np.nan if r.get(measure) is None else r[measure] for r in report["images"]])
+    y = np.array([np.nan if r["miou"] is None else r["miou"] for r in report["images"]])
+    fig = _scatter(x, y, report["correlation"].get(measure, {}), f"per-image mIoU vs {measure}",
+                   f"{measure} (bits)", "mIoU", "+.3f")  # fmt: skip
+    fig.axes[0].set_ylim(-0.02, 1.02)
     return _save(fig, path)
 
 
@@ -248,9 +258,12 @@ def plot_compare(
 
 def _plot_gaps(ax: Any, analysis: dict[str, Any], labels: Sequence[str]) -> None:
     """Gap B − A per bin (points) with interval bars; 0 drawn as a line."""
-    comps = analysis["comparisons"]
+    # A report keeps its colour of the top panel (C1 for the first after the baseline), also
+    # when a report between is not comparable and draws no gap.
+    comps = [(i, c) for i, c in enumerate(analysis["comparisons"])
+             if c.get("comparable") is not False]  # fmt: skip
     width = 0.8 / max(1, len(comps))
-    for k, comp in enumerate(comps):
+    for k, (index, comp) in enumerate(comps):
         rows = comp["bins"]
         values = [np.nan if r["gap"] is None else 100 * r["gap"] for r in rows]
         scaled = [{"ci": None if not r.get("gap_ci") else [100 * v for v in r["gap_ci"]]}
@@ -258,14 +271,15 @@ def _plot_gaps(ax: Any, analysis: dict[str, Any], labels: Sequence[str]) -> None
         xs = np.arange(len(rows)) + (k - (len(comps) - 1) / 2) * width
         err = error_bars(values, scaled, "ci")
         kind = "paired" if comp["paired"] else "unpaired"
-        ax.bar(xs, values, width, yerr=err, capsize=4, color=f"C{k + 1}",
+        ax.bar(xs, values, width, yerr=err, capsize=4, color=f"C{index + 1}",
                label=f"{comp['report']} − {analysis['baseline']} ({kind})")  # fmt: skip
     ax.axhline(0, color="k", lw=1)
     ax.set_xticks(range(len(labels)), labels)
     level = analysis["uncertainty"]["level"]
     ax.set_ylabel("mIoU gap (points)")
     ax.set_title(f"gap to {analysis['baseline']} per bin, {level:.0%} intervals")
-    ax.legend()
+    if comps:  # none when no report is comparable to the baseline
+        ax.legend()
 
 
 def plot_metric_bins(report: dict[str, Any], metric: str, path: str | Path) -> Path:
@@ -295,20 +309,6 @@ def plot_metric_scatter(
     """A ``--scores`` metric per image against ``measure``, with the least-squares line."""
     x = np.array([r.get(measure, np.nan) for r in report["images"]], dtype=np.float64)
     y = np.array([r.get(metric, np.nan) for r in report["images"]], dtype=np.float64)
-    keep = np.isfinite(x) & np.isfinite(y)
-    fig = Figure(figsize=(6, 4.5), layout="constrained")
-    ax = fig.subplots()
-    ax.scatter(x[keep], y[keep], s=14, alpha=0.7)
-    if keep.sum() >= 2 and np.ptp(x[keep]) > 0:
-        slope, intercept = np.polyfit(x[keep], y[keep], 1)
-        xs = np.linspace(x[keep].min(), x[keep].max(), 50)
-        ax.plot(xs, slope * xs + intercept, color="tab:red", label=f"fit: {slope:+.3g} per bit")
-        ax.legend(loc="best")
     corr = report["correlation"].get(measure, {}).get(metric, {})
-    ax.set_title(
-        f"{metric} vs {measure}: Pearson {_fmt(corr.get('pearson'))}, "
-        f"Spearman {_fmt(corr.get('spearman'))}, n={corr.get('n', int(keep.sum()))}"
-    )
-    ax.set_xlabel(f"{measure} (bits)")
-    ax.set_ylabel(metric)
+    fig = _scatter(x, y, corr, f"{metric} vs {measure}", f"{measure} (bits)", metric, "+.3g")
     return _save(fig, path)

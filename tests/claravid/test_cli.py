@@ -122,11 +122,12 @@ def test_atomic_save_keeps_the_old_file_when_the_writer_fails(tmp_path):
 
 
 def test_one_conventions_module_light_and_shared_by_models():
-    """models/ uses claravid/cli.py (no drifted copy) and importing it pulls in nothing heavy."""
+    """models/ and the export command use claravid/cli.py (no drifted copy); importing it pulls
+    in nothing heavy."""
     code = (
         "import sys, claravid.cli\n"
         "print([m for m in ('cv2', 'albumentations', 'torch') if m in sys.modules])\n"
-        "import claravid.models.export as e, claravid.models.checkpoint as c\n"
+        "import claravid.eval.export_cli as e, claravid.models.checkpoint as c\n"
         "assert e.run_cli is claravid.cli.run_cli and c.atomic_save is claravid.cli.atomic_save\n"
         "import importlib.util\n"
         "assert importlib.util.find_spec('claravid.models.cli') is None\n"

@@ -53,3 +53,31 @@ def test_new_settings_leave_no_frame_of_the_old_scene(tmp_path, monkeypatch):
     prepare_data(tmp_path, (16, 12), frames=1, seed=0)
     assert {p.stem for p in data.rglob("*.jpg")} == {"000000"}
     assert (data / ".demo-complete").read_text() == "size=(16, 12) frames=1 seed=0"
+
+
+def test_make_demo_runs_the_evaluation_training_suggests(tmp_path, monkeypatch, capsys):
+    """The evaluation line of `make demo` is the command `claravid-train --config demo` prints
+    (before: training suggested runs/demo/train/report, the Makefile wrote runs/demo/report)."""
+    import shlex
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    import claravid.train.loop as loop
+    from claravid.train.cli import main as train_main
+
+    makefile = (Path(__file__).resolve().parents[2] / "Makefile").read_text()
+    recipe = [line.split() for line in makefile.splitlines() if "claravid-eval" in line]
+    assert len(recipe) == 1
+    make_eval = [word.replace("$(BIN)/", "") for word in recipe[0]]
+
+    monkeypatch.chdir(tmp_path)  # the demo's relative out_dir, with the best.pt it leaves
+    (tmp_path / "runs" / "demo" / "train").mkdir(parents=True)
+    (tmp_path / "runs" / "demo" / "train" / "best.pt").touch()
+    result = SimpleNamespace(out_dir=Path("runs/demo/train"), best_miou=None, last_val={})
+    monkeypatch.setattr(loop, "train", lambda cfg, resume=False: result)
+    assert train_main(["--config", "demo", "--resume"]) == 0
+    printed = [
+        line for line in capsys.readouterr().out.splitlines() if line.startswith("evaluate:")
+    ]
+    assert len(printed) == 1
+    assert shlex.split(printed[0].removeprefix("evaluate:")) == make_eval

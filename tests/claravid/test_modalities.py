@@ -1,6 +1,6 @@
 """Every modality decodes to known values, and to exactly what the official SDK returns.
 
-The SDK decodes with PIL; ``sdk_*`` below restate its formulas (FORMAT.md §1) on PIL
+The SDK decodes with PIL; ``sdk_*`` below restate its formulas (docs/data.md, "Modalities") on PIL
 arrays so our OpenCV path is compared value for value.
 """
 

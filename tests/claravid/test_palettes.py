@@ -179,7 +179,7 @@ def test_binary_palette_file_is_an_error_naming_it(tmp_path):
         load_palette(path)
 
 
-# FORMAT.md §6: the real datasets' ids, and our reduction of every ClaraVid class written out.
+# The real datasets' ids, and our reduction of every ClaraVid class written out.
 UDD6 = ["Other", "Facade", "Road", "Vegetation", "Vehicle", "Roof"]
 VDD = ["Other", "Wall", "Road", "Vegetation", "Vehicle", "Roof", "Water"]
 AEROSCAPES = ["Background", "Person", "Bike", "Car", "Drone", "Boat", "Animal", "Obstacle",

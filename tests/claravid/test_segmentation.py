@@ -85,7 +85,7 @@ def test_label_cache_gives_identical_masks_and_follows_edits(writable_root, tmp_
     for i in (0, 7):
         np.testing.assert_array_equal(cached.read_mask(i), plain.read_mask(i))
         np.testing.assert_array_equal(cached.read_mask(i), plain.read_mask(i))  # from the cache
-    assert len(list((tmp_path / "c").rglob("*.png"))) == 2
+    assert len(list((tmp_path / "c").rglob("*.tif"))) == 2
     frame = plain.frames[0]
     pan = m.read_pan_seg(frame.paths["pan_seg"])
     m.write_pan_seg(frame.paths["pan_seg"], np.full(pan.shape[:2], 6, np.uint8), pan[..., 0])

@@ -98,8 +98,16 @@ def counted_shares(frames, splits):
     return share(overall), {m: share(c) for m, c in by_mission.items()}
 
 
-def cells(positions, size):
-    return [tuple(c) for c in np.floor(positions / size).astype(int).tolist()]
+def cells(positions, size, frames):
+    """Each frame's block cell as docs/data.md states it: per mission, the fewest blocks whose
+    span exceeds the extent of its camera positions, centred on that extent."""
+    missions = np.array([f.mission for f in frames])
+    origin = np.empty_like(positions)
+    for mission in set(missions.tolist()):
+        mine = missions == mission
+        lo, hi = positions[mine].min(axis=0), positions[mine].max(axis=0)
+        origin[mine] = (lo + hi) / 2 - (np.floor((hi - lo) / size) + 1) * size / 2
+    return [tuple(c) for c in np.floor((positions - origin) / size).astype(int).tolist()]
 
 
 def test_claravid_size_default_blocks_hold_the_targets_without_leakage(claravid_size):
@@ -118,7 +126,7 @@ def test_claravid_size_default_blocks_hold_the_targets_without_leakage(claravid_
     assert np.abs(overall - FRACTIONS).max() <= 0.05, overall
     # A block (one mission's 150 m square, all altitudes and directions) lies in one split.
     seen = {}
-    for frame, cell, split in zip(frames, cells(positions, 150.0), splits, strict=True):
+    for frame, cell, split in zip(frames, cells(positions, 150.0, frames), splits, strict=True):
         assert seen.setdefault((frame.mission, cell), split) == split
     assert len(seen) == 32
     # Second, each mission as near its targets as four blocks allow: 3/1/0, 3/0/1 or 2/1/1
@@ -139,7 +147,7 @@ def test_claravid_size_50m_blocks_balance_every_mission(claravid_size):
     for mission, share in missions.items():
         assert np.abs(share - FRACTIONS).max() <= 0.06, (mission, share)
     seen = {}
-    for frame, cell, split in zip(frames, cells(positions, 50.0), splits, strict=True):
+    for frame, cell, split in zip(frames, cells(positions, 50.0, frames), splits, strict=True):
         assert seen.setdefault((frame.mission, cell), split) == split
 
 
@@ -217,7 +225,14 @@ def test_every_open_split_gets_a_block_when_blocks_suffice():
 def test_block_ids_name_the_mission_and_the_square():
     frames = [Frame("urban_1", "low", "h", "000000", {}), Frame("rural_1", "mid", "v", "0", {})]
     positions = np.array([[3 * 150 + 1.0, -2 * 150 + 149.5], [-0.1, 0.0]])
-    assert block_ids(frames, positions, 150.0) == ["003_urban_1/3_-2", "001_rural_1/-1_0"]
+    # One frame per mission: an extent of 0, one block centred on it.
+    assert block_ids(frames, positions, 150.0) == ["003_urban_1/0_0", "001_rural_1/0_0"]
+    # Columns and rows count from 0 over the mission's own extent: 0..400 m in x is
+    # floor(400 / 150) + 1 = 3 blocks from -25 m; 0..100 m in y is 1 block from -25 m.
+    many = [Frame("urban_1", "low", "h", f"{i:06d}", {}) for i in range(4)]
+    xy = np.array([[0.0, 0.0], [124.9, 100.0], [125.0, 50.0], [400.0, 0.0]])
+    assert block_ids(many, xy, 150.0) == [f"003_urban_1/{c}_0" for c in (0, 0, 1, 2)]
+    assert block_ids(many, xy, 1e9) == ["003_urban_1/0_0"] * 4
     with pytest.raises(ValueError, match=r"one \(x, y\) pair per frame: 2×2, got \(1, 2\)"):
         block_ids(frames, positions[:1], 150.0)
     positions[1, 0] = np.nan
@@ -246,14 +261,19 @@ def test_split_summary_counts_what_the_splits_hold(claravid_root, tmp_path):
         s: sum(frames[m, s] for m in missions) for s in SPLITS
     }
     # Each frame's block, from its extrinsics file read here.
+    # A split's blocks lie on the grid of the whole selection (all three splits' frames).
+    every = [f for ds in parts.values() for f in ds.frames]
+    xy = np.array([
+        read_extrinsics(claravid_root / MISSIONS[f.mission] / "extrinsics" / f.viewpoint
+                        / f"{f.stem}.json")[:2, 3]
+        for f in every
+    ])  # fmt: skip
+    expected = {
+        f.key: f"{MISSIONS[f.mission]}/{x}_{y}"
+        for f, (x, y) in zip(every, cells(xy, 20.0, every), strict=True)
+    }
     for ds in parts.values():
-        expected = []
-        for f in ds.frames:
-            pose = read_extrinsics(claravid_root / MISSIONS[f.mission] / "extrinsics" / f.viewpoint
-                                   / f"{f.stem}.json")  # fmt: skip
-            x, y = np.floor(pose[:2, 3] / 20.0).astype(int)
-            expected.append(f"{MISSIONS[f.mission]}/{x}_{y}")
-        assert ds.block_ids() == expected
+        assert ds.block_ids() == [expected[f.key] for f in ds.frames]
     listed = tmp_path / "val.txt"
     listed.write_text(parts["val"].frames[0].key + "\n")
     with pytest.raises(ValueError, match=r"this dataset reads the split file .*val\.txt"):

@@ -29,10 +29,13 @@ def test_blocks_are_disjoint_deterministic_and_near_fractions():
     assert abs(counts["train"] / len(frames) - 0.6) < 0.1
     assert abs(counts["val"] / len(frames) - 0.2) < 0.1
     # No block is shared between splits, so every viewpoint over one block is in one split.
+    # The grid (docs/data.md): floor(760 / 100) + 1 = 8 blocks per axis centred on the
+    # 0..760 m extent, from -20 m.
     blocks = {}
     for split, pos in zip(splits, positions, strict=True):
-        key = tuple(np.floor(pos / 100.0).astype(int))
+        key = tuple(np.floor((pos + 20.0) / 100.0).astype(int))
         assert blocks.setdefault(key, split) == split
+    assert len(blocks) == 64
     assert splits != assign_blocks(frames, positions, SplitConfig(block_size=100.0, seed=4))
 
 
@@ -130,3 +133,75 @@ def test_a_single_mission_string_is_one_mission():
     assert splits == ["test"] * len(a) + ["val"] * len(b) + ["train"] * len(c)
     with pytest.raises(ValueError, match=r"unknown ClaraVid mission 'urbn_1'"):
         SplitConfig(test_missions="urbn_1")
+
+
+def test_the_seed_alone_changes_the_split():
+    # Same block size and fractions, only the seed differs (a seed ignored would pass the
+    # determinism test above, whose second config also changes the fractions).
+    frames, positions = grid_frames()
+    fractions = (0.6, 0.2, 0.2)
+    three = assign_blocks(frames, positions, SplitConfig(100.0, fractions=fractions, seed=3))
+    four = assign_blocks(frames, positions, SplitConfig(100.0, fractions=fractions, seed=4))
+    assert three != four
+
+
+def test_a_split_file_with_a_byte_order_mark(tmp_path):
+    # Windows editors write a UTF-8 BOM; it was read as part of the first frame's mission.
+    frames, positions = grid_frames("rural_1", n=2)
+    (tmp_path / "val.txt").write_text("001_rural_1/45deg_low_h/000000\n", encoding="utf-8-sig")
+    chosen = select_split(frames, tmp_path / "val.txt", SplitConfig(), lambda: positions)
+    assert [f.key for f in chosen] == ["001_rural_1/45deg_low_h/000000"]
+
+
+@pytest.mark.parametrize(
+    ("values", "message"),
+    [
+        ({"seed": -1}, r"^split_config\.seed must be an integer >= 0, got -1$"),
+        ({"seed": "1"}, r"^split_config\.seed must be an integer >= 0, got '1' \(a string"),
+        ({"seed": 1.5}, r"^split_config\.seed must be an integer"),
+        ({"seed": True}, r"^split_config\.seed must be an integer"),
+        ({"block_size": 0}, r"^split_config\.block_size must be a positive number"),
+        ({"fractions": (0.5, 0.5)}, r"^split_config\.fractions must be three numbers"),
+        ({"test_missions": "urbn_1"}, r"^split_config\.test_missions holds unknown ClaraVid"),
+        ({"val_missions": [1]}, r"^split_config\.val_missions must be mission names"),
+        ({"test_mission": "urban_1"}, r"unknown split_config key\(s\) \['test_mission'\]"),
+    ],
+)
+def test_split_config_errors_name_the_setting(values, message):
+    from claravid.splits import SplitConfigError, make_split_config
+
+    with pytest.raises(SplitConfigError, match=message):
+        make_split_config(values, "split_config.")
+    if "test_mission" not in values:  # the training config's spelling
+        with pytest.raises(ValueError, match=message.replace(r"split_config\.", r"data\.split\.")):
+            make_split_config(values, "data.split.")
+
+
+def test_a_single_string_and_a_seed_are_normalised():
+    from claravid.splits import make_split_config
+
+    config = make_split_config({"test_missions": "urban_high_1", "seed": np.int64(3)})
+    assert config.test_missions == ("urban_high_1",) and config.seed == 3
+    assert type(config.seed) is int
+
+
+def test_a_held_out_mission_outside_the_selection_is_named():
+    a, pa = grid_frames("urban_1", n=2)
+    config = SplitConfig(test_missions="urban_high_1")
+    with pytest.warns(UserWarning, match=r"008_urban_dense_1 \(test_missions\).*\(003_urban_1\)"):
+        test = select_split(a, "test", config, lambda: pa)
+    assert test == []
+
+
+def test_a_block_larger_than_the_mission_is_one_block():
+    # Before: the grid was anchored at the world origin, so a mission around (0, 0) was cut
+    # into four blocks however large they were.
+    from claravid.splits import block_ids
+
+    frames, positions = grid_frames("urban_1", n=4)
+    centred = positions - positions.mean(axis=0)
+    assert len(set(block_ids(frames, centred, 1e9))) == 1
+    # Anchored at the mission's minimum camera x and y: blocks count from 0.
+    assert set(block_ids(frames, centred, 100.0)) == {
+        f"003_urban_1/{x}_{y}" for x in (0, 1) for y in (0, 1)
+    }

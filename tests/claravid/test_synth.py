@@ -193,6 +193,18 @@ def test_same_seed_same_bytes_other_seed_other_scene(tmp_path, tiny):
     assert (tiny / rel).read_bytes() != (other / rel).read_bytes()
 
 
+def test_workers_write_the_same_bytes(tmp_path, tiny):
+    """``--workers 2``: the viewpoints render in worker processes, the files are the same."""
+    assert main([str(tmp_path / "w"), "--seed", "3", "--frames-per-viewpoint", "2", "--size",
+                 "64x48", "--missions", "rural_1", "urban_high_1", "--workers", "2",
+                 "--quiet"]) == 0  # fmt: skip
+    files = sorted(p.relative_to(tiny) for p in tiny.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(tmp_path / "w") for p in (tmp_path / "w").rglob("*")
+                           if p.is_file())  # fmt: skip
+    for rel in files:
+        assert (tiny / rel).read_bytes() == (tmp_path / "w" / rel).read_bytes(), rel
+
+
 def test_a_subset_renders_the_same_frames(tmp_path, tiny):
     part = synthesize(
         tmp_path,

@@ -13,7 +13,7 @@ from claravid.palettes import load_palette
 from claravid.transforms import train_transforms
 
 UAVID_COLORS = load_palette("uavid").colors
-# UDD6 colours by id, from FORMAT.md §6 (not from the palette file under test).
+# UDD6 colours by id, as UDD6 publishes them (docs/data.md; not from the palette file under test).
 UDD6_COLORS = [
     (0, 0, 0),
     (102, 102, 156),

@@ -36,5 +36,23 @@ def model_files(claravid_root, tmp_path_factory):
         "plain": models.save_checkpoint(model, folder / "plain.pt"),
         "onnx": folder / "model.onnx",
     }
-    models.export_onnx(model, files["onnx"], height=28, width=28, dynamic=True)
+    models.export_onnx(
+        model, files["onnx"], models.ExportSettings(height=28, width=28, dynamic=True)
+    )
     return files
+
+
+def write_noisy_predictions(ds, folder, share: float, seed: int, num_classes: int = 8) -> None:
+    """Label maps of ``ds`` (uavid ids) with a ``share`` of pixels wrong, seeded, under
+    ``folder/<frame key>.png``, without ``predictions.json`` (another program's maps)."""
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    for i, frame in enumerate(ds.frames):
+        truth = ds.read_mask(i)
+        valid = np.where(truth == 255, 0, truth).astype(np.uint8)
+        wrong = rng.random(valid.shape) < share
+        pred = np.where(wrong, (valid + 1) % num_classes, valid).astype(np.uint8)
+        (folder / frame.key).parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(folder / f"{frame.key}.png"), pred)

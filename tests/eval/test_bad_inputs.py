@@ -166,7 +166,8 @@ def uavid_case(tmp_path):
 
 def _uavid_args(root, preds, out, *extra):
     return ["--predictions", str(preds), "--dataset", "uavid", "--data", str(root), "--split",
-            "val", "--bins", "1", "--output", str(out), "--no-progress", *extra]  # fmt: skip
+            "val", "--bins", "1", "--output", str(out), "--no-progress", "--palette", "uavid",
+            *extra]  # fmt: skip
 
 
 def test_a_palette_mode_png_prediction_is_read_by_its_indices(uavid_case, tmp_path):

@@ -4,6 +4,7 @@ merging and re-binning saved confusions equal a direct run, torchrun equals one 
 import json
 import subprocess
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -70,8 +71,10 @@ def test_checkpoint_rebuilds_data_and_palette_and_matches_a_direct_count(
         np.add.at(expected, (mask[valid], pred[valid]), 1)
         np.testing.assert_array_equal(confusions[i], expected)
     for name in ("miou_per_bin", "miou_vs_delent", "class_iou_per_bin", "hardest"):
-        png = tmp_path / "rep" / f"{name}.png"
-        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
+        image = cv2.imread(str(tmp_path / "rep" / f"{name}.png"))
+        assert image is not None and (image < 250).any(axis=2).mean() > 0.02, name  # drawn
+    # 3 bins: 6.8 x 4 in at 100 dpi (the tiny model's bars are near 0: their size is known)
+    assert cv2.imread(str(tmp_path / "rep" / "miou_per_bin.png")).shape == (400, 680, 3)
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "## mIoU per complexity bin" in md and "## Per mission" in md
 

@@ -37,7 +37,8 @@ def test_uavid_predictions_by_hand(uavid, tmp_path):
         cv2.imwrite(str(target), pred)
     out = tmp_path / "rep"
     argv = ["--predictions", str(preds), "--dataset", "uavid", "--data", str(root),
-            "--split", "val", "--bins", "1", "--output", str(out), "--no-progress"]  # fmt: skip
+            "--split", "val", "--bins", "1", "--output", str(out), "--no-progress",
+            "--palette", "uavid"]  # fmt: skip
     assert main(argv) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["palette"] == "uavid"

@@ -42,7 +42,11 @@ def test_compare_side_by_side_with_gap(tmp_path, capsys):
     assert "synthetic mIoU" in table and "real mIoU" in table
     # gap real − synthetic in mIoU points: 10.0 in the low bin, 25.0 in the high bin
     assert "| [4, 5) | 10.0 |" in table and "| [5, 6] | 25.0 |" in table
-    assert (out / "compare.png").stat().st_size > 5000
+    # One panel (no confusions, no gaps): 6 x 4.5 in at 100 dpi, bars of both reports.
+    image = cv2.cvtColor(cv2.imread(str(out / "compare.png")), cv2.COLOR_BGR2RGB)
+    assert image.shape == (450, 600, 3)
+    for rgb in ((31, 119, 180), (255, 127, 14)):  # matplotlib's C0 and C1
+        assert (np.abs(image.astype(int) - rgb).sum(axis=2) < 10).sum() > 500
     assert (out / "compare.md").read_text().startswith("# Comparison")
 
 

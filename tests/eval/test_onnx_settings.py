@@ -182,3 +182,40 @@ def test_a_fixed_size_onnx_file_names_its_size_as_a_window_flag():
     message = "the ONNX model takes 42x28 (WxH) inputs only: use --window 42x28 or re-export"
     with pytest.raises(UsageError, match=re.escape(message)):
         resolve_settings(source, window=(42, 28))
+
+
+def test_a_non_square_recorded_window_keeps_height_and_width():
+    """Every fixture window is square; a 14 (high) x 28 (wide) window and a 7 x 14 stride
+    must come back as (height, width) from the ONNX metadata, not swapped."""
+    from claravid.eval.inference.sources import onnx_defaults
+    from claravid.models.onnx_metadata import build_metadata, metadata_props, read_metadata
+
+    config = {"val": {"window": [14, 28], "stride": [7, 14]}}
+    document = build_metadata({}, patch_size=14, num_classes=8, config=config)
+    assert document["window"] == {"size": [14, 28], "stride": [7, 14]}  # [h, w]
+    read = onnx_defaults(read_metadata(metadata_props(document)))
+    assert read["window"] == (14, 28) and read["stride"] == (7, 14)
+
+
+def test_predict_onnx_colours_come_from_the_file(claravid_root, tmp_path):
+    """A palette that ships nowhere: the ONNX file carries its names and colours, and
+    claravid-predict uses them after the YAML is gone (loading it by name would fail)."""
+    from importlib.resources import files as package_files
+
+    from claravid.eval.predict import main as predict_main
+
+    shipped = package_files("claravid.configs").joinpath("palettes", "uavid.yaml").read_text()
+    yaml = tmp_path / "mine.yaml"  # UAVid's classes under another name, in other colours
+    yaml.write_text(shipped.replace("name: uavid", "name: mine").replace(", 0]", ", 1]"))
+    names = list(load_palette(yaml).names)
+    config = {"data": {"root": str(claravid_root), "palette": str(yaml)}, "val": {"window": 14}}
+    ckpt = models.save_checkpoint(tiny_model(), tmp_path / "m.pt", config=config)
+    onnx_path = tmp_path / "m.onnx"
+    assert export_main([str(ckpt), "-o", str(onnx_path), "--size", "14", "--no-check"]) == 0
+    yaml.unlink()
+    image = next((claravid_root / "001_rural_1").rglob("*.jpg"))
+    out = tmp_path / "pred"
+    argv = ["--onnx", str(onnx_path), str(image), "-o", str(out), "--no-progress"]
+    assert predict_main(argv) == 0
+    marker = json.loads((out / "predictions.json").read_text())
+    assert marker["palette"] == "mine" and marker["classes"] == names

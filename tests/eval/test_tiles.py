@@ -4,6 +4,7 @@ Expected values are counted by hand or with the official recipe on the cropped p
 """
 
 import json
+import re
 
 import cv2
 import numpy as np
@@ -122,8 +123,8 @@ def test_concat_follows_the_merge_order():
 
 @pytest.fixture(scope="module")
 def tiled(claravid_root, tmp_path_factory):
-    """Label maps with 10 % of pixels shifted, and a --tiles 30 report of them (64×48 frames:
-    rows 48/30 = 1.6 -> 2 (0, 24, 48), columns 64/30 = 2.13 -> 2 (0, 32, 64))."""
+    """Label maps with 10 % of pixels shifted, and a --tiles 32 report of them (64×48 frames:
+    rows 48/32 = 1.5 -> 2 (0, 24, 48), columns 64/32 = 2 (0, 32, 64))."""
     tmp = tmp_path_factory.mktemp("tiles")
     ds = ClaraVidSegmentation(claravid_root, split="all", palette="uavid")
     rng = np.random.default_rng(0)
@@ -137,7 +138,7 @@ def tiled(claravid_root, tmp_path_factory):
     common = ["--data", str(claravid_root), "--split", "all", "--palette", "uavid",
               "--no-progress", "--bootstrap", "100"]  # fmt: skip
     out = tmp / "rep"
-    assert main(["--predictions", str(preds), *common, "--tiles", "30", "--output", str(out)]) == 0
+    assert main(["--predictions", str(preds), *common, "--tiles", "32", "--output", str(out)]) == 0
     return {"tmp": tmp, "ds": ds, "preds": preds, "common": common, "out": out}
 
 
@@ -152,8 +153,8 @@ def test_cli_tiles_values(tiled):
     report, saved = _load(tiled["out"])
     ds, n = tiled["ds"], len(tiled["ds"])
     tiles = report["tiles"]
-    assert tiles["size"] == 30 and tiles["num_tiles"] == 4 * n
-    assert report["source"]["tiles"] == 30
+    assert tiles["size"] == 32 and tiles["num_tiles"] == 4 * n
+    assert report["source"]["tiles"] == 32
     # Each image's tile confusions sum to its confusion; a tile's delentropy is the official
     # recipe on the tile's pixels; its confusion is counted over the tile's pixels.
     image, row, col = saved["tile_image"], saved["tile_row"], saved["tile_col"]
@@ -188,7 +189,7 @@ def test_cli_tiles_values(tiled):
     expected = stats.spearmanr(saved["tile_delent"][keep], np.array(own)[keep]).statistic
     assert corr["spearman"] == pytest.approx(expected)
     assert (tiled["out"] / "tiles.png").is_file()
-    assert "## Tiles of about 30 px" in (tiled["out"] / "report.md").read_text()
+    assert "## Tiles of about 32 px" in (tiled["out"] / "report.md").read_text()
     printed = bin_table(report)
     assert "tile bin" in printed and f"n = {corr['n']}" in printed
 
@@ -212,7 +213,7 @@ def test_merge_rebins_tiles_without_data(tiled):
         listing.write_text("\n".join(f.key for f in ds.frames[part::2]) + "\n")
         argv = [a if a != "all" else str(listing) for a in tiled["common"]]
         folder = tmp / f"half{part}"
-        assert main(["--predictions", str(tiled["preds"]), *argv, "--tiles", "30",
+        assert main(["--predictions", str(tiled["preds"]), *argv, "--tiles", "32",
                      "--output", str(folder)]) == 0  # fmt: skip
         halves.append(str(folder))
     assert main(["--merge", *halves, "--bootstrap", "100", "--output", str(tmp / "joined")]) == 0
@@ -227,7 +228,7 @@ def test_merge_rebins_tiles_without_data(tiled):
 
 def test_model_tiles_equal_saved_prediction_tiles(claravid_root, model_files, tmp_path):
     common = ["--data", str(claravid_root), "--split", "all", "--no-progress", "--bootstrap", "0",
-              "--tiles", "30"]  # fmt: skip
+              "--tiles", "32"]  # fmt: skip
     argv = ["--checkpoint", str(model_files["checkpoint"]), *common,
             "--save-predictions", str(tmp_path / "p"), "--output", str(tmp_path / "m")]  # fmt: skip
     assert main(argv) == 0
@@ -243,7 +244,8 @@ def test_model_tiles_equal_saved_prediction_tiles(claravid_root, model_files, tm
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--tiles", "1"], "--tiles must be at least 2"),
+        (["--tiles", "1"], "--tiles must be at least 32 pixels"),
+        (["--tiles", "2"], "--tiles must be at least 32 pixels"),  # gave -0.0 and 1.1 GB
         (["--tiles", "0"], "positive integer"),
         (["--tiles", "x"], "positive integer"),
     ],
@@ -261,7 +263,7 @@ def test_bad_tiles(tiled, extra, message, capsys):
 
 
 def test_tiles_do_nothing_with_merge(tiled, capsys):
-    assert main(["--merge", str(tiled["out"]), "--tiles", "30",
+    assert main(["--merge", str(tiled["out"]), "--tiles", "32",
                  "--output", str(tiled["tmp"] / "m2")]) == 2  # fmt: skip
     assert "--tiles does nothing with --merge" in capsys.readouterr().err
 
@@ -279,3 +281,51 @@ def test_a_tile_grid_mismatch_names_the_image():
     _check_tile_grids(data, [0], [ok[0]], [ok[1]])
     with pytest.raises(ValueError, match=r"b.png: the image gives a \(3, 2\) tile grid"):
         _check_tile_grids(data, [1], [bad[0]], [bad[1]])
+
+
+def test_tiles_the_size_of_the_image_are_the_images(tiled):
+    # Before: the tile bins drew other bootstrap streams than the image bins, so one tile per
+    # image gave other intervals than the images themselves.
+    out = tiled["tmp"] / "whole"
+    assert main(["--predictions", str(tiled["preds"]), *tiled["common"], "--tiles", "64",
+                 "--output", str(out)]) == 0  # fmt: skip
+    report, saved = _load(out)
+    tiles = report["tiles"]
+    assert tiles["num_tiles"] == len(saved["paths"])
+    np.testing.assert_array_equal(saved["tile_delent"], saved["complexity_delent"])
+    for image_bin, tile_bin in zip(report["bins"], tiles["bins"], strict=True):
+        for key in ("lo", "hi", "miou", "miou_ci", "pixel_acc", "pixel_acc_ci", "per_class_iou"):
+            assert tile_bin[key] == image_bin[key], key
+    for key, value in report["correlation"]["delent"].items():
+        assert tiles["correlation"]["delent"][key] == value, key
+
+
+def test_tiles_outside_fixed_edges_are_warned(tiled, capsys):
+    # Before: images outside --edges were warned, tiles outside them were only counted.
+    out = tiled["tmp"] / "outside"
+    assert main(["--merge", str(tiled["out"]), "--edges", "20,30", "--bootstrap", "0",
+                 "--output", str(out)]) == 0  # fmt: skip
+    report, _ = _load(out)
+    n = report["tiles"]["num_tiles"]
+    assert report["tiles"]["binning"]["outside"] == n
+    err = capsys.readouterr().err
+    assert re.search(rf"warning: {n} of {n} tile\(s\) fall outside --edges \(delentropy of the "
+                     r"tiles: \d+\.\d\d\.\.\d+\.\d\d\): no tile is in a bin", err), err  # fmt: skip
+
+
+def test_too_many_tiles_per_image_is_refused_before_the_work(tmp_path, capsys):
+    # Before: any grid was cut (--tiles 2 took 1.1 GB for four small images).
+    images, masks, preds = tmp_path / "images", tmp_path / "masks", tmp_path / "preds"
+    truth = np.zeros((1200, 1200), np.uint8)
+    for folder in (images, masks, preds):
+        folder.mkdir()
+    cv2.imwrite(str(images / "x.jpg"), np.full((1200, 1200, 3), 128, np.uint8))
+    cv2.imwrite(str(masks / "x.png"), truth)
+    cv2.imwrite(str(preds / "x.png"), truth)
+    argv = ["--predictions", str(preds), "--dataset", "folder", "--data", str(images),
+            "--masks", str(masks), "--palette", "udd6", "--bins", "1", "--no-progress",
+            "--tiles", "32", "--output", str(tmp_path / "rep")]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "x.jpg of 1200x1200 into 1444 tiles, more than 1024: use tiles of 37 px or more" in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err

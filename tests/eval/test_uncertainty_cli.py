@@ -12,23 +12,21 @@ import numpy as np
 import pytest
 
 from claravid import modalities
-from claravid.eval.analysis.bootstrap import Bootstrap, cluster_ids, confusion_interval
+from claravid.eval.analysis.bins import quantile_bins
+from claravid.eval.analysis.bootstrap import (
+    Bootstrap,
+    cluster_ids,
+    confusion_interval,
+    correlation_interval,
+    unpaired_gap,
+)
+from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.cli import main
 from claravid.layout import MISSIONS, frame_file
 from claravid.segmentation import ClaraVidSegmentation
+from tests.eval.conftest import write_noisy_predictions
 
 K = 8  # uavid palette
-
-
-def _write_predictions(ds, folder, share, seed):
-    rng = np.random.default_rng(seed)
-    for i, frame in enumerate(ds.frames):
-        truth = ds.read_mask(i)
-        valid = np.where(truth == 255, 0, truth).astype(np.uint8)
-        wrong = rng.random(valid.shape) < share
-        pred = np.where(wrong, (valid + 1) % K, valid).astype(np.uint8)
-        (folder / frame.key).parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(folder / f"{frame.key}.png"), pred)
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +35,7 @@ def runs(claravid_root, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("unc")
     ds = ClaraVidSegmentation(claravid_root, split="all", palette="uavid")
     for name, share, seed in (("a", 0.1, 0), ("b", 0.1, 0), ("c", 0.4, 1)):
-        _write_predictions(ds, tmp / f"pred_{name}", share, seed)
+        write_noisy_predictions(ds, tmp / f"pred_{name}", share, seed)
     common = ["--data", str(claravid_root), "--split", "all", "--palette", "uavid",
               "--no-progress", "--bootstrap", "300"]  # fmt: skip
     for name in "abc":
@@ -55,14 +53,20 @@ def _report(folder):
 
 
 def _blocks_by_hand(root, frames, size=150.0):
-    labels = []
-    for f in frames:
-        pose = modalities.read_extrinsics(frame_file(root / MISSIONS[f.mission], f.viewpoint,
-                                                     f.stem, "extrinsics"))  # fmt: skip
-        labels.append(
-            (f.mission, int(np.floor(pose[0, 3] / size)), int(np.floor(pose[1, 3] / size)))
-        )
-    return labels
+    """(mission, column, row) per frame on the grid of docs/data.md: per mission, the fewest
+    blocks whose span exceeds the extent of its camera positions, centred on it."""
+    xy = np.array([
+        modalities.read_extrinsics(frame_file(root / MISSIONS[f.mission], f.viewpoint, f.stem,
+                                              "extrinsics"))[:2, 3]
+        for f in frames
+    ])  # fmt: skip
+    missions = np.array([f.mission for f in frames])
+    origin = np.empty_like(xy)
+    for mission in set(missions.tolist()):
+        lo, hi = xy[missions == mission].min(axis=0), xy[missions == mission].max(axis=0)
+        origin[missions == mission] = (lo + hi) / 2 - (np.floor((hi - lo) / size) + 1) * size / 2
+    cells = np.floor((xy - origin) / size).astype(int).tolist()
+    return [(f.mission, x, y) for f, (x, y) in zip(frames, cells, strict=True)]
 
 
 def test_intervals_everywhere_with_block_clusters(runs, claravid_root):
@@ -72,22 +76,36 @@ def test_intervals_everywhere_with_block_clusters(runs, claravid_root):
     assert unc["method"] == "cluster percentile bootstrap" and unc["cluster"] == "block"
     assert (unc["resamples"], unc["level"], unc["seed"]) == (300, 0.95, 0)
     assert unc["num_clusters"] == len(set(blocks)) >= 2
-    for row in [report["overall"], *report["bins"], *report["groups"]]:
-        lo, hi = row["miou_ci"]
-        assert 0 <= lo <= hi <= 1 and row["ci_note"] is None
-        assert row["pixel_acc_ci"][0] <= row["pixel_acc_ci"][1]
-    corr = report["correlation"]["delent"]
-    assert len(corr["pearson_ci"]) == 2 and len(corr["spearman_ci"]) == 2
-    # The overall interval resamples the hand-computed blocks of the saved confusions.
+    # Every interval resamples the hand-computed blocks of the saved confusions: restated
+    # per set (overall, each quantile bin, each mission) from the report's own images.
     with np.load(runs["tmp"] / "a" / "confusions.npz") as saved:
         conf = saved["confusions"]
         assert sorted(set(saved["attribute_block"])) == sorted(
             {f"{MISSIONS[m]}/{x}_{y}" for m, x, y in blocks}
         )
     ids = cluster_ids([str(b) for b in blocks])
-    expected = confusion_interval(conf, ids, range(len(conf)), Bootstrap(resamples=300),
-                                  stream="overall")  # fmt: skip
-    assert report["overall"]["miou_ci"] == pytest.approx(expected["miou_ci"])
+    settings = Bootstrap(resamples=300)
+    paths = [row["path"] for row in report["images"]]
+    delent = np.array([row["delent"] for row in report["images"]])
+    missions = [f.mission for f in runs["ds"].frames]
+    sets = [("overall", report["overall"], range(len(conf)))]
+    sets += [
+        (f"bin:{b.name}", row, b.indices)
+        for b, row in zip(quantile_bins(delent, paths, 3), report["bins"], strict=True)
+    ]
+    for row in report["groups"]:
+        members = [i for i, m in enumerate(missions) if m == row["name"]]
+        sets.append((f"group:{row['name']}", row, members))
+    for stream, row, members in sets:
+        expected = confusion_interval(conf, ids, members, settings, stream=stream)
+        assert row["miou_ci"] == pytest.approx(expected["miou_ci"]), stream
+        assert row["pixel_acc_ci"] == pytest.approx(expected["pixel_acc_ci"]), stream
+        assert row["ci_note"] is None
+    corr = report["correlation"]["delent"]
+    per_image = np.array([mean_iou(c) for c in conf])
+    expected = correlation_interval(delent, per_image, ids, settings, stream="correlation:delent")
+    assert corr["pearson_ci"] == pytest.approx(expected["pearson_ci"])
+    assert corr["spearman_ci"] == pytest.approx(expected["spearman_ci"])
     text = (runs["tmp"] / "a" / "report.md").read_text()
     o = report["overall"]
     assert f"{o['miou']:.3f} [{o['miou_ci'][0]:.3f}, {o['miou_ci'][1]:.3f}]" in text
@@ -121,9 +139,11 @@ def test_compare_identical_and_injected_error(runs, tmp_path, capsys):
     result = json.loads((out / "compare.json").read_text())
     assert result["baseline"] == "a" and result["uncertainty"]["cluster"] == "block"
     same, worse = result["comparisons"]
-    assert same["report"] == "b" and same["paired"]
-    for row in [same["overall"], *same["bins"]]:
-        assert (row["gap"], row["gap_ci"], row["p_value"]) == (0.0, [0.0, 0.0], 1.0)
+    # B holds A's very predictions: a model against itself is not a comparison (no gap, no
+    # interval, no p-value), and the reason says so.
+    assert same["report"] == "b" and same["comparable"] is False
+    assert "same predictions" in same["reason"]
+    assert (same["overall"], same["bins"]) == (None, [])
     a, c = _report(tmp / "a"), _report(tmp / "c")
     assert worse["paired"] and worse["overall"]["gap"] == pytest.approx(
         c["overall"]["miou"] - a["overall"]["miou"]
@@ -131,7 +151,24 @@ def test_compare_identical_and_injected_error(runs, tmp_path, capsys):
     assert worse["overall"]["gap_ci"][1] < 0 and worse["overall"]["p_value"] < 0.01
     text = (out / "compare.md").read_text()
     assert "**yes**" in text and "paired" in text
-    assert (out / "compare.png").stat().st_size > 5000
+    _check_compare_png(out / "compare.png", bins=3, reports=3)
+
+
+def _check_compare_png(path, bins, reports):
+    """compare.png read back: the figure's size (two panels at 100 dpi), bars of every report
+    in the top panel (matplotlib's C0, C1, ...) and gap bars (C1, C2, ...) in the bottom one."""
+    image = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+    assert image.shape == (900, int(100 * max(6, 1.8 * bins + 2)), 3)
+    colours = [(31, 119, 180), (255, 127, 14), (44, 160, 44)]  # C0, C1, C2
+    top, bottom = image[:450], image[450:]
+
+    def drawn(panel, rgb):
+        return int((np.abs(panel.astype(int) - rgb).sum(axis=2) < 10).sum())
+
+    for k in range(reports):
+        assert drawn(top, colours[k]) > 100, f"no bars of report {k}"
+    # B = A draws no gap bar (not comparable); the injected error's gap is drawn.
+    assert drawn(bottom, colours[reports - 1]) > 100
 
 
 def test_compare_different_images_is_unpaired(runs, tmp_path):
@@ -141,15 +178,25 @@ def test_compare_different_images_is_unpaired(runs, tmp_path):
                  "--output", str(out)]) == 0  # fmt: skip
     comp = json.loads((out / "compare.json").read_text())["comparisons"][0]
     assert comp["paired"] is False and "unpaired" in comp["note"]
-    assert comp["overall"]["paired"] is False and comp["overall"]["gap_ci"] is not None
+    assert comp["overall"]["paired"] is False
+    # The unpaired gap restated: A over all its images, the half over its own, resampled
+    # independently with A's block clusters and the half's.
+    with np.load(tmp / "a" / "confusions.npz") as a, np.load(tmp / "half" / "confusions.npz") as h:
+        conf_a, conf_h = a["confusions"], h["confusions"]
+        ids_a, ids_h = cluster_ids(a["attribute_block"]), cluster_ids(h["attribute_block"])
+    settings = Bootstrap(resamples=100, cluster="block")
+    expected = unpaired_gap(conf_a, ids_a, range(len(conf_a)), conf_h, ids_h,
+                            range(len(conf_h)), settings, stream="compare:1:overall")  # fmt: skip
+    assert comp["overall"]["gap"] == pytest.approx(expected["gap"])
+    assert comp["overall"]["gap_ci"] == pytest.approx(expected["gap_ci"])
     assert "unpaired" in (out / "compare.md").read_text()
 
 
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--bootstrap", "-1"], "--bootstrap must be >= 0"),
-        (["--ci-level", "1.5"], "--ci-level must be between 0 and 1"),
+        (["--bootstrap", "-1"], "--bootstrap (resamples) must be >= 0"),
+        (["--ci-level", "1.5"], "--ci-level (the interval level) must be between 0 and 1"),
         (["--cluster", "tile"], "unknown --cluster 'tile'"),
         (["--cluster", "sequence"], "--cluster sequence is not available"),
     ],
@@ -167,33 +214,44 @@ def test_block_without_extrinsics_is_refused(writable_root, tmp_path, capsys):
     for f in writable_root.glob("*/extrinsics/*/*"):
         f.unlink()
     ds = ClaraVidSegmentation(writable_root, split="all", palette="uavid")
-    _write_predictions(ds, tmp_path / "p", 0.1, 0)
+    write_noisy_predictions(ds, tmp_path / "p", 0.1, 0)
     argv = ["--predictions", str(tmp_path / "p"), "--data", str(writable_root), "--split", "all",
             "--palette", "uavid", "--no-progress", "--output", str(tmp_path / "x")]  # fmt: skip
     assert main([*argv, "--cluster", "block"]) == 2
     err = capsys.readouterr().err
     assert "--cluster block is not available" in err and "extrinsics" in err
     # Without --cluster the default falls back to the viewpoint.
-    assert main([*argv, "--bootstrap", "50"]) == 0
+    assert main([*argv, "--bootstrap", "100"]) == 0
     assert _report(tmp_path / "x")["uncertainty"]["cluster"] == "viewpoint"
 
 
 def test_paired_compare_aligns_images_by_path():
-    """B lists the same images as A in another order: the pairs follow the paths."""
+    """B lists the same images as A in another order: the pairs follow the paths, so the gaps
+    equal those of B listed in A's order, and differ from pairing rows by position."""
     from claravid.eval.analysis.compare import gap_analysis
     from claravid.eval.analysis.table import EvalResult
 
     rng = np.random.default_rng(0)
     conf = rng.integers(0, 50, size=(12, 3, 3)) + np.eye(3, dtype=np.int64) * 400
+    better = conf + np.eye(3, dtype=np.int64) * rng.integers(0, 200, size=(12, 1, 1))
     paths = [f"img{i:02d}.png" for i in range(12)]
     attrs = {"folder": [f"f{i // 3}" for i in range(12)]}
-    a = EvalResult(paths, paths, conf, {}, attrs, ["x", "y", "z"], "p", {"dataset": "folder"})
+
+    def result(rows, confusions):
+        return EvalResult([paths[i] for i in rows], [paths[i] for i in rows], confusions, {},
+                          {"folder": [attrs["folder"][i] for i in rows]}, ["x", "y", "z"], "p",
+                          {"dataset": "folder"})  # fmt: skip
+
+    a, in_order = result(range(12), conf), result(range(12), better)
     order = rng.permutation(12)
-    b = EvalResult([paths[i] for i in order], [paths[i] for i in order], conf[order], {},
-                   {"folder": [attrs["folder"][i] for i in order]}, ["x", "y", "z"], "p",
-                   {"dataset": "folder"})  # fmt: skip
-    report = {"source": {"binning": {}}}
-    out = gap_analysis([a, b], [report, report], ["a", "b"], Bootstrap(resamples=100,
-                       cluster="folder"))["comparisons"][0]  # fmt: skip
-    assert out["paired"] and out["overall"]["gap_ci"] == [0.0, 0.0]
-    assert out["overall"]["p_value"] == 1.0
+    shuffled = result(order, better[order])
+    by_position = result(range(12), better[order])  # B's rows put on A's paths by position
+    report, settings = {"source": {"binning": {}}}, Bootstrap(resamples=100, cluster="folder")
+
+    def overall(b):
+        out = gap_analysis([a, b], [report, report], ["a", "b"], settings)["comparisons"][0]
+        assert out["paired"]
+        return out["overall"]
+
+    assert overall(shuffled) == overall(in_order)
+    assert overall(by_position)["gap_ci"] != overall(in_order)["gap_ci"]

@@ -1,4 +1,4 @@
-"""The DPT head against an independent restatement of FORMAT.md §4 in functional torch ops.
+"""The DPT head against an independent restatement (docs/models.md) in functional torch ops.
 
 The reference below reads only the head's weights (by name) and applies the recipe step by step
 with ``torch.nn.functional``; it shares no code with ``models/dpt.py``. A plausible slip in the
@@ -25,7 +25,7 @@ def reference_dpt(
     out_size: tuple[int, int],
     use_cls: bool,
 ) -> torch.Tensor:
-    """FORMAT.md §4, literally."""
+    """The DPT head as docs/models.md describes it, literally."""
     gh, gw = grid
     levels = []
     for i, (tokens, cls) in enumerate(feats):
@@ -61,8 +61,8 @@ def reference_dpt(
     # Segmentation head at the finest level: 3x3 conv + ReLU + 1x1 conv to the classes.
     x = F.relu(F.conv2d(x, w["head.0.weight"], w["head.0.bias"], padding=1))
     logits = F.conv2d(x, w["head.2.weight"], w["head.2.bias"])
-    # FORMAT.md leaves the mode of this last upsampling open; the head documents bilinear
-    # without align_corners (torch's default for images).
+    # The published DPT description leaves the mode of this last upsampling open; the head
+    # documents bilinear without align_corners (torch's default for images).
     return F.interpolate(logits, size=out_size, mode="bilinear", align_corners=False)
 
 

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 
+from claravid.eval.export_cli import main
 from claravid.models import (
     ExportCheckError,
     OnnxSegmenter,
@@ -11,7 +12,7 @@ from claravid.models import (
     export_onnx,
     save_checkpoint,
 )
-from claravid.models.export import check_export, main
+from claravid.models.export import ExportSettings, check_export
 
 TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
 HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
@@ -22,6 +23,35 @@ def _model(name):
     return build_model(name, num_classes=3, backbone_kwargs=TINY, **HEAD).eval()
 
 
+def _as_version_1(src, dst):
+    """``src`` with the metadata claravid 0.1 wrote: version 1, ``claravid.input_size`` HxW."""
+    import json
+
+    import onnx
+
+    proto = onnx.load(str(src))
+    props = {p.key: p.value for p in proto.metadata_props}
+    document = json.loads(props["claravid"])
+    document["version"] = 1
+    props["claravid"] = json.dumps(document)
+    height, width = document["input_size"]
+    props["claravid.input_size"] = f"{height}x{width}"
+    del proto.metadata_props[:]
+    for key, value in props.items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.save(proto, str(dst))
+    return dst
+
+
+def test_version_1_readable_size_without_a_document_reads_hxw():
+    from claravid.models.onnx_metadata import read_input_size
+
+    assert read_input_size({"claravid.input_size": "42x70"}) == (42, 70)  # no document: v1
+    v2 = '{"format": "claravid-onnx", "version": 2, "input_size": null}'
+    assert read_input_size({"claravid": v2, "claravid.input_size": "70x42"}) == (42, 70)
+
+
 def _torch_logits(model, x):
     with torch.no_grad():
         return model(torch.from_numpy(x)).numpy()
@@ -30,16 +60,22 @@ def _torch_logits(model, x):
 @pytest.mark.slow
 def test_fixed_size_export(tmp_path, capsys):
     model = _model("dinov2_vits14_reg")  # antialiased bicubic: stored positional table
-    result = export_onnx(model, tmp_path / "m.onnx", height=42, width=70)
+    result = export_onnx(model, tmp_path / "m.onnx", ExportSettings(height=42, width=70))
     assert result["check_shape"] == (3, 3, 42, 70) and result["max_abs_diff"] < 1e-4
-    assert "max abs diff of logits" in capsys.readouterr().out
     assert model.backbone._frozen_pos is None  # export leaves the model as it was
     runner = OnnxSegmenter(tmp_path / "m.onnx")
     assert runner.input_size == (42, 70) and runner.num_classes == 3 and runner.patch_size == 14
+    meta = runner.session.get_modelmeta().custom_metadata_map
+    assert meta["claravid.input_size"] == "70x42"  # WxH, as every size the project prints
+    # A version-1 file (HxW readable key) still reads as (height, width).
+    old = _as_version_1(tmp_path / "m.onnx", tmp_path / "old.onnx")
+    assert OnnxSegmenter(old).input_size == (42, 70)
     assert runner.model_args["backbone"] == "dinov2_vits14_reg"
     x = np.random.default_rng(0).standard_normal((1, 3, 42, 70)).astype(np.float32)
     np.testing.assert_allclose(runner(x), _torch_logits(model, x), atol=1e-4)
-    with pytest.raises(ValueError, match=r"exported for 42x70 inputs, got 56x70.*--dynamic"):
+    with pytest.raises(
+        ValueError, match=r"exported for 70x42 \(WxH\) inputs, got 70x56.*--dynamic"
+    ):
         runner(np.zeros((1, 3, 56, 70), np.float32))
     # The same input checks as the PyTorch model (one implementation, models/inputs.py).
     with pytest.raises(TypeError, match=r"dtype uint8: convert to float and normalise"):
@@ -56,7 +92,7 @@ def test_fixed_size_export(tmp_path, capsys):
 def test_dynamic_export_other_sizes(tmp_path):
     # Example at the native 4x4 grid: the offset bicubic must still follow other sizes.
     model = _model("dinov2_vits14")
-    export_onnx(model, tmp_path / "d.onnx", height=56, width=56, dynamic=True)
+    export_onnx(model, tmp_path / "d.onnx", ExportSettings(height=56, width=56, dynamic=True))
     runner = OnnxSegmenter(tmp_path / "d.onnx")
     assert runner.input_size is None
     rng = np.random.default_rng(1)
@@ -73,7 +109,8 @@ def test_cli(tmp_path, capsys):
     ckpt = save_checkpoint(model, tmp_path / "m.pt")
     out = tmp_path / "cli.onnx"
     assert main([str(ckpt), "--output", str(out), "--height", "28", "--width", "42"]) == 0
-    assert f"wrote {out}" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert f"wrote {out}" in printed and "max abs diff of logits" in printed
     x = np.random.default_rng(2).standard_normal((2, 3, 28, 42)).astype(np.float32)
     np.testing.assert_allclose(OnnxSegmenter(out)(x), _torch_logits(model, x), atol=1e-4)
 
@@ -149,7 +186,7 @@ def test_python_api_rejects_nonsense_numbers(tmp_path):
         ({"height": 20}, "pad or resize it to 28x630"),
     ]:
         with pytest.raises(ValueError, match=match):
-            export_onnx(model, tmp_path / "x.onnx", **kwargs)
+            export_onnx(model, tmp_path / "x.onnx", ExportSettings(**kwargs))
     assert not any(tmp_path.iterdir())  # rejected before anything is written
 
 

@@ -5,8 +5,9 @@ import onnx
 import pytest
 import torch
 
+from claravid.eval.export_cli import main
 from claravid.models import OnnxSegmenter, build_model
-from claravid.models.export import check_export, export_onnx, main, smooth_images
+from claravid.models.export import ExportSettings, check_export, export_onnx, smooth_images
 from claravid.models.onnx_fp16 import convert_to_fp16
 from claravid.models.onnx_metadata import normalisation_from_config
 from claravid.models.quantize import quantize_int8
@@ -21,7 +22,7 @@ def exported(tmp_path_factory):
     torch.manual_seed(0)
     model = build_model("dinov2_vits14", num_classes=4, backbone_kwargs=TINY, **HEAD).eval()
     path = tmp_path_factory.mktemp("precision") / "fp32.onnx"
-    export_onnx(model, path, height=SIZE, width=SIZE, check=False)
+    export_onnx(model, path, ExportSettings(height=SIZE, width=SIZE, check=False))
     x = smooth_images((2, 3, SIZE, SIZE), normalisation_from_config(None), seed=5)
     with torch.no_grad():
         expected = model(torch.from_numpy(x)).numpy()
@@ -97,7 +98,7 @@ def test_refusal_below_min_agreement_leaves_no_file(tmp_path, capsys):
             "--precision", "int8", "--min-agreement", "1"]  # fmt: skip
     assert main(argv) == 1  # 99.96 % of pixels agree
     captured = capsys.readouterr()
-    assert "max abs diff of logits" in captured.out and "argmax agreement" in captured.out
+    assert "agrees with PyTorch on 99.9" in captured.err
     assert "< --min-agreement 100 %" in captured.err and "nothing was written" in captured.err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.pt"]
 
@@ -123,6 +124,7 @@ def test_cli_rejects_calibration_misuse(tmp_path, capsys):
     for args, match in [
         (["--calibration", str(tmp_path)], "apply to --precision int8 only"),
         (["--per-channel"], "apply to --precision int8 only"),
+        (["--precision", "int8", "--calibration-images", "8"], "does nothing without --calibr"),
         (["--precision", "int8", "--calibration", str(tmp_path / "no")], "is not a folder"),
     ]:
         assert main([str(tmp_path / "m.pt"), "-o", str(tmp_path / "x.onnx"), *args]) == 2

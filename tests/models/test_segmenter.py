@@ -176,3 +176,14 @@ def test_forward_is_backbone_then_head_on_non_square_input(h, w):
         got = model(x)
     assert got.shape == (1, 5, h, w)
     torch.testing.assert_close(got, expected, atol=1e-6, rtol=0)
+
+
+def test_a_compiled_model_checks_its_input():
+    # Before: the check was skipped while compiling, so a compiled model took 100x100.
+    model = torch.compile(_model().eval(), backend="eager")
+    with torch.no_grad():
+        assert model(torch.randn(1, 3, 28, 42)).shape == (1, 5, 28, 42)
+        with pytest.raises(ValueError, match=r"100x100 is not a multiple of the patch size 14"):
+            model(torch.randn(1, 3, 100, 100))
+        with pytest.raises(TypeError, match=r"got dtype torch.uint8"):
+            model(torch.zeros(1, 3, 28, 28, dtype=torch.uint8))

@@ -22,3 +22,21 @@ def test_a_flag_and_its_key_together_are_one_line(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert err == f"claravid-train: error: {message}: give one"
     assert not any(tmp_path.iterdir())  # refused before anything was written
+
+
+def test_overrides_after_a_flag_and_workers(tmp_path):
+    """``--resume out_dir=x``: a key=value after a flag is an override, not an error;
+    ``--workers N`` is ``data.num_workers=N``."""
+    args = build_parser().parse_args(
+        ["--config", "demo", "--resume", f"out_dir={tmp_path}", "--workers", "0", "train.steps=3"]
+    )
+    assert args.resume is True
+    cfg = load_config("demo", overrides(args))
+    assert cfg.out_dir == str(tmp_path) and cfg.train.steps == 3 and cfg.data.num_workers == 0
+    assert main(["--config", "demo", "--workers", "0", "data.num_workers=1"]) == 2
+
+
+def test_an_output_path_with_a_dollar_brace_is_the_path(tmp_path):
+    out = tmp_path / "${train.steps}" / "x'${oops"
+    args = build_parser().parse_args(["--config", "demo", "-o", str(out)])
+    assert load_config("demo", overrides(args)).out_dir == str(out)

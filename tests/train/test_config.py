@@ -121,3 +121,20 @@ def test_every_key_eval_reads_from_a_checkpoint_exists_in_the_schema():
     missing = [".".join(p) for p in paths if ".".join(p) not in keys | prefixes]
     assert not missing, f"keys read by eval that the training schema lacks: {missing}"
     assert "data.val_root" in keys and "val.window" in keys  # the check sees leaf keys
+
+
+def test_split_settings_are_checked_by_name(tmp_path):
+    # Before: seed -1 failed deep in numpy, and a single held-out mission was a type error.
+    with pytest.raises(ConfigError, match=r"^data\.split\.seed must be an integer >= 0, got -1$"):
+        load_config("demo", ["data.split.seed=-1"])
+    with pytest.raises(ConfigError, match=r"^data\.split\.val_missions holds unknown ClaraVid"):
+        load_config("demo", ["data.split.val_missions=urbn_1"])
+    cfg = load_config("demo", ["data.split.test_missions=urban_high_1"])
+    assert list(cfg.data.split.test_missions) == ["urban_high_1"]
+    path = tmp_path / "c.yaml"
+    path.write_text(
+        (shipped_file("demo").read_text() + "\n").replace(
+            "data:\n", "data:\n  split: {test_missions: urban_high_1}\n", 1
+        )
+    )
+    assert list(load_config(path).data.split.test_missions) == ["urban_high_1"]

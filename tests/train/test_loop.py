@@ -97,9 +97,10 @@ def test_user_mistakes_are_one_line_exit_2(claravid_root, tmp_path, capsys):
             claravid_root, tmp_path / "d", "train.batch_size=3", "data.crops_per_frame=2"
         ),
         # Checked before the first step, not at the first validation.
-        # 80 m blocks balance the fixture's missions: no SplitBalanceWarning line beside it.
+        # 75 m blocks balance the fixture's missions: no SplitBalanceWarning line beside it
+        # (80 m did while the block grid was anchored at 0; the warning measures 75 now).
         "fewer than val.bins=50": tiny(
-            claravid_root, tmp_path / "e", "val.bins=50", "data.split.block_size=80"
+            claravid_root, tmp_path / "e", "val.bins=50", "data.split.block_size=75"
         ),
     }
     for message, args in cases.items():
@@ -242,5 +243,5 @@ def test_complexity_balanced_sampler_trains(claravid_root, tmp_path):
     extra = ["train.steps=2", "val.every=0", "data.sampler=complexity_balanced"]
     assert train(load_config("demo", tiny(claravid_root, out, *extra))).step == 2
     bad = tiny(claravid_root, tmp_path / "b", *extra, "data.sampler_bins=1000")
-    with pytest.raises(ValueError, match="more than the 26 training frames"):
+    with pytest.raises(ValueError, match="more than the 25 training frames"):  # 150 m blocks
         train(load_config("demo", bad))

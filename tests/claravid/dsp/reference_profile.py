@@ -1,4 +1,4 @@
-"""The official scene profile recipe (FORMAT.md §2), written out with numpy and scipy directly.
+"""The official scene profile recipe (docs/complexity.md), written out with numpy and scipy.
 
 Independent of ``claravid.dsp.profile``: the expected values of the profile tests come from here,
 so a slip in the code under test (sample instead of population sigma, no clipping, alpha and

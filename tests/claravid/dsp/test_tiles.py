@@ -49,8 +49,8 @@ def test_bad_tile_size(size):
 
 def test_tile_values_equal_the_official_recipe_on_the_cropped_pixels():
     gray = textured(np.random.default_rng(3), 75, 101)
-    values = tile_complexities(gray, 30)
-    ys, xs = [0, 38, 75], [0, 34, 67, 101]  # 75/30 = 2.5 -> 2, 101/30 = 3.37 -> 3
+    values = tile_complexities(gray, 32)
+    ys, xs = [0, 38, 75], [0, 34, 67, 101]  # 75/32 = 2.34 -> 2, 101/32 = 3.16 -> 3
     assert values.shape == (2, 3)
     for r in range(2):
         for c in range(3):
@@ -150,3 +150,22 @@ def test_tiles_follow_the_stored_pixels_of_an_exif_rotated_photo(tmp_path):
     assert result.tiles.shape == (2, 3)  # 64/32 = 2 rows, 90/32 = 2.8 -> 3 columns (0, 30, 60, 90)
     crop = cv2.GaussianBlur(np.ascontiguousarray(as_stored[:32, 30:60]), (3, 3), 1.0)
     assert result.tiles[0, 1] == pytest.approx(official_delentropy(crop), abs=1e-9)
+
+
+def test_a_tile_too_small_to_measure_is_refused():
+    # Before: --tiles 2 measured every tile as delentropy -0.0 and took 1.1 GB.
+    gray = textured(np.random.default_rng(3), 75, 101)
+    for size in (2, 31):
+        with pytest.raises(ValueError, match=r"at least 32 pixels.*got " + str(size)):
+            tile_complexities(gray, size)
+    assert tile_complexities(gray, 32).shape == (2, 3)
+    big = np.zeros((3024, 4032), np.uint8)
+    with pytest.raises(ValueError, match=r"cut an image of 4032x3024 into 11844 tiles, more "
+                       r"than 1024: use tiles of 110 px or more"):  # fmt: skip
+        tile_complexities(big, 32)
+
+
+def test_a_flat_tile_is_zero_not_minus_zero():
+    values = tile_complexities(np.full((64, 64), 7, np.uint8), 32)
+    assert values.tolist() == [[0.0, 0.0], [0.0, 0.0]]
+    assert not np.signbit(values).any()

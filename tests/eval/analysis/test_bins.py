@@ -1,4 +1,4 @@
-"""Quantile and fixed-edge complexity bins (FORMAT.md §8), edge cases included."""
+"""Quantile and fixed-edge complexity bins (docs/evaluation.md), edge cases included."""
 
 import pytest
 

@@ -1,4 +1,4 @@
-"""Cluster bootstrap (FORMAT.md §8): intervals checked against hand computations."""
+"""Cluster bootstrap (docs/evaluation.md): intervals checked against hand computations."""
 
 from __future__ import annotations
 
@@ -175,10 +175,61 @@ def test_p_value_by_hand():
         ({"resamples": -1}, ">= 0"),
         ({"level": 1.5}, "between 0 and 1"),
         ({"level": 0.0}, "between 0 and 1"),
-        ({"cluster": "tile"}, "unknown cluster unit"),
+        ({"cluster": "tile"}, "unknown --cluster 'tile'"),
         ({"seed": -2}, "seed"),
     ],
 )
 def test_bad_settings(kwargs, message):
     with pytest.raises(ValueError, match=message):
         Bootstrap(**kwargs)
+
+
+def test_the_seed_alone_changes_the_draws():
+    # One stream, two seeds: only the seed differs (a generator seeded with a constant would
+    # give the same draws). And the generator is the documented one: default_rng([seed,
+    # crc32(stream)]).
+    import zlib
+
+    conf = _random_confusions(30, 4, 0)
+    ids = cluster_ids([str(i // 3) for i in range(30)])
+    five = confusion_interval(conf, ids, range(30), Bootstrap(resamples=200, seed=5), stream="x")
+    six = confusion_interval(conf, ids, range(30), Bootstrap(resamples=200, seed=6), stream="x")
+    assert five["miou_ci"] != six["miou_ci"]
+    expected = np.random.default_rng([6, zlib.crc32(b"x")]).integers(0, 1000, 8)
+    np.testing.assert_array_equal(Bootstrap(seed=6).rng("x").integers(0, 1000, 8), expected)
+
+
+def test_mean_interval_leaves_out_non_finite_values():
+    # test_mean_interval_by_hand's values with a NaN and an inf added to cluster a: the same
+    # mean and interval as without them.
+    values = np.array([1.0, np.nan, 3.0, np.inf, 10.0])
+    clusters = cluster_ids(["a", "a", "a", "a", "b"])
+    out = mean_interval(values, clusters, range(5), Bootstrap(level=0.5), DRAWS)
+    assert out["mean"] == pytest.approx(14 / 3)
+    assert out["ci"] == pytest.approx([10 / 3, 22 / 3])
+
+
+def test_a_correlation_interval_needs_four_pairs_and_four_clusters():
+    # 3 images: every resample with all three gives the same r, a zero-width "interval".
+    x, y = np.array([1.0, 2.0, 4.0]), np.array([1.0, 3.0, 2.0])
+    out = correlation_interval(x, y, cluster_ids(["a", "b", "c"]), Bootstrap(resamples=200))
+    assert out["pearson_ci"] is None and out["spearman_ci"] is None
+    assert "3 image pairs in 3 image clusters" in out["ci_note"] and "at least 4" in out["ci_note"]
+    # 8 images in 3 clusters: still too few clusters to resample.
+    x8 = np.arange(8.0)
+    out = correlation_interval(x8, x8**2, cluster_ids(list("aaabbbcc")), Bootstrap(resamples=200))
+    assert out["pearson_ci"] is None and "in 3 image clusters" in out["ci_note"]
+    four = correlation_interval(x8, x8**2, cluster_ids(list("aabbccdd")), Bootstrap(resamples=200))
+    assert four["pearson_ci"] is not None and four["ci_note"] is None
+
+
+@pytest.mark.parametrize("resamples", [1, 2, 5, 99])
+def test_too_few_resamples_are_refused(resamples):
+    with pytest.raises(ValueError, match=f"{resamples} is too few .* at least 100"):
+        Bootstrap(resamples=resamples)
+    assert Bootstrap(resamples=100).enabled and not Bootstrap(resamples=0).enabled
+
+
+def test_a_bootstrap_larger_than_memory_is_refused_before_allocating():
+    with pytest.raises(ValueError, match=r"need 3725\.3 GiB .* lower --bootstrap"):
+        draw_counts(1000, 10**9, np.random.default_rng(0))

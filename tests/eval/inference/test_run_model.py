@@ -21,7 +21,7 @@ def test_per_image_confusions_match_a_direct_count(claravid_root):
     saved = {}
     scores = evaluate_model(
         model, dataset, 8, WindowConfig(size=(28, 28)), indices=[0, 5],
-        on_prediction=lambda s, p: saved.setdefault(s["key"], p.numpy()),
+        on_score=lambda s, p, _: saved.setdefault(s["key"], p.numpy()),
     )  # fmt: skip
     assert [s.path for s in scores] == [str(dataset.frames[i].paths["rgb"]) for i in (0, 5)]
     assert len(saved) == 2
@@ -35,3 +35,17 @@ def test_per_image_confusions_match_a_direct_count(claravid_root):
         np.testing.assert_array_equal(score.confusion, expected)
         np.testing.assert_array_equal(saved[score.key], pred)
         assert score.key == sample["key"]
+
+
+def test_evaluation_samples_travel_as_uint8(claravid_root):
+    # The frame and its labels stay uint8 until the model's device (an int64 12-Mpixel mask
+    # is 96 MB); the values are the training dataset's int64 ones.
+    from claravid.eval import open_data
+
+    data = open_data(claravid_root, split="all", palette="uavid")
+    sample = data.dataset[3]
+    assert sample["image"].dtype == torch.uint8 and sample["mask"].dtype == torch.uint8
+    reference = ClaraVidSegmentation(claravid_root, split="all", palette="uavid")[3]
+    assert reference["mask"].dtype == torch.int64
+    assert torch.equal(sample["mask"].long(), reference["mask"])
+    assert torch.equal(sample["image"], reference["image"])

@@ -132,7 +132,39 @@ def test_window_not_a_patch_multiple_names_the_fix():
 
 def test_bad_image():
     with pytest.raises(ValueError, match=r"\[3,H,W\]"):
-        sliding_window_logits(lambda x: x, torch.zeros(3, 8, 8, dtype=torch.uint8))
+        sliding_window_logits(lambda x: x, torch.zeros(3, 8, 8, dtype=torch.int64))
+    with pytest.raises(ValueError, match=r"\[3,H,W\]"):
+        sliding_window_logits(lambda x: x, torch.zeros(4, 8, 8, dtype=torch.uint8))
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.5])
+def test_uint8_frames_are_normalised_on_the_device_as_eval_transforms_did(scale):
+    # The frame travels as uint8 and is normalised where the model runs; the logits equal those
+    # of the former path (albumentations normalisation on the CPU, float32 frame) within float
+    # rounding. A custom mean/std shows the config's normalisation is the one applied.
+    from claravid.transforms import augment_config, eval_transforms
+
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (3, 61, 83), dtype=np.uint8)
+    mean, std = (0.3, 0.5, 0.7), (0.2, 0.25, 0.3)
+    model = torch.nn.Conv2d(3, 5, 3, padding=1).eval()
+    config = WindowConfig(size=28, scale=scale, mean=mean, std=std)
+    old = eval_transforms(augment_config({"mean": list(mean), "std": list(std)}))
+    normalised = old({"image": torch.from_numpy(rgb)})["image"]
+    expected = sliding_window_logits(model, normalised, config)
+    got = sliding_window_logits(model, torch.from_numpy(rgb), config)
+    torch.testing.assert_close(got, expected, rtol=0, atol=1e-5)
+    imagenet = sliding_window_logits(
+        model, torch.from_numpy(rgb), WindowConfig(size=28, scale=scale)
+    )
+    assert (imagenet - expected).abs().max() > 0.1  # the mean/std of the config matter
+
+
+def test_bad_normalisation():
+    with pytest.raises(ValueError, match="std must be positive"):
+        WindowConfig(std=(0.2, 0.0, 0.3))
+    with pytest.raises(ValueError, match="mean must be 3 finite numbers"):
+        WindowConfig(mean=(0.5, 0.5))
 
 
 def _reference_at_scale(model, image, scale):
@@ -214,8 +246,9 @@ def test_precision_settings_and_the_old_boolean():
                           (("fp16",), "must be fp32 or bf16")]:  # fmt: skip
         with pytest.raises(ValueError, match=message):
             flag_precision(*args)
-    with pytest.raises(ValueError, match="PyTorch model"):
-        flag_precision("bf16", pytorch=False)
+    for args in [("bf16",), ("fp32",), (None, True)]:  # ONNX runs at its exported precision
+        with pytest.raises(ValueError, match="does nothing with --onnx"):
+            flag_precision(*args, pytorch=False)
 
 
 def test_onnx_windows_equal_pytorch_windows(model_files):

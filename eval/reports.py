@@ -1,0 +1,139 @@
+"""Runs over saved report folders, no model and no torch: merge (or re-bin) and compare.
+
+::
+
+    from claravid.eval import ReportSettings, compare, merge
+
+    merge(["part0", "part1"], "all", ReportSettings(edges=[4, 4.5, 5]))
+    print(compare(["all", "other"], "cmp"))
+
+What a user should know (different runs merged, tiles dropped, images outside fixed edges,
+reports that are not comparable bin by bin) is a :class:`UserWarning`.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from claravid.cli import check_output_dir
+from claravid.eval.analysis.bootstrap import Bootstrap
+from claravid.eval.analysis.table import EvalResult
+from claravid.eval.report.files import REPORT, check_report_kind
+from claravid.eval.settings import Evaluation, ReportSettings
+
+
+def warn_outside_edges(report: dict[str, Any], values: np.ndarray, total: int) -> None:
+    """Say when fixed edges leave images in no bin (the report counts them only)."""
+    outside = report["source"].get("binning", {}).get("outside") or []
+    if outside:
+        values = np.asarray(values, dtype=float)
+        values = values[np.isfinite(values)]
+        span = f"{values.min():.2f}..{values.max():.2f}" if values.size else "n/a"
+        warnings.warn(
+            f"{len(outside)} of {total} image(s) fall outside --edges (delentropy of the "
+            f"images: {span}): they are in no bin",
+            UserWarning,
+            stacklevel=3,
+        )
+
+
+def merge(
+    parts: Sequence[str | Path],
+    output: str | Path,
+    settings: ReportSettings | None = None,
+    *,
+    overwrite: bool = False,
+) -> Evaluation:
+    """Merge report folders (job-array parts) into one report, or re-bin one report.
+
+    Raises:
+        UsageError: the output is not this tool's folder (without ``overwrite``), a part is
+            not a report, or more bins than images.
+    """
+    from claravid.eval.analysis.table import merge_results
+    from claravid.eval.report.build import build_report
+    from claravid.eval.report.files import load_result
+    from claravid.eval.report.folder import write_outputs
+
+    settings = settings or ReportSettings()
+    output = Path(output)
+    check_output_dir(output, marker=REPORT, overwrite=overwrite)
+    check_report_kind(output, scores=False, overwrite=overwrite)
+    results = [load_result(p) for p in parts]
+    _warn_different_runs(results)
+    result = merge_results(results, [str(p) for p in parts])
+    _warn_dropped_tiles(results, result, parts)
+    settings.check_bins(len(result.paths))
+    report = build_report(
+        result,
+        bins=settings.bins,
+        edges=settings.edges,
+        group_by=settings.group_by,
+        bootstrap=settings.intervals(result.attributes, result.default_cluster()),
+    )
+    warn_outside_edges(report, result.complexity["delent"], len(result.paths))
+    write_outputs(output, report, result)
+    return Evaluation(output, report, result)
+
+
+def _warn_different_runs(parts: Sequence[EvalResult]) -> None:
+    """Job-array parts share one model and one data selection; say when they do not."""
+    for key, what in (("path", "model"), ("split", "split"), ("data", "data root")):
+        seen = {str(p.source.get(key)) for p in parts if p.source.get(key) is not None}
+        if key == "split":  # split files are how job-array parts shard a split: fine
+            seen &= {"train", "val", "test", "all"}
+        if len(seen) > 1:
+            warnings.warn(
+                f"merging reports of different {what}s ({', '.join(sorted(seen))}): the merged "
+                "numbers mix them",
+                UserWarning,
+                stacklevel=3,
+            )
+
+
+def _warn_dropped_tiles(
+    parts: Sequence[EvalResult], merged: EvalResult, names: Sequence[str | Path]
+) -> None:
+    """Tiles merge only when every part has tiles of one size; say when some are dropped."""
+    if merged.tiles is None and any(p.tiles is not None for p in parts):
+        sizes = [f"{n}: {p.tiles.size if p.tiles is not None else 'none'}"
+                 for p, n in zip(parts, names, strict=True)]  # fmt: skip
+        warnings.warn(
+            "the merged report has no tiles: the parts' tile sizes differ or some have none "
+            f"({'; '.join(sizes)}); evaluate every part with the same --tiles",
+            UserWarning,
+            stacklevel=3,
+        )
+
+
+def compare(
+    reports: Sequence[str | Path],
+    output: str | Path | None = None,
+    bootstrap: Bootstrap | None = None,
+    cluster: str | None = None,
+    *,
+    overwrite: bool = False,
+) -> str:
+    """Compare reports, the first the baseline: the Markdown table; with ``output`` also
+    ``compare.md``, ``compare.png`` and ``compare.json`` there.
+
+    Args:
+        reports: report folders or their ``report.json``.
+        output: the folder to write to (None: only return the text).
+        bootstrap: resamples, level and seed of the gaps' intervals (default 1000, 0.95, 0).
+        cluster: the resampled unit (default: the baseline's dataset default).
+        overwrite: replace a folder this tool did not write.
+    """
+    from claravid.eval.report.compare import compare_reports
+
+    if output is not None:
+        check_output_dir(output, marker="compare.md", overwrite=overwrite)
+    text, messages = compare_reports(reports, output, bootstrap, cluster)
+    for message in messages:
+        warnings.warn(message, UserWarning, stacklevel=2)
+    return text

@@ -1,0 +1,321 @@
+"""An evaluation in one call: what ``claravid-eval`` does with a model, label maps or a CSV.
+
+::
+
+    from claravid.eval import DataChoice, ReportSettings, evaluate
+
+    done = evaluate("runs/exp/report", checkpoint="runs/exp/best.pt",
+                    data=DataChoice(split="val"), report=ReportSettings(bins=5))
+    print(done.report["overall"]["miou"])
+
+:func:`evaluate` checks the output folders, loads the model, resolves the data (the call's
+choice, then what the model recorded, then the defaults), runs the model or reads the label
+maps, builds the report and writes its folder; :func:`score_metrics` does the same for any
+per-image metric of a CSV. Neither prints: the command line (:mod:`claravid.eval.cli`) prints
+what they return. Merging and comparing saved reports is :mod:`claravid.eval.reports`.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from claravid.cli import UsageError, check_output_dir
+from claravid.eval.analysis.units import DATASETS, default_cluster
+from claravid.eval.report.files import REPORT, check_report_kind
+from claravid.eval.reports import warn_outside_edges
+from claravid.eval.settings import (
+    SELECTION,
+    DataChoice,
+    Evaluation,
+    InferenceSettings,
+    ReportSettings,
+)
+from claravid.splits import SplitBalanceWarning
+
+
+def resolve_data(choice: DataChoice, defaults: dict[str, Any], *, hint: str = "") -> dict[str, Any]:
+    """The data to open: ``choice`` first, then what the model recorded, then the defaults.
+
+    Raises:
+        UsageError: no root anywhere, ``masks`` or a ClaraVid selection with other data.
+    """
+    root = choice.root or defaults.get("data")
+    if root is None:
+        raise UsageError(f"--data is required: the dataset root to evaluate on{hint}")
+    dataset = choice.dataset or defaults.get("dataset") or "claravid"
+    if dataset not in DATASETS:
+        dataset = "claravid"
+    if choice.masks is not None and dataset != "folder":
+        raise UsageError(f"--masks does nothing with --dataset {dataset}; drop it")
+    if choice.selection and dataset != "claravid":
+        flag = "--" + next(iter(choice.selection))
+        raise UsageError(
+            f"{flag} selects ClaraVid frames; it does nothing with --dataset {dataset}"
+        )
+    selection = {}
+    if dataset == "claravid" and defaults.get("dataset", "claravid") == "claravid":
+        # ClaraVid as in training: the same selection and split settings, so --split val is
+        # exactly the frames training held out.
+        selection = {k: defaults[k] for k in (*SELECTION, "split_config") if k in defaults}
+    selection.update(choice.selection)
+    return {
+        "root": Path(root),
+        "dataset": dataset,
+        "split": choice.split or defaults.get("split") or "val",
+        "palette": choice.palette or defaults.get("palette"),
+        "masks": choice.masks,
+        "selection": selection,
+    }
+
+
+def evaluate(
+    output: str | Path,
+    *,
+    checkpoint: str | Path | None = None,
+    onnx: str | Path | None = None,
+    predictions: str | Path | None = None,
+    data: DataChoice | None = None,
+    inference: InferenceSettings | None = None,
+    report: ReportSettings | None = None,
+    save_predictions: str | Path | None = None,
+    allow_missing: bool = False,
+    workers: int = 0,
+    overwrite: bool = False,
+    progress: bool = False,
+) -> Evaluation:
+    """Evaluate a checkpoint, an ONNX file or saved label maps into the report folder ``output``.
+
+    Under ``torchrun`` every rank calls it; rank 0 writes the report, the others return
+    ``report=None``.
+
+    Args:
+        output: the report folder.
+        checkpoint, onnx, predictions: what to evaluate (exactly one).
+        data: the images (default: what the checkpoint recorded).
+        inference: windows, device, precision (models only).
+        report: bins, groups, measures, tiles, intervals.
+        save_predictions: also write the model's label maps into this folder.
+        allow_missing: skip images without a saved prediction (listed in ``skipped``).
+        workers: processes for complexity and image decoding.
+        overwrite: replace folders this tool did not write.
+        progress: show a progress bar.
+
+    Raises:
+        UsageError: a user's mistake (bad combination, foreign output folder, mismatched
+            palette, missing data...), before the inference starts where it can be seen then.
+    """
+    from claravid import distributed
+    from claravid.cli import check_device
+    from claravid.eval.inference.collect import CollectSettings, collect
+    from claravid.eval.inference.hardest import hardest_items
+    from claravid.eval.inference.label_maps import MARKER, write_marker
+    from claravid.eval.report.build import build_report
+    from claravid.eval.report.folder import write_outputs
+
+    if sum(x is not None for x in (checkpoint, onnx, predictions)) != 1:
+        raise UsageError("give exactly one of --checkpoint, --onnx and --predictions")
+    data, inference, report = (
+        data or DataChoice(),
+        inference or InferenceSettings(),
+        report or ReportSettings(),
+    )
+    output = Path(output)
+    check_device(inference.device)  # one line, not CUDA's traceback
+    info = distributed.init_distributed(inference.device)
+    check_output_dir(output, marker=REPORT, overwrite=overwrite)
+    check_report_kind(output, scores=False, overwrite=overwrite)
+    if save_predictions is not None:
+        if predictions is not None:
+            raise UsageError("--save-predictions needs a model (--checkpoint or --onnx)")
+        check_output_dir(save_predictions, marker=MARKER, overwrite=overwrite,
+                         what="--save-predictions")  # fmt: skip
+    # Every rank has checked the untouched folders; only now may any rank write to them.
+    distributed.barrier()
+    model, run, source = _model_and_source(checkpoint, onnx, predictions, data, inference, info)
+    opened = _open(data, model, run, predictions)
+    if report.group_by is not None:
+        opened.groups(report.group_by)  # fails now, not after the inference
+    report.check_bins(len(opened))
+    intervals = report.intervals(opened.attributes, default_cluster(opened.name, opened.attributes))
+    source.update(opened.describe)
+    source["measures"] = list(report.measures)
+    if report.tiles is not None:
+        source["tiles"] = report.tiles
+    settings = CollectSettings(
+        window=run.window if run is not None else None,
+        measures=report.measures,
+        tile_size=report.tiles,
+        hardest=report.hardest,
+        workers=workers,
+        device=info.device,
+        save_predictions=save_predictions,
+        allow_missing=allow_missing,
+        progress=info.is_main and progress,
+    )
+    collected = collect(opened, model=model, predictions=predictions, settings=settings,
+                        source=source)  # fmt: skip
+    if not info.is_main:
+        distributed.barrier()  # rank 0 writes the report meanwhile
+        return Evaluation(output, None, skipped=collected.skipped)
+    try:
+        result = collected.result
+        report.check_bins(len(result.paths))
+        numbers = build_report(result, bins=report.bins, edges=report.edges,
+                               group_by=report.group_by, bootstrap=intervals)  # fmt: skip
+        warn_outside_edges(numbers, result.complexity["delent"], len(result.paths))
+        dirs = [Path(d) for d in (predictions, save_predictions) if d is not None]
+        items = hardest_items(result, opened, report.hardest, collected.hardest, dirs)
+        write_outputs(output, numbers, result, items, opened.palette.colors)
+        if save_predictions is not None:
+            write_marker(save_predictions, opened.palette, source)
+    finally:
+        distributed.barrier()  # the other ranks wait for the report, even when it failed
+    return Evaluation(output, numbers, result, collected.skipped)
+
+
+def _model_and_source(
+    checkpoint: Any, onnx: Any, predictions: Any, data: DataChoice, inference: InferenceSettings,
+    info: Any,
+) -> tuple[Any, Any, dict[str, Any]]:  # fmt: skip
+    """The loaded model (None for label maps), how it runs, and the report's ``source``."""
+    import torch
+
+    from claravid.eval.inference.sources import load_source, resolve_settings
+    from claravid.precision import autocast_dtype, precision_name
+
+    if predictions is not None:
+        return None, None, {"kind": "predictions", "predictions": str(predictions)}
+    threads = torch.get_num_threads() if info.device.type == "cpu" else None
+    model = load_source(checkpoint, onnx, device=info.device, threads=threads,
+                        provider=inference.provider)  # fmt: skip
+    run = resolve_settings(
+        model, window=inference.window, stride=inference.stride, scale=inference.scale,
+        batch_size=inference.batch_size, palette=data.palette, precision=inference.precision,
+    )  # fmt: skip
+    window = run.window
+    source = model.describe()
+    source["window"] = {"size": list(window.size), "stride": list(window.stride),
+                        "scale": window.scale}  # fmt: skip
+    if model.kind == "onnx":  # runs as exported: the file's metadata, None when foreign
+        source["precision"] = getattr(model.model, "precision", None)
+    else:
+        source["precision"] = precision_name(autocast_dtype(window.precision, info.device))
+    source["settings"] = run.describe()
+    return model, run, source
+
+
+def _open(data: DataChoice, model: Any, run: Any, predictions: Any) -> Any:
+    """Open the data: the call's choice, then the model's (or label maps') record."""
+    from claravid.eval.inference.data import open_data
+    from claravid.eval.inference.label_maps import predictions_defaults
+
+    if model is not None:
+        defaults = model.defaults
+        hint = " (the checkpoint does not record its data)" if model.kind == "checkpoint" else ""
+    else:  # saved label maps: the palette their predictions.json names
+        defaults, hint = predictions_defaults(predictions, data.palette), ""
+    spec = resolve_data(data, defaults, hint=hint)
+    try:
+        with warnings.catch_warnings():
+            if model is not None and _split_as_trained(data, spec, defaults):
+                # The training run printed this warning for these very split settings.
+                warnings.simplefilter("ignore", SplitBalanceWarning)
+            opened = open_data(
+                spec["root"],
+                dataset=spec["dataset"],
+                split=spec["split"],
+                palette=spec["palette"],
+                masks=spec["masks"],
+                selection=spec["selection"],
+            )
+    except FileNotFoundError as exc:
+        if data.root is not None or model is None or "data" not in model.defaults:
+            raise
+        raise UsageError(  # the data moved since training: say where the path came from
+            f"{exc} (that path comes from the checkpoint {model.path}; pass --data to give the "
+            "data's new place)"
+        ) from None
+    num_classes = opened.palette.num_classes
+    if model is not None and model.num_classes not in (None, num_classes):
+        raise UsageError(
+            f"the model predicts {model.num_classes} classes but palette {opened.palette.name} "
+            f"has {num_classes}; pass the palette it was trained with (--palette)"
+        )
+    return opened
+
+
+def _split_as_trained(data: DataChoice, spec: dict[str, Any], defaults: dict[str, Any]) -> bool:
+    """Whether the images are split as in the model's training run: the recorded ClaraVid
+    root, selection and split settings, none of them overridden."""
+    recorded = defaults.get("data")
+    if spec["dataset"] != "claravid" or recorded is None or "split_config" not in defaults:
+        return False
+    if data.selection or defaults.get("dataset", "claravid") != "claravid":
+        return False
+    return Path(recorded).resolve() == Path(spec["root"]).resolve()
+
+
+def score_metrics(
+    scores: str | Path,
+    output: str | Path,
+    *,
+    data: DataChoice,
+    report: ReportSettings | None = None,
+    workers: int = 0,
+    overwrite: bool = False,
+) -> Evaluation:
+    """The complexity analysis of any per-image metric of a CSV (``path`` + numeric columns).
+
+    No model and no labels: the images' complexity, binned, grouped and correlated with each
+    metric, with cluster bootstrap intervals.
+
+    Raises:
+        UsageError: no data root, a foreign output folder, a bad CSV, images not in the data.
+    """
+    from claravid.eval.analysis.metric_bins import metric_report
+    from claravid.eval.analysis.units import group_indices, unit_labels
+    from claravid.eval.inference.complexity_job import ComplexityJob
+    from claravid.eval.inference.data import open_data
+    from claravid.eval.inference.metric_csv import match_images, read_metrics_csv
+    from claravid.eval.report.folder import write_metric_outputs
+
+    report = report or ReportSettings()
+    if data.root is None:
+        raise UsageError("--scores needs --data: the dataset root the CSV's paths belong to")
+    output = Path(output)
+    check_output_dir(output, marker=REPORT, overwrite=overwrite)
+    check_report_kind(output, scores=True, overwrite=overwrite)
+    dataset = data.dataset or "claravid"
+    csv_paths, metrics, csv_rows = read_metrics_csv(scores, data.root)
+    opened = open_data(
+        data.root,
+        dataset=dataset,
+        split=data.split or ("all" if dataset == "claravid" else "val"),
+        palette=data.palette,
+        masks=data.masks,
+        selection=resolve_data(data, {})["selection"],
+        labels=False,
+    )
+    if report.group_by is not None:
+        opened.groups(report.group_by)  # fails now, before the complexity is measured
+    settings = report.intervals(opened.attributes, default_cluster(opened.name, opened.attributes))
+    order = match_images(csv_paths, opened.paths, Path(scores), csv_rows)
+    paths = [opened.paths[i] for i in order]
+    report.check_bins(len(paths))
+    attributes = {a: [v[i] for i in order] for a, v in opened.attributes.items()}
+    clusters = unit_labels(paths, attributes, settings.cluster)
+    # The one grouping rule of every report (viewpoint = mission/viewpoint).
+    groups = None if report.group_by is None else group_indices(paths, attributes, report.group_by)
+    values = ComplexityJob(paths, report.measures, threads=max(1, workers)).result()
+    complexity = {m: np.asarray(values[m], dtype=np.float64) for m in report.measures}
+    numbers = metric_report(paths, metrics, complexity, clusters, settings,
+                            bins=report.bins, edges=report.edges, groups=groups)  # fmt: skip
+    binning = {**numbers.pop("binning", {}), "group_by": report.group_by}
+    numbers["source"] = {"kind": "scores", "scores": str(scores), **opened.describe,
+                         "measures": list(report.measures), "binning": binning}  # fmt: skip
+    text = write_metric_outputs(output, numbers)
+    return Evaluation(output, numbers, text=text)
