@@ -12,11 +12,15 @@ measured in the same run:
    reads (the panoptic PNG and, for ``uavid``, the dynamic mask).
 3. Training sample (crop window drawn from the headers, the RGB window and the label window
    read alone, then the augmentations), first epoch (cache just prepared) and warm, samples/s.
-   Target ≥ 2× the baseline's frames/s. For reference, the former path: a full decode of the
+   Target ≥ 2× the baseline's frames/s. Also ``claravid-train``'s crop (the same, uint8: it is
+   normalised on the model's device) and, for reference, the former path: a full decode of the
    RGB and of the labels, then the crop.
 4. Evaluation sample (``claravid-eval``'s: the whole frame as uint8 and its labels from the
    cache), time per sample. Target ≤ 1.5× the baseline's time per frame.
-5. DataLoader, training samples, 1 and 2 worker processes. Target ≥ 1.8× on 2 cores.
+5. DataLoader over ``claravid-train``'s crops, 1 and 2 worker processes. Target ≥ 1.8× on 2
+   cores. Beside it, what this machine's 2 cores give at all: the same crops made in 2
+   processes at once (no DataLoader) against 1 (a shared VM's second core may give less than
+   a whole core's work).
 6. What a 16-core node gives (16 × the one-core rate) next to what one H100 consumes training
    the DPT head on a frozen ViT-L/14 at 630² (``bench_train``'s model-only figure where a GPU
    ran; else an estimate from the FLOPs counted here on the meta device at 40 % of the H100's
@@ -36,12 +40,14 @@ os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
 
 import cv2
 import torch
-from torch.utils.data import DataLoader, RandomSampler
+import torch.multiprocessing as mp
+from torch.utils.data import DataLoader
 
 from claravid import jpeg_region
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.synth import synthesize
-from claravid.transforms import train_transforms
+from claravid.train.data import CropDataset, collate_crops
+from claravid.transforms import augment_config, train_transforms
 
 H100_BF16_DENSE = 989e12  # FLOP/s, SXM, dense (no sparsity)
 MFU = 0.40  # a typical achieved share of the peak for a ViT training step
@@ -73,17 +79,47 @@ class FormerPath(torch.utils.data.Dataset):
         return self.transforms({"image": full["image"], "mask": full["mask"]})
 
 
-def loader_rate(dataset, workers: int, samples: int) -> float:
-    """Steady-state samples/s of a DataLoader (worker start-up not timed)."""
+def crop_items(crops: CropDataset, count: int, offset: int = 0) -> list[tuple[int, int]]:
+    """``count`` (frame, seed) items, what ``claravid-train``'s sampler hands its loader."""
+    return [((offset + i) % len(crops), offset + i) for i in range(count)]
+
+
+def loader_rate(crops: CropDataset, workers: int, samples: int) -> float:
+    """Steady-state crops/s of a DataLoader (worker start-up not timed)."""
     warmup = 2 * max(1, workers)
-    sampler = RandomSampler(dataset, replacement=True, num_samples=samples + warmup)
-    batches = iter(DataLoader(dataset, batch_size=1, sampler=sampler, num_workers=workers))
+    items = crop_items(crops, samples + warmup)
+    batches = iter(DataLoader(crops, batch_size=1, sampler=items, num_workers=workers,
+                              collate_fn=collate_crops))  # fmt: skip
     for _ in range(warmup):
         next(batches)
     start = time.perf_counter()
     for _ in batches:
         pass
     return samples / (time.perf_counter() - start)
+
+
+def _make_crops(crops: CropDataset, items: list, barrier, out) -> None:
+    barrier.wait()
+    start = time.perf_counter()
+    for item in items:
+        crops[item]
+    out.put(time.perf_counter() - start)
+
+
+def process_rate(crops: CropDataset, processes: int, samples: int) -> float:
+    """Crops/s of ``processes`` processes each making ``samples`` crops at once (fork)."""
+    context = mp.get_context("fork")
+    barrier, out = context.Barrier(processes), context.Queue()
+    jobs = [
+        context.Process(target=_make_crops, args=(crops, items, barrier, out))
+        for items in (crop_items(crops, samples, p * samples) for p in range(processes))
+    ]
+    for job in jobs:
+        job.start()
+    seconds = max(out.get() for _ in jobs)
+    for job in jobs:
+        job.join()
+    return processes * samples / seconds
 
 
 def step_flops(crop: int = 630) -> float:
@@ -143,9 +179,13 @@ def main() -> None:
         first = per_item(train.__getitem__, indices[: len(train)])  # each entry read once
         warm = per_item(train.__getitem__, indices)
         whole = ClaraVidSegmentation(root, split="all", palette="uavid", label_cache=cache)
+        crops = CropDataset(whole, augment_config(None))
+        assert crops.by_window == (jpeg_region.decoder() == jpeg_region.REGION_DECODE)
+        uint8 = per_item(crops.__getitem__, crop_items(crops, n))
         former = per_item(FormerPath(whole, transforms).__getitem__, indices[: len(frames)])
         print("3. training sample (uavid, default augmentations):")
         for name, seconds in (("first epoch (cache prepared)", first), ("label cache warm", warm),
+                              ("claravid-train's crop (uint8)", uint8),
                               ("former path (whole frames)", former)):  # fmt: skip
             print(
                 f"   {name:<30} {seconds * 1e3:6.1f} ms  {1 / seconds:6.2f} samples/s  "
@@ -168,10 +208,15 @@ def main() -> None:
             f"× {half / decode:.2f} the full decode (not offered: see docs/evaluation.md)"
         )
 
-        one = loader_rate(train, 1, n)
-        two = loader_rate(train, 2, n)
-        print(f"5. DataLoader: 1 worker {one:.2f}/s, 2 workers {two:.2f}/s: × {two / one:.2f} "
-              f"(target ≥ 1.8 on 2 cores; {os.cpu_count()} cores here)")  # fmt: skip
+        loader_n = max(4 * n, 96)  # long enough that start-up and the last batches do not count
+        one = loader_rate(crops, 1, loader_n)
+        two = loader_rate(crops, 2, loader_n)
+        ceiling = process_rate(crops, 2, loader_n // 2) / process_rate(crops, 1, loader_n // 2)
+        print(
+            f"5. DataLoader of claravid-train's crops: 1 worker {one:.2f}/s, 2 workers "
+            f"{two:.2f}/s: × {two / one:.2f} (target ≥ 1.8 on 2 cores; {os.cpu_count()} cores "
+            f"here, where 2 processes making crops without a DataLoader give × {ceiling:.2f})"
+        )
 
         flops = step_flops()
         gpu = H100_BF16_DENSE * MFU / flops

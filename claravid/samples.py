@@ -9,7 +9,7 @@ back uint8 masks (albumentations warps those exactly).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -36,3 +36,14 @@ def finish_sample(
     if "mask" in sample:
         sample["mask"] = torch.as_tensor(sample["mask"]).to(mask_dtype)
     return sample
+
+
+def normalise(image: torch.Tensor, mean: Sequence[float], std: Sequence[float]) -> torch.Tensor:
+    """uint8 images [..., 3, H, W] as a model's float32 input, ``(image / 255 - mean) / std``
+    per channel, computed on the images' device: a batch travels there as uint8, a quarter of
+    the bytes of float32. A float image is returned as it is (normalised already)."""
+    if image.is_floating_point():
+        return image
+    mean_ = torch.tensor(mean, dtype=torch.float32, device=image.device).view(3, 1, 1)
+    std_ = torch.tensor(std, dtype=torch.float32, device=image.device).view(3, 1, 1)
+    return (image.to(torch.float32) / 255.0 - mean_) / std_

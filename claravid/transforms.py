@@ -12,8 +12,10 @@ sample. Evaluation: normalisation only, no crop. Masks are warped with nearest i
 filled with the ignore index (albumentations 2.x ``fill_mask``; the 1.x names are ignored).
 
 A transform takes and returns the whole sample dict. It receives ``image`` as uint8 [3,H,W]
-and ``mask`` as uint8 [H,W] train ids; it returns ``image`` as float32 [3,h,w]. The
-dataset casts the mask to int64 afterwards.
+and ``mask`` as uint8 [H,W] train ids; it returns ``image`` as float32 [3,h,w] (uint8 when
+made with ``normalize=False``: ``claravid.samples.normalise`` then runs where the model does, so
+a crop travels to it at a quarter of the bytes). The dataset casts the mask to its
+``mask_dtype`` afterwards.
 """
 
 from __future__ import annotations
@@ -137,15 +139,23 @@ class SegmentationTransform:
         ops: the augmentations after the crop.
         cfg: the config (normalisation, ignore index, crop size).
         crop: ``(height, width)`` of the random crop; None: no crop (evaluation).
+        normalize: end with the normalisation (float32 images); False: uint8 images, for
+            ``claravid.samples.normalise`` on the model's device (the random stream is the
+            same: the normalisation draws nothing).
     """
 
     def __init__(
-        self, ops: list[A.BasicTransform], cfg: AugmentConfig, crop: tuple[int, int] | None = None
+        self,
+        ops: list[A.BasicTransform],
+        cfg: AugmentConfig,
+        crop: tuple[int, int] | None = None,
+        normalize: bool = True,
     ) -> None:
         self.cfg = cfg
         self.crop = crop
-        normalize = A.Normalize(mean=cfg.mean, std=cfg.std, max_pixel_value=255.0)
-        self.pipeline = A.Compose([*ops, normalize])
+        if normalize:
+            ops = [*ops, A.Normalize(mean=cfg.mean, std=cfg.std, max_pixel_value=255.0)]
+        self.pipeline = A.Compose(ops)
 
     def draw_window(self, width: int, height: int) -> CropWindow:
         """The random crop window of a ``width`` × ``height`` frame, drawn before decoding.
@@ -231,10 +241,12 @@ def _to_hwc(image: Any) -> np.ndarray:
     return image
 
 
-def train_transforms(config: Any = None) -> SegmentationTransform:
-    """Random crop first, then photometric and geometric augmentations, then normalise."""
+def train_transforms(config: Any = None, normalize: bool = True) -> SegmentationTransform:
+    """Random crop first, then photometric and geometric augmentations, then normalise (unless
+    ``normalize=False``: uint8 crops for ``claravid.samples.normalise`` on the model's device)."""
     cfg = config if isinstance(config, AugmentConfig) else augment_config(config)
-    return SegmentationTransform(_train_ops(cfg), cfg, crop=(cfg.crop_height, cfg.crop_width))
+    crop = (cfg.crop_height, cfg.crop_width)
+    return SegmentationTransform(_train_ops(cfg), cfg, crop=crop, normalize=normalize)
 
 
 def eval_transforms(config: Any = None) -> SegmentationTransform:

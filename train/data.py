@@ -156,7 +156,7 @@ class CropDataset(Dataset):
         by_window: bool | None = None,
     ) -> None:
         self.base = base
-        self.transform = train_transforms(augment)
+        self.transform = train_transforms(augment, normalize=False)  # normalised on the device
         self.k = crops_per_frame
         if by_window is None:
             fast = jpeg_region.decoder() == jpeg_region.REGION_DECODE
@@ -181,7 +181,7 @@ class CropDataset(Dataset):
                 sample = {"image": frame["image"], "mask": frame["mask"]}
             out = self.transform({k: sample[k] for k in ("image", "mask", "crop") if k in sample})
             images.append(out["image"])
-            masks.append(out["mask"].long())
+            masks.append(out["mask"])
         return {"image": torch.stack(images), "mask": torch.stack(masks)}
 
 

@@ -45,6 +45,7 @@ from claravid.eval import IGNORE_INDEX, WindowConfig
 from claravid.masks import check_palette_fit
 from claravid.palettes import load_palette
 from claravid.precision import autocast_dtype, precision_name
+from claravid.samples import normalise
 from claravid.train import config as C
 from claravid.train.checkpoint import (
     load_training_checkpoint,
@@ -159,6 +160,12 @@ class Run:
     last_val: dict[str, Any] = field(default_factory=dict)
     images: int = 0  # images since the last log row (for images/s)
     tick: float = 0.0  # when the last log row was written
+
+    @property
+    def normalisation(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """The crops' ``(mean, std)``, applied on the device (``data.augment``'s)."""
+        augment = self.cfg.data.augment
+        return tuple(augment.mean), tuple(augment.std)
 
     def checkpoint(self, path: Path, step: int) -> None:
         """Write a training checkpoint of the run as it is after ``step`` steps."""
@@ -382,8 +389,9 @@ def optimiser_step(run: Run, step: int, lr: float) -> tuple[float, float]:
     losses = []
     for micro in range(accum):
         batch = next(run.batches)
-        x = batch["image"].to(device, non_blocking=True)
-        y = batch["mask"].to(device, non_blocking=True)
+        # uint8 crops until here: normalised and widened on the device, not in the workers.
+        x = normalise(batch["image"].to(device, non_blocking=True), *run.normalisation)
+        y = batch["mask"].to(device, non_blocking=True).long()
         # Gradients are all-reduced once per step, on the last micro-batch.
         last = micro == accum - 1
         with contextlib.nullcontext() if run.ddp is None or last else run.ddp.no_sync():

@@ -34,6 +34,7 @@ import torch.nn.functional as F
 
 from claravid.models.onnx_metadata import IMAGENET_MEAN, IMAGENET_STD
 from claravid.precision import PRECISIONS, autocast, autocast_dtype
+from claravid.samples import normalise as normalise_image
 
 Model = Callable[[torch.Tensor], Any]
 
@@ -119,11 +120,7 @@ def window_starts(length: int, window: int, stride: int) -> list[int]:
 def normalise(image: torch.Tensor, config: WindowConfig) -> torch.Tensor:
     """A uint8 image [3,H,W] as the model's float32 input, on the image's device; a float image
     is returned as it is (normalised already)."""
-    if image.is_floating_point():
-        return image
-    mean = torch.tensor(config.mean, dtype=torch.float32, device=image.device).view(3, 1, 1)
-    std = torch.tensor(config.std, dtype=torch.float32, device=image.device).view(3, 1, 1)
-    return (image.to(torch.float32) / 255.0 - mean) / std
+    return normalise_image(image, config.mean, config.std)
 
 
 def _forward(model: Model, batch: torch.Tensor, config: WindowConfig) -> torch.Tensor:

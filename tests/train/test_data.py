@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 import torch
 
+from claravid.samples import normalise
 from claravid.segmentation import ClaraVidSegmentation
 from claravid.train.data import CropDataset, class_weights, collate_crops
 from claravid.train.sampler import StepSampler
-from claravid.transforms import AugmentConfig
+from claravid.transforms import AugmentConfig, train_transforms
 
 
 def draw(sampler, n):
@@ -52,7 +53,36 @@ def test_crops_are_a_function_of_the_seed(claravid_root):
     assert not torch.equal(a["image"], c["image"])
     assert not torch.equal(a["image"][0], a["image"][1])  # k crops differ from each other
     batch = collate_crops([a, c])
-    assert batch["image"].shape == (6, 3, 28, 28) and batch["mask"].dtype == torch.int64
+    assert batch["image"].shape == (6, 3, 28, 28) and batch["mask"].shape == (6, 28, 28)
+    # uint8 until the device: a quarter of float32's bytes through the workers' shared memory
+    assert batch["image"].dtype == torch.uint8 and batch["mask"].dtype == torch.uint8
+
+
+def test_crops_normalised_on_the_device_are_the_normalising_pipeline_s(claravid_root):
+    """Leaving the normalisation to the device changes neither the random stream nor, beyond
+    float rounding, the values: the same seed through the pipeline that normalises gives them."""
+    augment = AugmentConfig(
+        crop_height=28, crop_width=28, mean=(0.2, 0.4, 0.6), std=(0.5, 0.25, 0.2)
+    )
+    base = ClaraVidSegmentation(claravid_root, split="all", palette="uavid")
+    crop = CropDataset(base, augment)[(1, 77)]
+    reference = train_transforms(augment)  # ends with albumentations' Normalize
+    reference.pipeline.set_random_seed(77)
+    expected = reference(base[1])
+    got = normalise(crop["image"], augment.mean, augment.std)[0]
+    torch.testing.assert_close(got, expected["image"], rtol=0, atol=1e-6)
+    torch.testing.assert_close(crop["mask"][0], expected["mask"].to(torch.uint8), rtol=0, atol=0)
+
+
+def test_normalise_by_hand():
+    image = torch.tensor([0, 51, 255], dtype=torch.uint8).view(1, 3, 1, 1).expand(2, 3, 1, 2)
+    out = normalise(image, mean=(0.0, 0.1, 0.5), std=(1.0, 0.5, 0.25))
+    # channel 0: 0/255 = 0; channel 1: (0.2 - 0.1) / 0.5 = 0.2; channel 2: (1 - 0.5) / 0.25 = 2
+    expected = torch.tensor([0.0, 0.2, 2.0]).view(1, 3, 1, 1).expand(2, 3, 1, 2)
+    assert out.dtype == torch.float32
+    torch.testing.assert_close(out, expected, rtol=0, atol=1e-6)
+    already = torch.rand(3, 4, 4)
+    assert normalise(already, (0.5,) * 3, (2.0,) * 3) is already  # float: normalised already
 
 
 def test_class_weights_by_hand():

@@ -225,6 +225,31 @@ def test_class_weights_reach_the_loss(uavid_root, tmp_path):
     assert abs(first["median_frequency"] - first["none"]) > 1e-3 * first["none"], first
 
 
+def test_the_model_sees_crops_normalised_with_the_config_s_mean_and_std(claravid_root, tmp_path):
+    """Crops travel as uint8 and are normalised on the device: undoing the config's
+    normalisation on what the model received must give whole pixel values in 0..255 (it does
+    not if another mean/std, or none, was applied)."""
+    mean, std = (0.1, 0.3, 0.7), (0.5, 0.25, 0.125)
+    seen = []
+
+    def first_input(module, args):  # the outermost module of the first step is called first
+        if not seen:
+            seen.append(args[0].detach().clone())
+
+    handle = torch.nn.modules.module.register_module_forward_pre_hook(first_input)
+    try:
+        extra = ["train.steps=1", "val.every=0", f"data.augment.mean={list(mean)}",
+                 f"data.augment.std={list(std)}"]  # fmt: skip
+        train(load_config("demo", tiny(claravid_root, tmp_path / "run", *extra)))
+    finally:
+        handle.remove()
+    (x,) = seen
+    assert x.dtype == torch.float32 and x.shape[1:] == (3, 28, 28)
+    pixels = (x * torch.tensor(std).view(3, 1, 1) + torch.tensor(mean).view(3, 1, 1)) * 255
+    torch.testing.assert_close(pixels, pixels.round(), rtol=0, atol=2e-3)
+    assert pixels.min() > -0.01 and pixels.max() < 255.01 and pixels.std() > 1  # not one flat value
+
+
 @pytest.mark.slow
 def test_loader_workers_draw_the_same_batches(claravid_root, tmp_path):
     """Crops are seeded by position, not by worker: 2 workers train the very same weights."""
