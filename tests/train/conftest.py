@@ -8,7 +8,8 @@ from claravid import modalities
 from claravid.palettes import load_palette
 
 # A tiny random-init backbone (of the config's architecture) and head, 28² crops, the fixture's
-# 5 test frames as val set (26/5/5 with 150 m blocks), CPU, no workers, no progress bar.
+# 5 test frames as val set (26/5/5 with 150 m blocks), CPU, one thread, no workers, no progress
+# bar.
 TINY = [
     "model.weights=null",
     "model.backbone_kwargs.embed_dim=32",
@@ -24,6 +25,7 @@ TINY = [
     "train.batch_size=4",
     "train.warmup_steps=0",
     "train.device=cpu",
+    "train.threads=1",
     "val.window=28",
     "val.scale=1.0",
     "val.batch_size=8",
