@@ -200,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
             blend = cv2.cvtColor(overlay(rgb, ids, palette.colors), cv2.COLOR_RGB2BGR)  # type: ignore[union-attr]
             target = out / "overlays" / f"{sample['key']}.jpg"
             write_image(target, blend, [cv2.IMWRITE_JPEG_QUALITY, 90])
-    described = {"kind": source.kind, "path": source.path, "settings": settings.describe()}
+    described = {**source.describe(), "settings": settings.describe()}
     write_marker(out, palette, described, images=len(paths))  # type: ignore[arg-type]
     print(f"{len(paths)} label maps: {out}/<name>.png" + ("" if args.no_overlays else
           f"; overlays: {out / 'overlays'}"))  # fmt: skip
