@@ -4,7 +4,8 @@ A sample is ``{"image": uint8 [3,H,W], "mask": int64 [H,W], "path": str, "key": 
 (``mask`` absent for unlabelled images; uint8 in datasets made with ``mask_dtype=torch.uint8``,
 as evaluation makes them). A transform takes and returns the whole dict (see
 ``claravid.transforms``); datasets cast ``mask`` to int64 after it, so transforms may hand
-back uint8 masks (albumentations warps those exactly).
+back uint8 masks (albumentations warps those exactly). :func:`normalise` makes a model's input
+of uint8 images where the model runs (training crops and evaluation frames travel as uint8).
 """
 
 from __future__ import annotations

@@ -140,6 +140,9 @@ class CropDataset(Dataset):
     come from the crop's seed alone, so both give the same crops, and a resumed run draws
     exactly the crops an uninterrupted one does.
 
+    An item is ``{"image": uint8 [k,3,h,w], "mask": uint8 [k,h,w]}``: the training step
+    normalises the images (``claravid.samples.normalise``) and widens the masks on the device.
+
     Args:
         base: a dataset of uint8 samples (no transforms).
         augment: the augmentation config (crop size, probabilities ...).
