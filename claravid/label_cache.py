@@ -41,7 +41,7 @@ Sources = tuple[Path, Path | None]
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _HOST = re.sub(r"[^A-Za-z0-9.-]", "_", socket.gethostname()) or "host"
-_warned_unwritable: set[str] = set()  # cache folders this process already warned about
+_warned_unwritable: set[str] = set()  # folders that refused a write: warned once, not retried
 
 
 class LabelCacheWarning(UserWarning):
@@ -302,10 +302,11 @@ class LabelCache:
             finally:
                 os.close(fd)
         codes = read_label_codes(pan_seg, dynamic_mask)
-        try:
-            write_atomic(path, label_tiff.encode_codes(codes, self.tile_size))
-        except OSError as exc:
-            self._warn_unwritable(exc)
+        if str(self.directory) not in _warned_unwritable:  # once refused, not encoded again
+            try:
+                write_atomic(path, label_tiff.encode_codes(codes, self.tile_size))
+            except OSError as exc:
+                self._warn_unwritable(exc)
         if window is None:
             return codes
         x, y, w, h = window

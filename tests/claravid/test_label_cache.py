@@ -297,8 +297,11 @@ def test_unwritable_cache_folder_decodes_instead_with_one_warning(frame, tmp_pat
 def test_read_only_file_system_decodes_instead_with_one_warning(frame, tmp_path, monkeypatch):
     real_open = os.open
 
+    creates = []
+
     def read_only_open(path, flags, *args, **kwargs):
         if flags & os.O_CREAT:
+            creates.append(path)
             raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(path))
         return real_open(path, flags, *args, **kwargs)
 
@@ -309,6 +312,7 @@ def test_read_only_file_system_decodes_instead_with_one_warning(frame, tmp_path,
         for _ in range(3):
             np.testing.assert_array_equal(cache.read(*frame), expected)
     assert len(record) == 1 and _entries(cache) == []
+    assert len(creates) == 1  # after the first refusal, no entry is encoded and tried again
     with pytest.raises(CacheWriteError, match="is not writable"):
         cache.prepare([frame])
 
