@@ -28,8 +28,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from claravid import jpeg_region
-from claravid.modalities import read_rgb
+from claravid.io import jpeg_region
+from claravid.io.modalities import read_rgb
 from claravid.synth import synthesize
 
 WIDTH, HEIGHT, CROP = 4032, 3024, 630
@@ -97,7 +97,7 @@ def main() -> None:
     args = parser.parse_args()
     cv2.setNumThreads(1)  # one core, as one DataLoader worker has
     if jpeg_region.decoder() != jpeg_region.REGION_DECODE:
-        raise SystemExit(f"claravid._jpeg_region is not built: {jpeg_region.decoder()}")
+        raise SystemExit(f"claravid.io._jpeg_region is not built: {jpeg_region.decoder()}")
 
     with tempfile.TemporaryDirectory() as tmp:
         root = synthesize(

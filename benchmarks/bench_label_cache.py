@@ -32,9 +32,9 @@ os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
 import cv2
 import numpy as np
 
-from claravid.index import list_frames
-from claravid.label_cache import LabelCache
-from claravid.labels import read_label_codes
+from claravid.data.index import list_frames
+from claravid.data.label_cache import LabelCache
+from claravid.io.labels import read_label_codes
 from claravid.synth import synthesize
 
 TILES = (256, 128, 512)  # the chosen size first

@@ -43,11 +43,11 @@ import torch
 import torch.multiprocessing as mp
 from torch.utils.data import DataLoader
 
-from claravid import jpeg_region
-from claravid.segmentation import ClaraVidSegmentation
+from claravid.data.segmentation import ClaraVidSegmentation
+from claravid.data.transforms import augment_config, train_transforms
+from claravid.io import jpeg_region
 from claravid.synth import synthesize
 from claravid.train.data import CropDataset, collate_crops
-from claravid.transforms import augment_config, train_transforms
 
 H100_BF16_DENSE = 989e12  # FLOP/s, SXM, dense (no sparsity)
 MFU = 0.40  # a typical achieved share of the peak for a ViT training step

@@ -24,11 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from claravid import modalities
-from claravid.index import Frame
-from claravid.layout import ALTITUDES, DIRECTIONS, MISSIONS, frame_file
-from claravid.segmentation import camera_positions
-from claravid.splits import SplitBalanceWarning, SplitConfig, assign_blocks
+from claravid.data.index import Frame
+from claravid.data.segmentation import camera_positions
+from claravid.data.splits import SplitBalanceWarning, SplitConfig, assign_blocks
+from claravid.io import modalities
+from claravid.io.layout import ALTITUDES, DIRECTIONS, MISSIONS, frame_file
 from claravid.synth.render import flight_poses
 
 

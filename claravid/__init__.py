@@ -8,23 +8,29 @@ we provide as a drop-in; do not install both in one environment.
 from __future__ import annotations
 
 import importlib
+import sys
 from typing import Any
+
+from claravid._moved import MovedModuleFinder
 
 __version__ = "0.1.0"
 
 # Public name -> module that defines it, imported on first access (PEP 562).
 _LAZY = {
-    "ClaravidDataset": "claravid.sdk",
-    "ClaraVidSegmentation": "claravid.segmentation",
-    "UAVidSegmentation": "claravid.targets",
-    "FolderSegmentation": "claravid.targets",
-    "Palette": "claravid.palettes",
-    "load_palette": "claravid.palettes",
-    "DatasetNotFoundError": "claravid.errors",
-    "CorruptFileError": "claravid.errors",
+    "ClaravidDataset": "claravid.data.sdk",
+    "ClaraVidSegmentation": "claravid.data.segmentation",
+    "UAVidSegmentation": "claravid.data.targets",
+    "FolderSegmentation": "claravid.data.targets",
+    "Palette": "claravid.data.palettes",
+    "load_palette": "claravid.data.palettes",
+    "DatasetNotFoundError": "claravid.infra.errors",
+    "CorruptFileError": "claravid.infra.errors",
 }
 
 __all__ = sorted(_LAZY)
+
+if not any(isinstance(f, MovedModuleFinder) for f in sys.meta_path):
+    sys.meta_path.append(MovedModuleFinder())
 
 
 def __getattr__(name: str) -> Any:

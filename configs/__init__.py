@@ -1,4 +1,4 @@
 """Shipped YAML files (palettes, experiment configs), installed as ``claravid.configs``.
 
-Read them through ``claravid.resources``, never by a path relative to the checkout.
+Read them through ``claravid.infra.resources``, never by a path relative to the checkout.
 """

@@ -24,7 +24,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from claravid.cli import (
+from claravid.eval.analysis.bins import parse_edges
+from claravid.eval.analysis.bootstrap import Bootstrap
+from claravid.eval.analysis.measures import parse_measures
+from claravid.eval.analysis.units import CLUSTER_UNITS, DATASETS, GROUP_BY
+from claravid.eval.report.files import REPORT
+from claravid.eval.settings import SELECTION, DataChoice, InferenceSettings, ReportSettings
+from claravid.infra.cli import (
     EXIT_PARTIAL,
     UsageError,
     add_debug_flag,
@@ -35,12 +41,6 @@ from claravid.cli import (
     run_cli,
     window_size,
 )
-from claravid.eval.analysis.bins import parse_edges
-from claravid.eval.analysis.bootstrap import Bootstrap
-from claravid.eval.analysis.measures import parse_measures
-from claravid.eval.analysis.units import CLUSTER_UNITS, DATASETS, GROUP_BY
-from claravid.eval.report.files import REPORT
-from claravid.eval.settings import SELECTION, DataChoice, InferenceSettings, ReportSettings
 from claravid.models.onnx_runtime import PROVIDERS
 
 PROG = "claravid-eval"
@@ -164,7 +164,7 @@ def _check_args(args: argparse.Namespace) -> str:
     source = given[0]
     _refuse_idle_options(args, source)
     args.measures = parse_measures(args.measures or "delent")
-    from claravid.precision import flag_precision
+    from claravid.infra.precision import flag_precision
 
     args.precision = flag_precision(args.precision, args.no_amp, pytorch=source == "checkpoint")
     if source != "compare" and args.output is None:

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from claravid.cli import (
+from claravid.infra.cli import (
     EXIT_FAILED,
     UsageError,
     add_debug_flag,
@@ -50,7 +50,7 @@ PROG = "claravid-export"
 
 def palette_info(name: str) -> dict[str, Any] | None:
     """The palette a checkpoint names, as plain data for the ONNX metadata (None: unreadable)."""
-    from claravid.palettes import load_palette
+    from claravid.data.palettes import load_palette
 
     try:
         palette = load_palette(name)
@@ -78,8 +78,8 @@ def calibration_batches(
     taken in a seeded random order, cycling when there are fewer images than crops; an image
     smaller than the crop is padded with the mean colour (0 after normalisation).
     """
-    from claravid import modalities
     from claravid.eval.predict import list_images
+    from claravid.io import modalities
 
     paths, _ = list_images([Path(folder)])
     rgb = [p for p in paths if "left_rgb" in p.parts]

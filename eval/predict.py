@@ -29,8 +29,17 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 from tqdm.auto import tqdm
 
-from claravid import modalities
-from claravid.cli import (
+from claravid.data.palettes import Palette, load_palette
+from claravid.eval.inference.label_maps import (
+    MARKER,
+    image_key,
+    write_image,
+    write_marker,
+    write_prediction,
+)
+from claravid.eval.inference.sources import RunSettings
+from claravid.eval.inference.windows import predict_labels
+from claravid.infra.cli import (
     UsageError,
     add_debug_flag,
     add_progress_flag,
@@ -41,18 +50,9 @@ from claravid.cli import (
     run_cli,
     window_size,
 )
-from claravid.eval.inference.label_maps import (
-    MARKER,
-    image_key,
-    write_image,
-    write_marker,
-    write_prediction,
-)
-from claravid.eval.inference.sources import RunSettings
-from claravid.eval.inference.windows import predict_labels
+from claravid.infra.precision import flag_precision
+from claravid.io import modalities
 from claravid.models.onnx_runtime import PROVIDERS
-from claravid.palettes import Palette, load_palette
-from claravid.precision import flag_precision
 
 PROG = "claravid-predict"
 EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from claravid.cli import UsageError, check_output_dir
+from claravid.data.splits import SplitBalanceWarning
 from claravid.eval.analysis.units import DATASETS, default_cluster
 from claravid.eval.report.files import REPORT, check_report_kind
 from claravid.eval.reports import warn_outside_edges
@@ -34,7 +34,7 @@ from claravid.eval.settings import (
     InferenceSettings,
     ReportSettings,
 )
-from claravid.splits import SplitBalanceWarning
+from claravid.infra.cli import UsageError, check_output_dir
 
 
 def resolve_data(choice: DataChoice, defaults: dict[str, Any], *, hint: str = "") -> dict[str, Any]:
@@ -108,13 +108,13 @@ def evaluate(
         UsageError: a user's mistake (bad combination, foreign output folder, mismatched
             palette, missing data...), before the inference starts where it can be seen then.
     """
-    from claravid import distributed
-    from claravid.cli import check_device
     from claravid.eval.inference.collect import CollectSettings, collect
     from claravid.eval.inference.hardest import hardest_items
     from claravid.eval.inference.label_maps import MARKER, write_marker
     from claravid.eval.report.build import build_report
     from claravid.eval.report.folder import write_outputs
+    from claravid.infra import distributed
+    from claravid.infra.cli import check_device
 
     if sum(x is not None for x in (checkpoint, onnx, predictions)) != 1:
         raise UsageError("give exactly one of --checkpoint, --onnx and --predictions")
@@ -185,7 +185,7 @@ def _model_and_source(
     import torch
 
     from claravid.eval.inference.sources import load_source, resolve_settings
-    from claravid.precision import autocast_dtype, precision_name
+    from claravid.infra.precision import autocast_dtype, precision_name
 
     if predictions is not None:
         return None, None, {"kind": "predictions", "predictions": str(predictions)}

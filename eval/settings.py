@@ -17,10 +17,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from claravid.cli import UsageError
 from claravid.eval.analysis.bootstrap import Bootstrap
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.units import check_unit
+from claravid.infra.cli import UsageError
 
 #: ClaraVid selection settings a checkpoint records and ``DataChoice.selection`` replaces.
 SELECTION = ("missions", "altitude", "direction")

@@ -38,7 +38,7 @@ PREFIX = "claravid."  # readable keys: claravid.patch_size, claravid.palette, ..
 PRECISIONS = ("fp32", "fp16", "int8")
 
 #: The input normalisation every claravid model is trained with unless its config says
-#: otherwise (the same numbers as ``claravid.transforms.IMAGENET_MEAN/STD``; a test checks).
+#: otherwise (the same numbers as ``claravid.data.transforms.IMAGENET_MEAN/STD``; a test checks).
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 

@@ -1,14 +1,16 @@
-"""Every console script spells the shared flags the same way (issue 12 §3, claravid.cli).
+"""Every console script spells the shared flags the same way (issue 12 §3, claravid.infra.cli).
 
 Parsed, not run: what each flag then does is tested with its command.
 """
 
 import pytest
 
-from claravid import cache_cli, demo, synth
+from claravid import synth
+from claravid.data import cache_cli
 from claravid.dsp import cli as dsp
 from claravid.eval import cli as evaluate
 from claravid.eval import export_cli, predict
+from claravid.synth import demo
 from claravid.train import cli as train
 
 # Each command's parser and the arguments it needs besides the ones under test.

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 import torch
 
+from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.eval.cli import main as eval_main
 from claravid.models.checkpoint import read_checkpoint
-from claravid.segmentation import ClaraVidSegmentation
 from claravid.train import load_config, train
 from claravid.train.logs import read_metrics
 from tests.torchrun import free_port

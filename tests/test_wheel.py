@@ -25,13 +25,13 @@ target = Path(sys.argv[1]).resolve()
 import claravid, claravid.models, claravid.train, claravid.eval
 for module in (claravid, claravid.models, claravid.train, claravid.eval):
     assert Path(module.__file__).resolve().is_relative_to(target), module.__file__
-from claravid.palettes import available_palettes, load_palette
-from claravid.resources import shipped_names
+from claravid.data.palettes import available_palettes, load_palette
+from claravid.infra.resources import shipped_names
 names = available_palettes()
 assert {"claravid", "uavid"} <= set(names), names
 assert load_palette("uavid").num_classes == 8
 from claravid.synth import synthesize
-from claravid.segmentation import ClaraVidSegmentation
+from claravid.data.segmentation import ClaraVidSegmentation
 synthesize(Path(sys.argv[2]) / "data", seed=0, frames_per_viewpoint=1, size=(84, 70),
            missions=["urban_1"], progress=False)
 sample = ClaraVidSegmentation(Path(sys.argv[2]) / "data", split="all", palette="uavid")[0]

@@ -16,8 +16,14 @@ import argparse
 import shlex
 import sys
 
-from claravid.cli import UsageError, add_debug_flag, add_progress_flag, non_negative_int, run_cli
-from claravid.resources import shipped_names
+from claravid.infra.cli import (
+    UsageError,
+    add_debug_flag,
+    add_progress_flag,
+    non_negative_int,
+    run_cli,
+)
+from claravid.infra.resources import shipped_names
 
 PROG = "claravid-train"
 

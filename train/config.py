@@ -22,8 +22,8 @@ import yaml
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
 
-from claravid.resources import shipped_file, shipped_names
-from claravid.transforms import AugmentConfig
+from claravid.data.transforms import AugmentConfig
+from claravid.infra.resources import shipped_file, shipped_names
 
 CLASS_WEIGHTS = ("none", "inverse", "median_frequency", "log_inverse")
 SCHEDULES = ("poly", "cosine")
@@ -41,7 +41,7 @@ class ConfigError(ValueError):
 
 @dataclass
 class SplitSettings:
-    """How ClaraVid frames are assigned to train/val/test (``claravid.splits.SplitConfig``)."""
+    """How ClaraVid frames are assigned to train/val/test (``claravid.data.splits.SplitConfig``)."""
 
     block_size: float = 150.0  # metres: whole squares of camera positions go to one split
     fractions: list[float] = field(default_factory=lambda: [0.7, 0.15, 0.15])
@@ -296,8 +296,8 @@ def _require(ok: bool, key: str, value: Any, rule: str) -> None:
 
 
 def _check_split(split: DictConfig) -> None:
-    """``data.split`` as ``claravid.splits.SplitConfig`` checks it, named ``data.split.*``."""
-    from claravid.splits import SplitConfigError, make_split_config
+    """``data.split`` as ``claravid.data.splits.SplitConfig`` checks it, named ``data.split.*``."""
+    from claravid.data.splits import SplitConfigError, make_split_config
 
     values = OmegaConf.to_container(split, resolve=True)
     try:

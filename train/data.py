@@ -12,13 +12,13 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.data import DataLoader, Dataset
 
-from claravid import jpeg_region
-from claravid.masks import read_mask
-from claravid.segmentation import ClaraVidSegmentation
-from claravid.splits import SPLITS
-from claravid.targets import UAVidSegmentation
+from claravid.data.masks import read_mask
+from claravid.data.segmentation import ClaraVidSegmentation
+from claravid.data.splits import SPLITS
+from claravid.data.targets import UAVidSegmentation
+from claravid.data.transforms import AugmentConfig, train_transforms
+from claravid.io import jpeg_region
 from claravid.train.sampler import StepSampler
-from claravid.transforms import AugmentConfig, train_transforms
 
 
 class EmptySplitError(ValueError):
@@ -141,7 +141,7 @@ class CropDataset(Dataset):
     exactly the crops an uninterrupted one does.
 
     An item is ``{"image": uint8 [k,3,h,w], "mask": uint8 [k,h,w]}``: the training step
-    normalises the images (``claravid.samples.normalise``) and widens the masks on the device.
+    normalises the images (``claravid.data.samples.normalise``) and widens the masks on the device.
 
     Args:
         base: a dataset of uint8 samples (no transforms).

@@ -15,7 +15,7 @@ from typing import Any
 
 from matplotlib.figure import Figure
 
-from claravid.cli import UsageError, atomic_save, atomic_write_text
+from claravid.infra.cli import UsageError, atomic_save, atomic_write_text
 
 
 def _clean(value: Any) -> Any:

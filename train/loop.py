@@ -38,14 +38,15 @@ from omegaconf import DictConfig
 from torch import nn
 from tqdm.auto import tqdm
 
-from claravid import jpeg_region, models
-from claravid.cli import check_device
-from claravid.distributed import DistInfo, barrier, init_distributed
+from claravid import models
+from claravid.data.masks import check_palette_fit
+from claravid.data.palettes import load_palette
+from claravid.data.samples import normalise
 from claravid.eval import IGNORE_INDEX, WindowConfig
-from claravid.masks import check_palette_fit
-from claravid.palettes import load_palette
-from claravid.precision import autocast_dtype, precision_name
-from claravid.samples import normalise
+from claravid.infra.cli import check_device
+from claravid.infra.distributed import DistInfo, barrier, init_distributed
+from claravid.infra.precision import autocast_dtype, precision_name
+from claravid.io import jpeg_region
 from claravid.train import config as C
 from claravid.train.checkpoint import (
     load_training_checkpoint,

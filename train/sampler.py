@@ -18,9 +18,9 @@ import numpy as np
 import torch
 from torch.utils.data import Sampler
 
-from claravid.distributed import gather_in_order, shard_indices
 from claravid.dsp import compute_complexities
 from claravid.eval import quantile_bins
+from claravid.infra.distributed import gather_in_order, shard_indices
 
 
 def sample_seed(seed: int, position: int) -> int:

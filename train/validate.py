@@ -16,8 +16,8 @@ import torch
 from torch import nn
 from torch.utils.data import Dataset
 
-from claravid.distributed import gather_in_order, shard_indices
 from claravid.eval import WindowConfig, bin_mious, evaluate_model, stratify
+from claravid.infra.distributed import gather_in_order, shard_indices
 from claravid.train.data import image_paths
 from claravid.train.sampler import sharded_delentropy
 

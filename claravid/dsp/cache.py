@@ -16,7 +16,7 @@ import warnings
 from collections.abc import Iterable
 from pathlib import Path
 
-from claravid.cachedir import cache_dir
+from claravid.infra.cachedir import cache_dir
 
 __all__ = ["ComplexityCache", "cache_dir", "cache_key"]  # cache_dir: re-exported, one helper
 

@@ -20,7 +20,15 @@ import sys
 import warnings
 from pathlib import Path
 
-from claravid.cli import (
+from claravid.dsp.collection import (
+    ProfileRun,
+    find_images,
+    load_results,
+    merge_runs,
+    profile_images,
+)
+from claravid.dsp.metrics import METRICS, check_blur_ksize
+from claravid.infra.cli import (
     UsageError,
     add_debug_flag,
     add_progress_flag,
@@ -28,16 +36,7 @@ from claravid.cli import (
     check_output_file,
     run_cli,
 )
-from claravid.dsp.collection import (
-    ProfileRun,
-    find_images,
-    load_results,
-    merge_runs,
-    parse_shard,
-    profile_images,
-    select_shard,
-)
-from claravid.dsp.metrics import METRICS, check_blur_ksize
+from claravid.infra.shards import parse_shard, select_shard
 
 DEFAULT_OUTPUT = "complexity_results.json"
 

@@ -22,7 +22,6 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from claravid.cli import atomic_write_text
 from claravid.dsp.cache import ComplexityCache, cache_key
 from claravid.dsp.metrics import (
     ImageReadError,
@@ -34,6 +33,7 @@ from claravid.dsp.metrics import (
 )
 from claravid.dsp.profile import Profile, fit_profile
 from claravid.dsp.tiles import check_tile_size, tile_complexities
+from claravid.infra.cli import atomic_write_text
 
 
 class NoImagesError(FileNotFoundError):
@@ -158,26 +158,6 @@ def find_images(input_path: str | Path, pattern: str = "*.jpg") -> list[Path]:
         f"input {root} does not exist; give a folder of images, a text file with one image "
         "path per line, or a results JSON"
     )
-
-
-def parse_shard(text: str) -> tuple[int, int]:
-    """``"k/n"`` -> (k, n) with 0 <= k < n; a ValueError says the expected form otherwise."""
-    try:
-        k_text, n_text = text.split("/")
-        k, n = int(k_text), int(n_text)
-    except ValueError:
-        raise ValueError(f"shard must look like k/n (e.g. 0/8), got {text!r}") from None
-    if n < 1 or not 0 <= k < n:
-        raise ValueError(
-            f"shard {text!r} is out of range: need n >= 1 and 0 <= k < n "
-            "(k is 0-based; with SLURM use $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)"
-        )
-    return k, n
-
-
-def select_shard(paths: Sequence[Path], k: int, n: int) -> list[Path]:
-    """Every n-th path from the k-th: shards balance even when file sizes drift along the list."""
-    return list(paths[k::n])
 
 
 # ---------------------------------------------------------------------------------------------

@@ -25,8 +25,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from claravid.errors import CorruptFileError
-from claravid.modalities import decode_bytes, read_checked
+from claravid.infra.errors import CorruptFileError
+from claravid.io.modalities import decode_bytes, read_checked
 
 #: The official metric names, in the official order.
 METRICS: tuple[str, ...] = ("delent", "glcment", "pixent")

@@ -20,8 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from claravid import modalities
-from claravid.cli import (
+from claravid.infra.cli import (
     add_debug_flag,
     add_progress_flag,
     add_workers_flag,
@@ -31,7 +30,8 @@ from claravid.cli import (
     positive_int,
     run_cli,
 )
-from claravid.layout import (
+from claravid.io import modalities
+from claravid.io.layout import (
     ALTITUDES,
     DIRECTIONS,
     FOCAL_PX,
@@ -66,7 +66,7 @@ def _ground_resolution(size: tuple[int, int]) -> float:
 
 
 def _choose(values: str | Sequence[str] | None, valid: dict[str, str], what: str) -> list[str]:
-    # Not claravid.index._choose: the datasets' validator takes a single key as a one-key list
+    # Not claravid.data.index._choose: the datasets' validator takes a single key as a one-key list
     # (same here) but lets an empty list select nothing, while a generator asked to write nothing
     # is a mistake, so an empty selection is an error here; duplicates are dropped so no frame
     # is rendered twice.

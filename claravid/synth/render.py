@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from claravid.layout import (
+from claravid.io.layout import (
     CLASSES,
     DEPTH_MAX_M,
     DYNAMIC_MASK_DYNAMIC,

@@ -14,7 +14,7 @@ from functools import cached_property
 import cv2
 import numpy as np
 
-from claravid.layout import CLASS_BY_NAME
+from claravid.io.layout import CLASS_BY_NAME
 
 #: Half the side of every world square, in metres (the flight grid stays well inside it).
 WORLD_HALF_M: float = 300.0

@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 
-from claravid.cli import UsageError
 from claravid.eval.analysis.bins import Bin, choose_bins
 from claravid.eval.analysis.bootstrap import (
     Bootstrap,
@@ -31,6 +30,7 @@ from claravid.eval.analysis.bootstrap import (
     unpaired_gap,
 )
 from claravid.eval.analysis.table import EvalResult
+from claravid.infra.cli import UsageError
 
 
 def _edges(report: dict[str, Any]) -> list[tuple[Any, Any]]:

@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 
-from claravid.cli import UsageError
 from claravid.eval.analysis.tile_bins import TileTable, concat_tables
 from claravid.eval.analysis.units import (
     available_units,
@@ -24,6 +23,7 @@ from claravid.eval.analysis.units import (
     group_indices,
     unit_labels,
 )
+from claravid.infra.cli import UsageError
 
 
 @dataclass

@@ -19,8 +19,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from claravid import distributed
-from claravid.cli import USER_ERRORS, UsageError
 from claravid.dsp.tiles import check_tile_count, check_tile_size
 from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.analysis.table import EvalResult
@@ -33,7 +31,9 @@ from claravid.eval.inference.label_maps import write_prediction as save_label_ma
 from claravid.eval.inference.run_model import ImageScore, evaluate_model
 from claravid.eval.inference.sources import ModelSource
 from claravid.eval.inference.windows import WindowConfig
-from claravid.jpeg_region import image_size
+from claravid.infra import distributed
+from claravid.infra.cli import USER_ERRORS, UsageError
+from claravid.io.jpeg_region import image_size
 
 
 @dataclass

@@ -21,13 +21,13 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from claravid import targets
+from claravid.data import targets
+from claravid.data.masks import check_palette_fit
+from claravid.data.masks import read_mask as read_label_mask
+from claravid.data.palettes import Palette, load_palette
+from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.eval.analysis.units import DATASETS, group_indices
 from claravid.eval.inference.label_maps import image_key
-from claravid.masks import check_palette_fit
-from claravid.masks import read_mask as read_label_mask
-from claravid.palettes import Palette, load_palette
-from claravid.segmentation import ClaraVidSegmentation
 
 
 class KeyedDataset(Dataset):

@@ -18,11 +18,11 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
-from claravid import modalities
-from claravid.cli import UsageError, atomic_save, atomic_write_text
+from claravid.data.masks import read_label_image
+from claravid.data.palettes import Palette, load_palette
 from claravid.eval.inference.confusion import image_confusion
-from claravid.masks import read_label_image
-from claravid.palettes import Palette, load_palette
+from claravid.infra.cli import UsageError, atomic_save, atomic_write_text
+from claravid.io import modalities
 
 if TYPE_CHECKING:  # eval.data names images by image_key: no import at run time
     from claravid.eval.inference.data import EvalData

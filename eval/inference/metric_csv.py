@@ -17,8 +17,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from claravid.cli import UsageError
 from claravid.dsp import METRICS as MEASURES
+from claravid.infra.cli import UsageError
 
 PATH_COLUMN = "path"
 _SHOWN = 5  # rows named in an error

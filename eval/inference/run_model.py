@@ -2,7 +2,7 @@
 
 Training validates through this function and ``claravid-eval`` reports from it, so windows,
 confusions and mIoU have one implementation. Under DDP each rank passes its own ``indices``
-and the per-image results are gathered afterwards (``claravid.distributed``).
+and the per-image results are gathered afterwards (``claravid.infra.distributed``).
 """
 
 from __future__ import annotations

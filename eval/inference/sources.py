@@ -21,8 +21,8 @@ from typing import Any
 
 import torch
 
-from claravid.cli import UsageError
 from claravid.eval.inference.windows import Model, WindowConfig
+from claravid.infra.cli import UsageError
 from claravid.models.onnx_metadata import (
     config_get,
     normalisation_from_config,

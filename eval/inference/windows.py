@@ -32,9 +32,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from claravid.data.samples import normalise as normalise_image
+from claravid.infra.precision import PRECISIONS, autocast, autocast_dtype
 from claravid.models.onnx_metadata import IMAGENET_MEAN, IMAGENET_STD
-from claravid.precision import PRECISIONS, autocast, autocast_dtype
-from claravid.samples import normalise as normalise_image
 
 Model = Callable[[torch.Tensor], Any]
 
@@ -48,7 +48,7 @@ class WindowConfig:
         stride: step between windows; default two thirds of the window (overlap 1/3).
         scale: resize factor applied to the image first (the paper reports at 0.5).
         batch_size: windows per forward pass.
-        precision: ``auto``, ``fp32``, ``bf16`` or ``fp16`` (:mod:`claravid.precision`). The
+        precision: ``auto``, ``fp32``, ``bf16`` or ``fp16`` (:mod:`claravid.infra.precision`). The
             former boolean ``amp`` reads as ``True`` → ``auto``, ``False`` → ``fp32``.
         mean, std: the model's input normalisation of uint8 images (per channel, RGB, on the
             0–1 scale); a float image is taken as normalised already.

@@ -14,12 +14,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from claravid.cli import atomic_write_text
 from claravid.eval.analysis.bootstrap import Bootstrap
 from claravid.eval.analysis.compare import cluster_unit, comparison_warnings, gap_analysis
 from claravid.eval.report.files import CONFUSIONS, load_result, read_report, write_json
 from claravid.eval.report.markdown import compare_markdown
 from claravid.eval.report.plots import plot_compare
+from claravid.infra.cli import atomic_write_text
 
 
 def _folder(path: str | Path) -> Path:

@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from claravid.cli import UsageError, atomic_save, atomic_write_text
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.tile_bins import TileTable
+from claravid.infra.cli import UsageError, atomic_save, atomic_write_text
 
 REPORT = "report.json"
 CONFUSIONS = "confusions.npz"

@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 
-from claravid.cli import atomic_write_text, current_umask
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.report.files import CONFUSIONS, REPORT, save_confusions, write_json
 from claravid.eval.report.markdown import metric_markdown, report_markdown
@@ -33,6 +32,7 @@ from claravid.eval.report.plots import (
     plot_scatter,
     plot_tiles,
 )
+from claravid.infra.cli import atomic_write_text, current_umask
 
 #: Files a report folder of this tool holds (``--scores`` plots match the patterns below):
 #: replaced with the folder. Anything else found there (a user's notes, a predictions folder)

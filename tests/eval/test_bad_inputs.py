@@ -10,11 +10,11 @@ import torch
 from PIL import Image
 
 import claravid.eval.inference.collect as collect_module
+from claravid.data.palettes import load_palette
 from claravid.eval.cli import main
 from claravid.eval.predict import main as predict_main
 from claravid.eval.report.build import build_report
 from claravid.eval.report.files import load_result
-from claravid.palettes import load_palette
 from tests.eval.conftest import WINDOW
 
 FRAMES = ["001_rural_1/45deg_low_h/000000", "003_urban_1/55deg_mid_v/000001"]
@@ -256,7 +256,7 @@ def test_a_moved_data_root_says_the_path_came_from_the_checkpoint(tmp_path, caps
 
 
 def test_an_exif_rotated_photo_is_explained(tmp_path):
-    from claravid.targets import FolderSegmentation
+    from claravid.data.targets import FolderSegmentation
 
     images, masks = tmp_path / "images", tmp_path / "masks"
     images.mkdir(), masks.mkdir()

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import torch
 
+from claravid.data.segmentation import ClaraVidSegmentation
+from claravid.data.transforms import eval_transforms
 from claravid.eval.cli import main
 from claravid.eval.inference.sources import checkpoint_defaults
 from claravid.eval.inference.windows import WindowConfig, predict_labels
-from claravid.segmentation import ClaraVidSegmentation
-from claravid.transforms import eval_transforms
 from tests.eval.conftest import WINDOW
 from tests.torchrun import torchrun
 

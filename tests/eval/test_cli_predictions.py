@@ -7,9 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
+from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.dsp import image_complexity
 from claravid.eval.cli import main
-from claravid.segmentation import ClaraVidSegmentation
 
 FRAMES = ["001_rural_1/45deg_low_h/000000", "003_urban_1/55deg_mid_v/000001",
           "003_urban_1/90deg_high_h/000002"]  # fmt: skip

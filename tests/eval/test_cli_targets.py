@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
+from claravid.data.palettes import load_palette
 from claravid.eval.cli import main
-from claravid.palettes import load_palette
 
 COLORS = load_palette("uavid").colors
 

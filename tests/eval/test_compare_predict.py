@@ -6,11 +6,11 @@ import cv2
 import numpy as np
 import pytest
 
-from claravid import modalities
+from claravid.data.transforms import eval_transforms
 from claravid.eval.cli import main
 from claravid.eval.inference.windows import WindowConfig, predict_labels
 from claravid.eval.predict import main as predict_main
-from claravid.transforms import eval_transforms
+from claravid.io import modalities
 from tests.eval.conftest import tiny_model
 
 

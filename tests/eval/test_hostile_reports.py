@@ -7,8 +7,8 @@ import shutil
 
 import pytest
 
+from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.eval.cli import main
-from claravid.segmentation import ClaraVidSegmentation
 from tests.eval.conftest import write_noisy_predictions
 
 K = 8  # uavid palette

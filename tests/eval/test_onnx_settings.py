@@ -13,12 +13,12 @@ import onnx
 import pytest
 
 from claravid import models
+from claravid.data.palettes import load_palette
+from claravid.data.transforms import IMAGENET_MEAN, IMAGENET_STD
 from claravid.eval.cli import main as eval_main
 from claravid.eval.export_cli import main as export_main
 from claravid.eval.predict import main as predict_main
-from claravid.modalities import read_dynamic_mask as read_label  # any 8-bit grey PNG
-from claravid.palettes import load_palette
-from claravid.transforms import IMAGENET_MEAN, IMAGENET_STD
+from claravid.io.modalities import read_dynamic_mask as read_label  # any 8-bit grey PNG
 from tests.eval.conftest import tiny_model
 
 FRAMES = ["001_rural_1/45deg_low_h/000000", "001_rural_1/45deg_low_v/000001",
@@ -173,8 +173,8 @@ def test_a_fixed_size_onnx_file_names_its_size_as_a_window_flag():
     """The message suggests a --window value: width x height, like the flag."""
     from types import SimpleNamespace
 
-    from claravid.cli import UsageError
     from claravid.eval.inference.sources import ModelSource, resolve_settings
+    from claravid.infra.cli import UsageError
 
     fixed = SimpleNamespace(input_size=(28, 42), metadata={})  # height 28, width 42
     source = ModelSource(fixed, "onnx", "m.onnx", num_classes=8, patch_size=14)  # type: ignore[arg-type]

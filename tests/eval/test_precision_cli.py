@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import torch
 
+from claravid.data.segmentation import ClaraVidSegmentation
+from claravid.data.transforms import eval_transforms
 from claravid.eval.cli import main as eval_main
 from claravid.eval.predict import main as predict_main
 from claravid.models import load_checkpoint
-from claravid.segmentation import ClaraVidSegmentation
-from claravid.transforms import eval_transforms
 
 FRAMES = ["001_rural_1/45deg_low_h/000000", "003_urban_1/55deg_mid_h/000000"]
 

@@ -6,8 +6,8 @@ import json
 import pytest
 import torch
 
+from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.eval.cli import main
-from claravid.segmentation import ClaraVidSegmentation
 
 
 def _report(folder):

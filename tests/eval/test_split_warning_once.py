@@ -3,9 +3,9 @@ of the checkpoint on the split settings it recorded."""
 
 import pytest
 
+from claravid.data.segmentation import ClaraVidSegmentation
+from claravid.data.splits import SplitBalanceWarning
 from claravid.eval.cli import main
-from claravid.segmentation import ClaraVidSegmentation
-from claravid.splits import SplitBalanceWarning
 
 OFF_TARGET = "points off the target"
 

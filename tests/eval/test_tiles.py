@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.eval.analysis.bootstrap import Bootstrap
 from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.analysis.tile_bins import TileTable, concat_tables, tile_report
 from claravid.eval.cli import main
 from claravid.eval.inference.confusion import tile_confusions
 from claravid.eval.report.markdown import bin_table
-from claravid.segmentation import ClaraVidSegmentation
 from tests.claravid.dsp.reference import official_delentropy
 
 K = 8  # uavid palette

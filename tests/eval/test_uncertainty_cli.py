@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from claravid import modalities
+from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.eval.analysis.bins import quantile_bins
 from claravid.eval.analysis.bootstrap import (
     Bootstrap,
@@ -22,8 +22,8 @@ from claravid.eval.analysis.bootstrap import (
 )
 from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.cli import main
-from claravid.layout import MISSIONS, frame_file
-from claravid.segmentation import ClaraVidSegmentation
+from claravid.io import modalities
+from claravid.io.layout import MISSIONS, frame_file
 from tests.eval.conftest import write_noisy_predictions
 
 K = 8  # uavid palette

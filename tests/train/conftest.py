@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from claravid import modalities
-from claravid.palettes import load_palette
+from claravid.data.palettes import load_palette
+from claravid.io import modalities
 
 # A tiny random-init backbone (of the config's architecture) and head, 28² crops, the fixture's
 # 5 test frames as val set (26/5/5 with 150 m blocks), CPU, one thread, no workers, no progress

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from claravid.resources import shipped_file
+from claravid.infra.resources import shipped_file
 from claravid.train.config import (
     ConfigError,
     changed_keys,

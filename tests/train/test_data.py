@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from claravid.samples import normalise
-from claravid.segmentation import ClaraVidSegmentation
+from claravid.data.samples import normalise
+from claravid.data.segmentation import ClaraVidSegmentation
+from claravid.data.transforms import AugmentConfig, train_transforms
 from claravid.train.data import CropDataset, class_weights, collate_crops
 from claravid.train.sampler import StepSampler
-from claravid.transforms import AugmentConfig, train_transforms
 
 
 def draw(sampler, n):
@@ -125,8 +125,8 @@ def test_complexity_balanced_draws_each_bin_in_turn():
 
 
 def test_uavid_class_frequencies_count_the_label_files(uavid_root):
-    from claravid.palettes import load_palette
-    from claravid.targets import UAVidSegmentation
+    from claravid.data.palettes import load_palette
+    from claravid.data.targets import UAVidSegmentation
     from claravid.train.data import class_frequencies
 
     ds = UAVidSegmentation(uavid_root, split="train", palette="uavid")

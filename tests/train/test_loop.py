@@ -8,9 +8,9 @@ import pytest
 import torch
 
 from claravid import models
+from claravid.data.palettes import load_palette
+from claravid.infra.resources import shipped_names
 from claravid.models.checkpoint import read_checkpoint
-from claravid.palettes import load_palette
-from claravid.resources import shipped_names
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.checkpoint import save_training_checkpoint
 from claravid.train.cli import main

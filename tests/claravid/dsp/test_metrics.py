@@ -20,7 +20,7 @@ from claravid.dsp import (
     read_gray,
 )
 from claravid.dsp.metrics import BIN_LUT
-from claravid.errors import CorruptFileError
+from claravid.infra.errors import CorruptFileError
 
 from .reference import OFFICIAL, official_deldensity, official_image_complexity, textured
 

@@ -3,10 +3,10 @@
 import numpy as np
 import torch
 
+from claravid.data.segmentation import ClaraVidSegmentation
+from claravid.data.transforms import eval_transforms
 from claravid.eval.inference.run_model import evaluate_model
 from claravid.eval.inference.windows import WindowConfig
-from claravid.segmentation import ClaraVidSegmentation
-from claravid.transforms import eval_transforms
 
 
 def test_per_image_confusions_match_a_direct_count(claravid_root):

@@ -12,7 +12,7 @@ from claravid.eval.inference.windows import (
     sliding_window_logits,
     window_starts,
 )
-from claravid.precision import flag_precision
+from claravid.infra.precision import flag_precision
 
 
 def test_window_starts_cover_the_axis_with_the_last_flush():
@@ -142,7 +142,7 @@ def test_uint8_frames_are_normalised_on_the_device_as_eval_transforms_did(scale)
     # The frame travels as uint8 and is normalised where the model runs; the logits equal those
     # of the former path (albumentations normalisation on the CPU, float32 frame) within float
     # rounding. A custom mean/std shows the config's normalisation is the one applied.
-    from claravid.transforms import augment_config, eval_transforms
+    from claravid.data.transforms import augment_config, eval_transforms
 
     rng = np.random.default_rng(0)
     rgb = rng.integers(0, 256, (3, 61, 83), dtype=np.uint8)

@@ -1,0 +1,258 @@
+"""Augmentation pipelines over sample dicts (albumentations 2.x).
+
+Training: a random crop at native resolution first (padded at a random position with the
+ignore index when the image is smaller), then colour jitter, brightness/contrast, rotation,
+optical or grid distortion and a horizontal flip, then normalisation. Cropping first is what
+makes this cheap: augmenting a 630×630 crop takes a few ms, the full 4032×3024 frame hundreds.
+The crop window can be drawn before anything is decoded (:meth:`SegmentationTransform.draw_window`
+from the frame's size): a dataset that reads regions (``ClaraVidSegmentation``) then decodes
+only the window and hands it over with ``sample["crop"] = (x, y, width, height)``; a dataset
+that cannot gets its full frame cut here, from the same random draws, so both give the same
+sample. Evaluation: normalisation only, no crop. Masks are warped with nearest interpolation and
+filled with the ignore index (albumentations 2.x ``fill_mask``; the 1.x names are ignored).
+
+A transform takes and returns the whole sample dict. It receives ``image`` as uint8 [3,H,W]
+and ``mask`` as uint8 [H,W] train ids; it returns ``image`` as float32 [3,h,w] (uint8 when
+made with ``normalize=False``: ``claravid.data.samples.normalise`` then runs where the model
+does, so a crop travels to it at a quarter of the bytes). The dataset casts the mask to its
+``mask_dtype`` afterwards.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")  # it phones home at import otherwise
+
+import albumentations as A
+import cv2
+import numpy as np
+import torch
+from omegaconf import OmegaConf
+
+from claravid.io.yamlfile import YamlFileError, load_yaml
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+
+@dataclass
+class AugmentConfig:
+    """Every knob of the pipelines; YAML files override any subset (see ``configs/``).
+
+    Probabilities are per sample; a probability of 0 removes that augmentation.
+    """
+
+    crop_height: int = 630
+    crop_width: int = 630
+    hflip_p: float = 0.5
+    color_jitter_p: float = 0.5
+    brightness: float = 0.2
+    contrast: float = 0.2
+    saturation: float = 0.2
+    hue: float = 0.02
+    lighting_p: float = 0.5  # RandomBrightnessContrast
+    brightness_limit: float = 0.2
+    contrast_limit: float = 0.2
+    rotate_p: float = 0.3
+    rotate_limit: float = 15.0
+    distortion_p: float = 0.2  # one of optical / grid distortion
+    optical_distort_limit: float = 0.05
+    grid_distort_limit: float = 0.2
+    mean: tuple[float, float, float] = IMAGENET_MEAN
+    std: tuple[float, float, float] = IMAGENET_STD
+    ignore_index: int = 255
+
+
+def augment_config(overrides: Any = None) -> AugmentConfig:
+    """The default config merged with a dict, DictConfig, or YAML file path.
+
+    Unknown keys are an error that names them (OmegaConf's structured-config check).
+    """
+    base = OmegaConf.structured(AugmentConfig)
+    if overrides is None:
+        return AugmentConfig(**OmegaConf.to_container(base))
+    if isinstance(overrides, str | os.PathLike):
+        try:  # the strict loader names the file, and a duplicate key with its lines
+            overrides = load_yaml(overrides) or {}
+        except YamlFileError as error:
+            raise ValueError(f"invalid augmentation config {error}") from None
+    try:
+        merged = OmegaConf.merge(base, overrides)
+    except Exception as error:  # omegaconf raises several unrelated types
+        raise ValueError(f"invalid augmentation config: {error}") from None
+    return AugmentConfig(**OmegaConf.to_container(merged))
+
+
+class CropWindow(NamedTuple):
+    """Where a crop is cut from, in the stored frame's pixels (the whole axis when the frame is
+    smaller than the crop on it; the crop is then padded)."""
+
+    x: int
+    y: int
+    width: int
+    height: int
+
+
+def _train_ops(cfg: AugmentConfig) -> list[A.BasicTransform]:
+    """The augmentations after the crop (the crop itself is `SegmentationTransform`'s)."""
+    fill = {"border_mode": cv2.BORDER_CONSTANT, "fill": 0, "fill_mask": cfg.ignore_index}
+    nearest = {"mask_interpolation": cv2.INTER_NEAREST}
+    ops: list[A.BasicTransform] = []
+    if cfg.color_jitter_p > 0:
+        ops.append(
+            A.ColorJitter(
+                brightness=cfg.brightness,
+                contrast=cfg.contrast,
+                saturation=cfg.saturation,
+                hue=cfg.hue,
+                p=cfg.color_jitter_p,
+            )
+        )
+    if cfg.lighting_p > 0:
+        ops.append(
+            A.RandomBrightnessContrast(
+                brightness_limit=cfg.brightness_limit,
+                contrast_limit=cfg.contrast_limit,
+                p=cfg.lighting_p,
+            )
+        )
+    if cfg.rotate_p > 0:
+        ops.append(A.Rotate(limit=cfg.rotate_limit, p=cfg.rotate_p, **fill, **nearest))
+    if cfg.distortion_p > 0:
+        distortions = [
+            A.OpticalDistortion(distort_limit=cfg.optical_distort_limit, **fill, **nearest),
+            A.GridDistortion(distort_limit=cfg.grid_distort_limit, **fill, **nearest),
+        ]
+        ops.append(A.OneOf(distortions, p=cfg.distortion_p))
+    if cfg.hflip_p > 0:
+        ops.append(A.HorizontalFlip(p=cfg.hflip_p))
+    return ops
+
+
+class SegmentationTransform:
+    """A random crop (training), then an albumentations pipeline, applied to a sample dict.
+
+    Args:
+        ops: the augmentations after the crop.
+        cfg: the config (normalisation, ignore index, crop size).
+        crop: ``(height, width)`` of the random crop; None: no crop (evaluation).
+        normalize: end with the normalisation (float32 images); False: uint8 images, for
+            ``claravid.data.samples.normalise`` on the model's device (the random stream is the
+            same: the normalisation draws nothing).
+    """
+
+    def __init__(
+        self,
+        ops: list[A.BasicTransform],
+        cfg: AugmentConfig,
+        crop: tuple[int, int] | None = None,
+        normalize: bool = True,
+    ) -> None:
+        self.cfg = cfg
+        self.crop = crop
+        if normalize:
+            ops = [*ops, A.Normalize(mean=cfg.mean, std=cfg.std, max_pixel_value=255.0)]
+        self.pipeline = A.Compose(ops)
+
+    def draw_window(self, width: int, height: int) -> CropWindow:
+        """The random crop window of a ``width`` × ``height`` frame, drawn before decoding.
+
+        Drawn from the pipeline's own generator, so ``pipeline.set_random_seed`` fixes the
+        window and the augmentations after it alike.
+        """
+        if self.crop is None:
+            raise ValueError("this transform does not crop (evaluation transforms)")
+        crop_h, crop_w = self.crop
+        rng = self.pipeline.random_generator
+        # Two draws whatever the sizes, so the augmentations after the crop see the same stream.
+        x = int(rng.integers(0, max(0, width - crop_w) + 1))
+        y = int(rng.integers(0, max(0, height - crop_h) + 1))
+        return CropWindow(x, y, min(width, crop_w), min(height, crop_h))
+
+    def _cut_and_pad(
+        self, image: np.ndarray, mask: np.ndarray | None, cut: bool
+    ) -> tuple[np.ndarray, np.ndarray | None, CropWindow]:
+        """Cut the window from a full frame (``cut``), then pad the crop to the crop size."""
+        assert self.crop is not None
+        if cut:
+            window = self.draw_window(image.shape[1], image.shape[0])
+            rows = slice(window.y, window.y + window.height)
+            cols = slice(window.x, window.x + window.width)
+            image = image[rows, cols]
+            mask = None if mask is None else mask[rows, cols]
+        else:
+            window = CropWindow(0, 0, image.shape[1], image.shape[0])
+        crop_h, crop_w = self.crop
+        h, w = image.shape[:2]
+        rng = self.pipeline.random_generator
+        top = int(rng.integers(0, max(0, crop_h - h) + 1))
+        left = int(rng.integers(0, max(0, crop_w - w) + 1))
+        if (h, w) != (crop_h, crop_w):  # a frame smaller than the crop: pad at random
+            pad = (top, crop_h - h - top, left, crop_w - w - left)
+            image = cv2.copyMakeBorder(
+                np.ascontiguousarray(image), *pad, cv2.BORDER_CONSTANT, value=(0, 0, 0)
+            )
+            if mask is not None:
+                fill = self.cfg.ignore_index
+                mask = cv2.copyMakeBorder(
+                    np.ascontiguousarray(mask), *pad, cv2.BORDER_CONSTANT, value=fill
+                )
+        return image, mask, window
+
+    def __call__(self, sample: dict[str, Any]) -> dict[str, Any]:
+        image = _to_hwc(sample["image"])
+        mask = sample.get("mask")
+        if mask is not None:
+            mask = np.asarray(mask)
+            if mask.dtype != np.uint8:
+                mask = mask.astype(np.uint8)  # albumentations warps uint8 masks exactly
+            if mask.shape != image.shape[:2]:
+                raise ValueError(
+                    f"image {image.shape[1]}×{image.shape[0]} and mask "
+                    f"{mask.shape[1]}×{mask.shape[0]} of {sample.get('path', 'a sample')} differ"
+                )
+        if self.crop is not None:
+            cut = "crop" not in sample  # a dataset that read the window alone says where
+            image, mask, window = self._cut_and_pad(image, mask, cut)
+            if cut:
+                sample["crop"] = tuple(window)
+        if mask is None:
+            out = self.pipeline(image=image)
+        else:
+            out = self.pipeline(image=image, mask=mask)
+            sample["mask"] = torch.from_numpy(np.ascontiguousarray(out["mask"]))
+        sample["image"] = torch.from_numpy(np.ascontiguousarray(out["image"].transpose(2, 0, 1)))
+        return sample
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.pipeline})"
+
+
+def _to_hwc(image: Any) -> np.ndarray:
+    """uint8 [3,H,W] tensor (or H×W×3 array) -> H×W×3 array, a view when possible."""
+    if isinstance(image, torch.Tensor):
+        return image.permute(1, 2, 0).numpy()
+    image = np.asarray(image)
+    if image.ndim == 3 and image.shape[0] == 3 and image.shape[2] != 3:
+        return image.transpose(1, 2, 0)
+    return image
+
+
+def train_transforms(config: Any = None, normalize: bool = True) -> SegmentationTransform:
+    """Random crop first, then photometric and geometric augmentations, then normalise.
+
+    With ``normalize=False`` the crops stay uint8, for ``claravid.data.samples.normalise`` on the
+    model's device.
+    """
+    cfg = config if isinstance(config, AugmentConfig) else augment_config(config)
+    crop = (cfg.crop_height, cfg.crop_width)
+    return SegmentationTransform(_train_ops(cfg), cfg, crop=crop, normalize=normalize)
+
+
+def eval_transforms(config: Any = None) -> SegmentationTransform:
+    """Normalisation only: the full frame, no crop."""
+    cfg = config if isinstance(config, AugmentConfig) else augment_config(config)
+    return SegmentationTransform([], cfg)

@@ -1,0 +1,285 @@
+"""Read and write every ClaraVid modality, value for value as the official SDK does.
+
+Decoding goes through OpenCV (`cv2.imdecode`), which is faster than the SDK's PIL path;
+the results are identical for the lossless PNG/JSON modalities, and the JPEG RGB may differ
+only by decoder rounding. Every reader raises :class:`CorruptFileError` naming the file
+when it is truncated or undecodable (OpenCV alone would hand back a partly grey image for a
+truncated JPEG) and ``FileNotFoundError`` naming it when it is missing.
+
+The writers produce the exact on-disk encodings (used by the scene generator and tests).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from claravid.infra.errors import CorruptFileError
+from claravid.io.layout import DEPTH_MAX_M, DEPTH_SCALE, INTRINSICS
+
+_JPEG_SOI, _JPEG_EOI = b"\xff\xd8", b"\xff\xd9"
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_IEND = b"IEND\xaeB`\x82"
+
+
+def read_bytes(path: str | Path) -> np.ndarray:
+    """Read a whole file into a uint8 array (no copy on the way to ``cv2.imdecode``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"file not found: {path}")
+    return np.fromfile(path, dtype=np.uint8)
+
+
+def _check_complete(data: np.ndarray, path: Path) -> None:
+    """Reject truncated JPEG and PNG files, which decoders may otherwise half-decode."""
+    if data.size == 0:
+        raise CorruptFileError(path, "the file is empty (0 bytes)")
+    head = data[:8].tobytes()
+    if head.startswith(_JPEG_SOI):
+        # Some cameras append data after the end-of-image marker: search the last 4 KiB.
+        if _JPEG_EOI not in data[-4096:].tobytes():
+            raise CorruptFileError(path, "truncated JPEG (no end-of-image marker)")
+    elif head.startswith(_PNG_SIGNATURE) and not data[-12:].tobytes().endswith(_PNG_IEND):
+        raise CorruptFileError(path, "truncated PNG (no IEND chunk)")
+
+
+def decode_image(
+    path: str | Path, flags: int = cv2.IMREAD_COLOR, *, exif_orientation: bool = False
+) -> np.ndarray:
+    """Decode an image file with OpenCV, raising errors that name the file.
+
+    Args:
+        path: the image file.
+        flags: ``cv2.IMREAD_*`` flags.
+        exif_orientation: rotate by the EXIF orientation tag, as ``cv2.imread`` does. Off by
+            default, as PIL (and so the official SDK) ignores the tag.
+    """
+    path = Path(path)
+    return decode_bytes(read_checked(path), path, flags, exif_orientation)
+
+
+def read_checked(path: str | Path) -> np.ndarray:
+    """A file's bytes, refusing empty files and truncated JPEG or PNG files (naming the file)."""
+    data = read_bytes(path)
+    _check_complete(data, Path(path))
+    return data
+
+
+def decode_bytes(
+    data: np.ndarray, path: str | Path, flags: int, exif_orientation: bool = False
+) -> np.ndarray:
+    """Decode a file's bytes with OpenCV; ``path`` names the file in the error."""
+    if not exif_orientation and flags != cv2.IMREAD_UNCHANGED:
+        flags |= cv2.IMREAD_IGNORE_ORIENTATION
+    image = cv2.imdecode(data, flags)
+    if image is None:
+        raise CorruptFileError(path, "OpenCV could not decode it (corrupt or not an image)")
+    return image
+
+
+PNG_COLOR_TYPES = {0: "grey", 2: "RGB", 3: "palette", 4: "grey+alpha", 6: "RGBA"}
+_RGB_TYPES = frozenset({2, 6})  # RGBA: the same R, G, B bytes; alpha is ignored
+_ANY_TYPE = frozenset(PNG_COLOR_TYPES)
+
+
+def png_header(data: np.ndarray) -> tuple[int, int] | None:
+    """(bit depth, colour type) from a PNG's IHDR chunk, or None when the bytes are no PNG."""
+    head = data[:26].tobytes()
+    if len(head) < 26 or not head.startswith(_PNG_SIGNATURE) or head[12:16] != b"IHDR":
+        return None
+    return head[24], head[25]
+
+
+def describe_bytes(data: np.ndarray) -> str:
+    """What a file's bytes are, for error messages: ``a 16-bit RGB PNG``, ``JPEG data``."""
+    header = png_header(data)
+    if header is not None:
+        depth, color_type = header
+        article = "an" if str(depth).startswith("8") else "a"
+        return f"{article} {depth}-bit {PNG_COLOR_TYPES.get(color_type, f'type-{color_type}')} PNG"
+    if data[:2].tobytes() == _JPEG_SOI:
+        return "JPEG data"
+    return "no PNG data"
+
+
+def _decode_png8(
+    path: str | Path, flags: int, color_types: frozenset[int], expected: str
+) -> np.ndarray:
+    """Decode a label PNG after checking, from its header, that it has the documented encoding.
+
+    The header check costs nothing next to decoding, and catches what OpenCV would silently
+    convert: 16-bit files (scaled to 8 bits), grey or palette files (expanded to colour), and
+    JPEG bytes under a ``.png`` name (lossy: label values change at every edge).
+    """
+    data = read_checked(path)
+    header = png_header(data)
+    if header is None or header[0] != 8 or header[1] not in color_types:
+        raise CorruptFileError(path, f"expected {expected}, found {describe_bytes(data)}")
+    return decode_bytes(data, path, flags)
+
+
+_PAN_SEG = "an 8-bit RGB PNG (R class id, G + 256·B instance id)"
+_DEPTH = "an 8-bit RGB PNG (24-bit depth code over R, G, B)"
+_DYNAMIC = "an 8-bit PNG mask (255 static, 0 dynamic)"
+
+
+# OpenCV >= 4.10 decodes straight to RGB order, saving a full-frame channel swap.
+_IMREAD_RGB = getattr(cv2, "IMREAD_COLOR_RGB", None)
+
+
+def _read_color(path: str | Path) -> np.ndarray:
+    """uint8 H×W×3 in RGB order, like PIL's ``Image.open(p).convert('RGB')``."""
+    if _IMREAD_RGB is not None:
+        return decode_image(path, _IMREAD_RGB)
+    return cv2.cvtColor(decode_image(path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+def read_rgb(path: str | Path) -> np.ndarray:
+    """The RGB photo: uint8 H×W×3, RGB order."""
+    return _read_color(path)
+
+
+def read_seg_color(path: str | Path) -> np.ndarray:
+    """The semantic colour map (for viewing): uint8 H×W×3, RGB order."""
+    return _read_color(path)
+
+
+def read_depth(path: str | Path) -> np.ndarray:
+    """Metric depth: float32 H×W metres = (R + 256·G + 65536·B) / (2^24 − 1) × 1000.
+
+    Computed in float32 in the SDK's order (sum, divide, multiply) so values are bit-equal.
+    """
+    bgr = _decode_png8(path, cv2.IMREAD_COLOR, _RGB_TYPES, _DEPTH).astype(np.int32)
+    code = bgr[..., 2] + (bgr[..., 1] << 8) + (bgr[..., 0] << 16)
+    depth = code.astype(np.float32)  # < 2^24: exact in float32, as the SDK's float32 sum
+    depth /= np.float32(DEPTH_SCALE)
+    depth *= np.float32(DEPTH_MAX_M)
+    return depth
+
+
+def read_pan_seg(path: str | Path) -> np.ndarray:
+    """Panoptic labels: int32 H×W×2; ``[..., 0]`` instance (G + 256·B), ``[..., 1]`` class (R).
+
+    The file must be an 8-bit RGB (or RGBA) PNG; anything else (16-bit, grey, palette, JPEG
+    bytes) is a ``CorruptFileError`` naming the file, never silently wrong labels.
+    """
+    bgr = _decode_png8(path, cv2.IMREAD_COLOR, _RGB_TYPES, _PAN_SEG)
+    pan = np.empty((*bgr.shape[:2], 2), dtype=np.int32)
+    np.left_shift(bgr[..., 0], 8, out=pan[..., 0], dtype=np.int32)
+    pan[..., 0] += bgr[..., 1]
+    pan[..., 1] = bgr[..., 2]
+    return pan
+
+
+def read_semantic(path: str | Path) -> np.ndarray:
+    """Only the class ids of a panoptic PNG: uint8 H×W (the R channel), without the int32 pair."""
+    bgr = _decode_png8(path, cv2.IMREAD_COLOR, _RGB_TYPES, _PAN_SEG)
+    return np.ascontiguousarray(bgr[..., 2])
+
+
+def read_dynamic_mask(path: str | Path) -> np.ndarray:
+    """The dynamic mask: uint8 H×W, 255 static and 0 dynamic.
+
+    Converted like PIL's ``convert('L')``: grey files as they are; colour files with PIL's
+    ITU-R 601-2 integer luma (which differs from OpenCV's in rounding). Anything but an 8-bit
+    PNG (16-bit, JPEG bytes) is a ``CorruptFileError`` naming the file.
+    """
+    image = _decode_png8(path, cv2.IMREAD_UNCHANGED, _ANY_TYPE, _DYNAMIC)
+    if image.ndim == 2:
+        return image
+    b, g, r = (image[..., i].astype(np.uint32) for i in range(3))
+    return ((r * 19595 + g * 38470 + b * 7471 + 0x8000) >> 16).astype(np.uint8)
+
+
+def read_extrinsics(path: str | Path) -> np.ndarray:
+    """The camera-to-world pose: float32 4×4."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"file not found: {path}")
+    try:
+        matrix = np.asarray(json.loads(path.read_text()), dtype=np.float64).reshape(4, 4)
+    except (ValueError, TypeError) as error:
+        raise CorruptFileError(path, f"expected a 4×4 nested list of numbers ({error})") from None
+    with np.errstate(over="ignore"):  # beyond float32's range: inf, rejected just below
+        pose = matrix.astype(np.float32)
+    # JSON readers accept NaN and Infinity; a pose with them would put frames nowhere.
+    if not np.isfinite(pose).all():
+        raise CorruptFileError(path, "the 4×4 pose holds NaN or infinite values")
+    return pose
+
+
+def read_intrinsics(*_args: object) -> np.ndarray:
+    """The pinhole intrinsics (no files): float32 3×3."""
+    return INTRINSICS.copy()
+
+
+READERS = {
+    "rgb": read_rgb,
+    "depth": read_depth,
+    "seg_color": read_seg_color,
+    "pan_seg": read_pan_seg,
+    "dynamic_mask": read_dynamic_mask,
+    "extrinsics": read_extrinsics,
+    "intrinsics": read_intrinsics,
+}
+
+
+# --------------------------------------------------------------------------------------------
+# Writers: the exact on-disk encodings.
+
+
+def _write_image(path: str | Path, image: np.ndarray, params: list[int] | None = None) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ok, data = cv2.imencode(path.suffix, image, params or [])
+    if not ok:
+        raise ValueError(f"OpenCV could not encode {path}")
+    data.tofile(path)
+
+
+def write_rgb(path: str | Path, rgb: np.ndarray, quality: int = 95) -> None:
+    """Write a uint8 H×W×3 RGB image as JPEG."""
+    _write_image(path, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
+
+
+def write_seg_color(path: str | Path, colors: np.ndarray) -> None:
+    """Write a uint8 H×W×3 RGB colour map as PNG."""
+    _write_image(path, cv2.cvtColor(colors, cv2.COLOR_RGB2BGR))
+
+
+def encode_depth(depth_m: np.ndarray) -> np.ndarray:
+    """Metres -> the 24-bit RGB code (truncating, as the SDK's serializer does)."""
+    code = (np.asarray(depth_m, dtype=np.float64) / DEPTH_MAX_M * DEPTH_SCALE).astype(np.int64)
+    code = np.clip(code, 0, DEPTH_SCALE)
+    return np.stack([code & 0xFF, (code >> 8) & 0xFF, (code >> 16) & 0xFF], -1).astype(np.uint8)
+
+
+def write_depth(path: str | Path, depth_m: np.ndarray) -> None:
+    """Write metric depth (H×W, metres in [0, 1000]) as a 24-bit RGB PNG."""
+    _write_image(path, cv2.cvtColor(encode_depth(depth_m), cv2.COLOR_RGB2BGR))
+
+
+def write_pan_seg(path: str | Path, semantic: np.ndarray, instance: np.ndarray) -> None:
+    """Write class ids (R) and instance ids (G + 256·B) as an RGB PNG."""
+    instance = np.asarray(instance, dtype=np.int64)
+    if instance.min(initial=0) < 0 or instance.max(initial=0) > 0xFFFF:
+        raise ValueError("instance ids must be in [0, 65535]")
+    rgb = np.stack(
+        [np.asarray(semantic, dtype=np.uint8), instance & 0xFF, instance >> 8], -1
+    ).astype(np.uint8)
+    _write_image(path, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+
+
+def write_dynamic_mask(path: str | Path, mask: np.ndarray) -> None:
+    """Write a uint8 H×W mask (255 static, 0 dynamic) as a grey PNG."""
+    _write_image(path, np.asarray(mask, dtype=np.uint8))
+
+
+def write_extrinsics(path: str | Path, matrix: np.ndarray) -> None:
+    """Write a 4×4 camera-to-world matrix as a JSON nested list."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(np.asarray(matrix, dtype=np.float64).reshape(4, 4).tolist()))

@@ -1,0 +1,150 @@
+"""Augmentations: crop size, mask values after augmentation, config from YAML, errors."""
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from claravid.data.transforms import augment_config, eval_transforms, train_transforms
+
+ALLOWED = set(range(8)) | {255}
+
+
+def sample(h=300, w=400, seed=0):
+    rng = np.random.default_rng(seed)
+    image = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    mask = rng.choice(sorted(ALLOWED), (h, w)).astype(np.uint8)
+    # A [3,H,W] view, as the dataset hands it over.
+    return {"image": torch.from_numpy(image).permute(2, 0, 1), "mask": torch.from_numpy(mask)}
+
+
+def test_train_crop_and_mask_values_only_palette_ids_and_ignore():
+    transform = train_transforms(
+        {"crop_height": 64, "crop_width": 96, "rotate_p": 1.0, "distortion_p": 1.0}
+    )
+    for seed in range(10):
+        out = transform(sample(seed=seed))
+        assert out["image"].shape == (3, 64, 96) and out["image"].dtype == torch.float32
+        assert out["mask"].shape == (64, 96)
+        assert set(out["mask"].unique().tolist()) <= ALLOWED
+
+
+def test_small_image_is_padded_with_ignore():
+    out = train_transforms({"crop_height": 64, "crop_width": 64, "rotate_p": 0})(sample(20, 30))
+    mask = out["mask"].numpy()
+    assert out["image"].shape == (3, 64, 64)
+    assert (mask == 255).sum() >= 64 * 64 - 20 * 30
+
+
+def test_without_augmentation_the_crop_is_an_exact_window():
+    off = dict.fromkeys(["hflip_p", "color_jitter_p", "lighting_p", "rotate_p", "distortion_p"], 0)
+    cfg = {"crop_height": 50, "crop_width": 60, "mean": [0, 0, 0], "std": [1, 1, 1], **off}
+    s = sample(120, 150, seed=5)
+    image = s["image"].permute(1, 2, 0).numpy().copy()
+    mask = s["mask"].numpy().copy()
+    out = train_transforms(cfg)(s)
+    crop = (out["image"].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+    # Locate the window by its mask and check the pixels match exactly.
+    found = False
+    for y in range(120 - 50 + 1):
+        for x in range(150 - 60 + 1):
+            if np.array_equal(mask[y : y + 50, x : x + 60], out["mask"].numpy()):
+                np.testing.assert_array_equal(image[y : y + 50, x : x + 60], crop)
+                found = True
+    assert found
+
+
+def test_eval_keeps_full_frame_and_normalises():
+    s = sample(40, 50)
+    raw = s["image"].float()
+    out = eval_transforms()(s)
+    assert out["image"].shape == (3, 40, 50)
+    mean = torch.tensor([0.485, 0.456, 0.406])[:, None, None]
+    std = torch.tensor([0.229, 0.224, 0.225])[:, None, None]
+    torch.testing.assert_close(out["image"], (raw / 255 - mean) / std, atol=1e-5, rtol=0)
+
+
+def test_config_from_yaml_and_unknown_key(tmp_path):
+    (tmp_path / "aug.yaml").write_text("crop_height: 320\nhflip_p: 0.0\n")
+    cfg = augment_config(tmp_path / "aug.yaml")
+    assert cfg.crop_height == 320 and cfg.crop_width == 630 and cfg.hflip_p == 0.0
+    with pytest.raises(ValueError, match="crop_hieght"):
+        augment_config({"crop_hieght": 3})
+
+
+def test_mismatched_image_and_mask():
+    s = sample(30, 40)
+    s["mask"] = s["mask"][:20]
+    s["path"] = "frame.jpg"
+    with pytest.raises(ValueError, match=r"image 40×30 and mask 40×20 of frame\.jpg differ"):
+        eval_transforms()(s)
+
+
+def test_shipped_augment_yaml_matches_the_defaults():
+    from pathlib import Path
+
+    shipped = augment_config(Path(__file__).parents[3] / "configs" / "augment.yaml")
+    assert shipped == augment_config()
+
+
+def test_config_file_with_a_duplicate_key_names_file_and_key(tmp_path):
+    (tmp_path / "aug.yaml").write_text("crop_height: 320\nhflip_p: 0.0\ncrop_height: 640\n")
+    with pytest.raises(
+        ValueError,
+        match=r"aug\.yaml: duplicate key .crop_height. \(first on line 1, again on line 3\)",
+    ):
+        augment_config(tmp_path / "aug.yaml")
+    (tmp_path / "bin.yaml").write_bytes(b"\x89PNG\x00\xff")
+    with pytest.raises(ValueError, match=r"bin\.yaml"):
+        augment_config(tmp_path / "bin.yaml")
+
+
+BLOCK, STEP = 32, 28  # class blocks of 32×32 px; image value = (id + 1) * 28, 0 = padding
+
+
+def image_encodes_mask(h=200, w=260, seed=0):
+    """A sample whose image is derived from its mask: every channel is (id + 1) * STEP."""
+    rng = np.random.default_rng(seed)
+    blocks = rng.integers(0, 8, (h // BLOCK + 1, w // BLOCK + 1))
+    mask = np.kron(blocks, np.ones((BLOCK, BLOCK), int))[:h, :w].astype(np.uint8)
+    mask[:BLOCK, :BLOCK] = 255  # an ignore region: image 0 there, like padding
+    value = np.where(mask == 255, 0, (mask.astype(int) + 1) * STEP).astype(np.uint8)
+    image = np.repeat(value[..., None], 3, axis=2)
+    return {"image": torch.from_numpy(image).permute(2, 0, 1), "mask": torch.from_numpy(mask)}
+
+
+def decoded_from_image(image):
+    """The class ids the augmented image says each pixel has (255 where the image is 0)."""
+    value = image[0].numpy() * 255  # mean 0, std 1: back to the pixel value
+    ids = np.rint(value / STEP).astype(int) - 1
+    return np.where(ids < 0, 255, ids)
+
+
+def test_image_and_mask_stay_aligned_under_every_geometric_augmentation():
+    # Photometric ops off (they would change the code in the image); every geometric op on.
+    cfg = {"crop_height": 96, "crop_width": 128, "mean": [0, 0, 0], "std": [1, 1, 1],
+           "color_jitter_p": 0, "lighting_p": 0, "rotate_p": 1.0, "distortion_p": 1.0,
+           "hflip_p": 1.0}  # fmt: skip
+    transform = train_transforms(cfg)
+    agreements = []
+    for seed in range(8):
+        transform.pipeline.set_random_seed(seed)
+        out = transform(image_encodes_mask(seed=seed))
+        mask = out["mask"].numpy().astype(int)
+        # Bilinear image vs nearest mask differ only along block edges (about 1 px wide).
+        agreements.append(float(np.mean(decoded_from_image(out["image"]) == mask)))
+    assert len(agreements) == 8
+    assert min(agreements) > 0.9, agreements
+
+
+def test_the_alignment_check_catches_a_misaligned_mask():
+    # The check itself: flipping only the image, or rotating only the image, must fail it.
+    s = image_encodes_mask(96, 128, seed=3)
+    mask = s["mask"].numpy().astype(int)
+    flipped = s["image"].flip(-1).float() / 255
+    assert np.mean(decoded_from_image(flipped) == mask) < 0.6
+    rotation = cv2.getRotationMatrix2D((64, 48), 10, 1.0)
+    rotated = cv2.warpAffine(s["image"].permute(1, 2, 0).numpy(), rotation, (128, 96))
+    rotated_image = torch.from_numpy(rotated).permute(2, 0, 1).float() / 255
+    assert np.mean(decoded_from_image(rotated_image) == mask) < 0.9
+    assert np.mean(decoded_from_image(s["image"].float() / 255) == mask) == 1.0

@@ -1,0 +1,314 @@
+"""A decoded window equals the same window of a full decode, pixel for pixel, for any JPEG.
+
+The expected pixels never come from the code under test: ``cv2.imread`` of the whole file (EXIF
+orientation ignored, as the datasets read photos), flipped to RGB, then sliced. The JPEGs are
+written by encoders we do not control (OpenCV's and Pillow's libjpeg), in every chroma sampling,
+baseline and progressive, with restart markers, in greyscale, at sizes that are no multiple of
+the 8- or 16-pixel MCU. Every test runs on the libjpeg window decoder ("region") and on the
+fallback that cuts the window from a full decode ("fallback").
+"""
+
+import io
+import os
+import threading
+
+import cv2
+import numpy as np
+import pytest
+from PIL import Image
+
+from claravid.infra.errors import CorruptFileError
+from claravid.io import jpeg_region
+from claravid.io.modalities import read_rgb
+
+NATIVE = jpeg_region._native
+needs_native = pytest.mark.skipif(
+    NATIVE is None, reason="claravid.io._jpeg_region not built (no C compiler or libjpeg headers)"
+)
+
+
+def textured(height, width, seed=0):
+    """Gradients plus strong noise: chroma changes every pixel, so upsampling errors show."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:height, 0:width]
+    base = np.stack([xx * 255 / max(width - 1, 1), yy * 255 / max(height - 1, 1), (xx + yy) % 256])
+    noisy = base.transpose(1, 2, 0) + rng.normal(0, 40, (height, width, 3))
+    return np.clip(noisy, 0, 255).astype(np.uint8)
+
+
+def _cv2(*params):
+    return lambda rgb: cv2.imencode(".jpg", rgb[..., ::-1], [*params])[1].tobytes()
+
+
+def _pil(mode="RGB", **options):
+    def encode(rgb):
+        buffer = io.BytesIO()
+        Image.fromarray(rgb).convert(mode).save(buffer, "JPEG", **options)
+        return buffer.getvalue()
+
+    return encode
+
+
+SAMPLING = cv2.IMWRITE_JPEG_SAMPLING_FACTOR
+ENCODERS = {
+    "cv2-420": _cv2(SAMPLING, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420, cv2.IMWRITE_JPEG_QUALITY, 95),
+    "cv2-422": _cv2(SAMPLING, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422),
+    "cv2-444": _cv2(SAMPLING, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444),
+    "cv2-411": _cv2(SAMPLING, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_411),
+    "cv2-440": _cv2(SAMPLING, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_440),
+    "cv2-420-progressive": _cv2(cv2.IMWRITE_JPEG_PROGRESSIVE, 1),
+    "cv2-422-progressive": _cv2(
+        SAMPLING, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422, cv2.IMWRITE_JPEG_PROGRESSIVE, 1
+    ),
+    "cv2-420-restart": _cv2(cv2.IMWRITE_JPEG_RST_INTERVAL, 3),
+    "cv2-grey": lambda rgb: cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))[1],
+    "pil-444": _pil(subsampling=0, quality=90),
+    "pil-422": _pil(subsampling=1, quality=90),
+    "pil-420": _pil(subsampling=2, quality=90),
+    "pil-420-progressive": _pil(subsampling=2, progressive=True),
+    "pil-444-progressive": _pil(subsampling=0, progressive=True),
+    "pil-grey": _pil("L"),
+}
+SIZES = [(203, 141), (17, 9), (1, 1), (33, 47)]  # (width, height)
+
+
+def expected(path):
+    """The independent statement: OpenCV's full decode, pixels as stored, in RGB order."""
+    return cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)[..., ::-1]
+
+
+def windows(width, height, seed=0, count=25):
+    """The full frame, every border and corner, 1-pixel windows, MCU edges, random windows."""
+    right, bottom = width - 1, height - 1
+    found = {(0, 0, width, height), (0, 0, 1, 1), (right, 0, 1, 1), (0, bottom, 1, 1)}
+    found |= {(right, bottom, 1, 1), (0, 0, width, 1), (0, bottom, width, 1)}
+    found |= {(0, 0, 1, height), (right, 0, 1, height)}
+    for edge in (7, 8, 9, 15, 16, 17, 31, 32, 33):  # on, before and after MCU boundaries
+        if edge < width and edge < height:
+            found |= {(edge, 0, width - edge, height), (0, edge, width, height - edge)}
+            found |= {(edge, edge, 1, 1), (0, 0, edge, edge)}
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        x, y = int(rng.integers(width)), int(rng.integers(height))
+        found.add((x, y, int(rng.integers(1, width - x + 1)), int(rng.integers(1, height - y + 1))))
+    return sorted(found)
+
+
+@pytest.fixture(params=["region", "fallback"])
+def decode(request, monkeypatch):
+    """read_rgb_window on the libjpeg window decoder, or on the full-decode fallback."""
+    if request.param == "region" and NATIVE is None:
+        pytest.skip("claravid.io._jpeg_region not built (no C compiler or libjpeg headers)")
+    if request.param == "fallback":
+        monkeypatch.setattr(jpeg_region, "_native", None)
+    return jpeg_region.read_rgb_window
+
+
+def write_jpeg(path, encoder, width, height, seed=0):
+    path.write_bytes(bytes(ENCODERS[encoder](textured(height, width, seed))))
+    return path
+
+
+def test_the_window_decoder_is_built_on_ci():
+    # CI installs with a C compiler and libjpeg-dev: there the fast path must exist (and so be
+    # tested), not silently fall back.
+    if NATIVE is None and not os.environ.get("CI"):
+        pytest.skip("claravid.io._jpeg_region not built; set CI=1 to make this a failure")
+    assert NATIVE is not None, "claravid.io._jpeg_region was not built; install libjpeg-dev + gcc"
+    assert jpeg_region.decoder() == jpeg_region.REGION_DECODE == "libjpeg region decode"
+
+
+def test_decoder_names_the_fallback(monkeypatch):
+    monkeypatch.setattr(jpeg_region, "_native", None)
+    assert jpeg_region.decoder() == "full decode (C extension not built)"
+
+
+@pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
+@pytest.mark.parametrize("encoder", ENCODERS)
+def test_every_window_equals_the_full_decode(tmp_path, decode, encoder, size):
+    path = write_jpeg(tmp_path / "f.jpg", encoder, *size)
+    full = expected(path)
+    assert jpeg_region.jpeg_size(path) == size == (full.shape[1], full.shape[0])
+    for x, y, w, h in windows(*size):
+        window = decode(path, x, y, w, h)
+        assert window.dtype == np.uint8 and window.shape == (h, w, 3)
+        assert window.flags.c_contiguous
+        np.testing.assert_array_equal(window, full[y : y + h, x : x + w], err_msg=f"{x, y, w, h}")
+
+
+@pytest.mark.parametrize("encoder", ["cv2-420", "cv2-422", "pil-420-progressive"])
+def test_large_windows_of_a_larger_frame(tmp_path, decode, encoder):
+    path = write_jpeg(tmp_path / "f.jpg", encoder, 700, 530, seed=3)
+    full = expected(path)
+    np.testing.assert_array_equal(full, read_rgb(path))  # the expectation is read_rgb's pixels
+    for x, y, w, h in [*windows(700, 530, seed=4, count=12), (37, 51, 630, 470)]:
+        np.testing.assert_array_equal(decode(path, x, y, w, h), full[y : y + h, x : x + w])
+
+
+@needs_native
+def test_without_the_margin_borders_differ_and_one_mcu_is_enough(tmp_path):
+    # Smooth chroma upsampling reads one chroma sample beyond the window; libjpeg treats the
+    # edge of a cropped region as an image edge. The margin argument is the module's internal
+    # knob: 0 shows the tests above would catch a missing margin; 1 (the default) is exact.
+    path = write_jpeg(tmp_path / "f.jpg", "cv2-420", 203, 141)
+    data, full = path.read_bytes(), expected(path)
+    failures = {0: 0, 1: 0}
+    for x, y, w, h in windows(203, 141):
+        for margin in failures:
+            out = np.empty((h, w, 3), np.uint8)
+            NATIVE.decode_window(data, x, y, w, h, out, margin)
+            failures[margin] += not np.array_equal(out, full[y : y + h, x : x + w])
+    assert failures[0] > 0 and failures[1] == 0, failures
+
+
+def test_exif_orientation_is_ignored(tmp_path, decode):
+    rgb = textured(30, 50)
+    exif = Image.Exif()
+    exif[0x0112] = 6  # "rotate 90° clockwise to display": the datasets keep stored pixels
+    Image.fromarray(rgb).save(tmp_path / "r.jpg", exif=exif, quality=95)
+    full = expected(tmp_path / "r.jpg")
+    assert full.shape == (30, 50, 3) and jpeg_region.jpeg_size(tmp_path / "r.jpg") == (50, 30)
+    np.testing.assert_array_equal(decode(tmp_path / "r.jpg", 3, 4, 40, 20), full[4:24, 3:43])
+    np.testing.assert_array_equal(read_rgb(tmp_path / "r.jpg")[4:24, 3:43], full[4:24, 3:43])
+
+
+@pytest.mark.parametrize("suffix", [".png", ".tiff", ".webp"])
+def test_other_formats_are_decoded_whole_and_sliced(tmp_path, decode, suffix):
+    path = tmp_path / f"f{suffix}"
+    cv2.imwrite(str(path), textured(41, 37)[..., ::-1])
+    np.testing.assert_array_equal(decode(path, 5, 6, 30, 20), read_rgb(path)[6:26, 5:35])
+    assert jpeg_region.image_size(path) == (37, 41)
+
+
+def test_png_bytes_named_jpg_are_decoded_as_png(tmp_path, decode):
+    path = tmp_path / "f.jpg"
+    path.write_bytes(cv2.imencode(".png", textured(20, 30))[1].tobytes())
+    np.testing.assert_array_equal(decode(path, 1, 2, 10, 5), read_rgb(path)[2:7, 1:11])
+
+
+def test_cmyk_jpeg_falls_back_to_a_full_decode(tmp_path, decode):
+    Image.fromarray(textured(20, 30)).convert("CMYK").save(tmp_path / "c.jpg")
+    full = expected(tmp_path / "c.jpg")
+    np.testing.assert_array_equal(decode(tmp_path / "c.jpg", 2, 3, 20, 10), full[3:13, 2:22])
+
+
+def test_image_size_of_a_jpeg_reads_only_the_header(tmp_path):
+    path = write_jpeg(tmp_path / "f.jpg", "pil-420", 203, 141)
+    data = path.read_bytes()
+    assert jpeg_region.image_size(path) == jpeg_region.jpeg_size(data) == (203, 141)
+    head = data[: data.index(b"\xff\xda")]  # everything before the image data
+    assert jpeg_region.jpeg_size(np.frombuffer(head, np.uint8)) == (203, 141)
+
+
+def test_threads_decode_concurrently_to_the_same_pixels(tmp_path):
+    path = write_jpeg(tmp_path / "f.jpg", "cv2-420", 300, 200)
+    full, results = expected(path), {}
+
+    def work(i):
+        results[i] = jpeg_region.read_rgb_window(path, i, 2 * i, 150, 100)
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(8)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    for i, window in results.items():
+        np.testing.assert_array_equal(window, full[2 * i : 2 * i + 100, i : i + 150])
+    assert len(results) == 8
+
+
+# ------------------------------------------------------------------------------------------
+# Bad input: errors that name the file, never a crash and never invented pixels.
+
+
+def test_window_outside_the_frame_is_refused(tmp_path, decode):
+    path = write_jpeg(tmp_path / "f.jpg", "cv2-420", 40, 30)
+    for window in [(0, 0, 41, 30), (0, 0, 40, 31), (39, 0, 2, 1), (0, 29, 1, 2), (40, 0, 1, 1)]:
+        with pytest.raises(ValueError, match=r"does not fit in the 40×30 frame of .*f\.jpg") as e:
+            decode(path, *window)
+        assert not isinstance(e.value, CorruptFileError)
+    for window in [(-1, 0, 5, 5), (0, -1, 5, 5), (0, 0, 0, 5), (0, 0, 5, 0)]:
+        with pytest.raises(ValueError, match="need x, y >= 0, sizes >= 1"):
+            decode(path, *window)
+    with pytest.raises(TypeError, match="x must be an integer"):
+        decode(path, 1.5, 0, 5, 5)
+
+
+def test_missing_empty_and_truncated_files_name_the_file(tmp_path, decode):
+    with pytest.raises(FileNotFoundError, match=r"nope\.jpg"):
+        decode(tmp_path / "nope.jpg", 0, 0, 1, 1)
+    (tmp_path / "e.jpg").write_bytes(b"")
+    with pytest.raises(CorruptFileError, match=r"e\.jpg.*empty"):
+        decode(tmp_path / "e.jpg", 0, 0, 1, 1)
+    data = write_jpeg(tmp_path / "f.jpg", "cv2-420", 203, 141).read_bytes()
+    (tmp_path / "t.jpg").write_bytes(data[: len(data) // 2])
+    with pytest.raises(CorruptFileError, match=r"t\.jpg: truncated JPEG"):
+        decode(tmp_path / "t.jpg", 0, 0, 5, 5)  # even a window whose data is all there
+
+
+def test_non_jpeg_bytes_named_jpg(tmp_path, decode):
+    (tmp_path / "g.jpg").write_bytes(b"this is not an image at all" * 10)
+    with pytest.raises(CorruptFileError, match=r"g\.jpg.*could not decode"):
+        decode(tmp_path / "g.jpg", 0, 0, 1, 1)
+    with pytest.raises(CorruptFileError, match=r"g\.jpg: not a JPEG file"):
+        jpeg_region.jpeg_size(tmp_path / "g.jpg")
+
+
+def test_truncated_header_names_the_file(tmp_path):
+    data = write_jpeg(tmp_path / "f.jpg", "cv2-420", 20, 10).read_bytes()
+    (tmp_path / "h.jpg").write_bytes(data[:30])
+    with pytest.raises(CorruptFileError, match=r"h\.jpg: truncated JPEG header"):
+        jpeg_region.jpeg_size(tmp_path / "h.jpg")
+    with pytest.raises(CorruptFileError, match=r"<bytes>: truncated JPEG header"):
+        jpeg_region.jpeg_size(data[:30])
+
+
+def _lying_header(data, height):
+    """The file with its frame height replaced: the header promises rows the data lacks."""
+    sof = data.index(b"\xff\xc0")
+    return data[: sof + 5] + height.to_bytes(2, "big") + data[sof + 7 :]
+
+
+def test_a_header_that_lies_about_the_size(tmp_path, decode):
+    data = write_jpeg(tmp_path / "f.jpg", "cv2-420", 203, 141).read_bytes()
+    lie = _lying_header(data, 3024)
+    (tmp_path / "short.jpg").write_bytes(lie[: len(lie) * 3 // 4])  # and truncated: no EOI
+    assert jpeg_region.jpeg_size(tmp_path / "short.jpg") == (203, 3024)
+    with pytest.raises(CorruptFileError, match=r"short\.jpg: truncated JPEG"):
+        decode(tmp_path / "short.jpg", 0, 2000, 50, 50)
+
+
+@needs_native
+def test_rows_missing_from_the_data_are_an_error_not_grey(tmp_path):
+    # The header promises 3024 rows, the data (which ends properly) holds 141: libjpeg alone
+    # would fill the missing rows with grey; the window decoder refuses them, naming the file.
+    # (The fallback cannot tell: OpenCV returns the grey rows, as read_rgb does.)
+    data = write_jpeg(tmp_path / "f.jpg", "cv2-420", 203, 141).read_bytes()
+    (tmp_path / "lie.jpg").write_bytes(_lying_header(data, 3024))
+    with pytest.raises(CorruptFileError, match=r"lie\.jpg: libjpeg: .*premature end"):
+        jpeg_region.read_rgb_window(tmp_path / "lie.jpg", 0, 2000, 50, 50)
+    # Rows the data does hold decode as in the honest file.
+    top = jpeg_region.read_rgb_window(tmp_path / "lie.jpg", 3, 5, 100, 60)
+    np.testing.assert_array_equal(top, expected(tmp_path / "f.jpg")[5:65, 3:103])
+
+
+@needs_native
+def test_corrupt_data_raises_or_decodes_but_never_crashes(tmp_path):
+    data = bytearray(write_jpeg(tmp_path / "f.jpg", "cv2-420", 203, 141).read_bytes())
+    start = data.index(b"\xff\xda") + 20
+    rng = np.random.default_rng(5)
+    errors = 0
+    for i in range(40):
+        damaged = bytearray(data)
+        for where in rng.integers(start, len(data) - 2, 8):
+            damaged[where] = int(rng.integers(256))
+        path = tmp_path / f"d{i}.jpg"
+        path.write_bytes(bytes(damaged))
+        try:
+            window = jpeg_region.read_rgb_window(path, 0, 0, 203, 141)
+        except CorruptFileError as error:
+            assert f"d{i}.jpg" in str(error)
+            errors += 1
+        else:
+            assert window.shape == (141, 203, 3)
+    assert errors > 0  # bad Huffman codes are reported, not painted over
