@@ -20,6 +20,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from claravid.models.inputs import check_image_batch, check_image_size
+from claravid.models.layers import LayerScale, Mlp, PatchEmbed, swiglu_hidden
+from claravid.models.tracing import is_exporting, length_tensor
 from claravid.models.weights import download_official, load_backbone_state, read_state_dict
 
 # Architecture of each official size; the name suffix `_reg` adds 4 register tokens.
@@ -32,19 +34,6 @@ ARCHS: dict[str, dict[str, Any]] = {
 BACKBONE_NAMES: tuple[str, ...] = tuple(
     f"dinov2_{arch}{suffix}" for arch in ARCHS for suffix in ("", "_reg")
 )
-
-
-def _is_exporting() -> bool:
-    """True while tracing or exporting, when Python-side shape checks must not run.
-
-    Not while compiling (``torch.compile``): dynamo traces the check like any Python code and
-    guards on its outcome, so a compiled model refuses what the eager one refuses. Exporting
-    (``torch.export``, under the ONNX exporter) must skip it: there a dynamic H and W are
-    symbols the check would pin to the example's size.
-    """
-    return bool(
-        torch.jit.is_tracing() or torch.onnx.is_in_onnx_export() or torch.compiler.is_exporting()
-    )
 
 
 def bicubic_matrix(out_size: Any, in_size: int, offset: float) -> torch.Tensor:
@@ -77,26 +66,10 @@ def bicubic_matrix(out_size: Any, in_size: int, offset: float) -> torch.Tensor:
     return (onehot * weights.unsqueeze(-1)).sum(dim=1).float()
 
 
-def _length(size: Any) -> torch.Tensor:
-    """A (possibly symbolic) size as a 0-d tensor, so comparisons stay in the exported graph."""
-    return torch.arange(size)[-1] + 1
-
-
 def _identity(size: Any, in_size: int) -> torch.Tensor:
     """[size, in_size] rows of the identity (only used where size == in_size)."""
     rows = torch.arange(size).clamp(max=in_size - 1)
     return F.one_hot(rows, in_size).to(torch.float32)
-
-
-class PatchEmbed(nn.Module):
-    """Non-overlapping patches -> tokens: one strided convolution, flattened to [B, N, D]."""
-
-    def __init__(self, patch_size: int, in_chans: int, embed_dim: int) -> None:
-        super().__init__()
-        self.proj = nn.Conv2d(in_chans, embed_dim, kernel_size=patch_size, stride=patch_size)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.proj(x).flatten(2).transpose(1, 2)
 
 
 class Attention(nn.Module):
@@ -118,24 +91,6 @@ class Attention(nn.Module):
         return self.proj(x.transpose(1, 2).reshape(b, n, c))
 
 
-class Mlp(nn.Module):
-    """fc1 -> exact GELU -> fc2."""
-
-    def __init__(self, dim: int, hidden: int) -> None:
-        super().__init__()
-        self.fc1 = nn.Linear(dim, hidden)
-        self.act = nn.GELU()
-        self.fc2 = nn.Linear(hidden, dim)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.fc2(self.act(self.fc1(x)))
-
-
-def swiglu_hidden(dim: int, mlp_ratio: float = 4.0) -> int:
-    """Hidden width of the official fused SwiGLU: 2/3 of the MLP width, rounded up to 8."""
-    return (int(int(dim * mlp_ratio) * 2 / 3) + 7) // 8 * 8
-
-
 class SwiGLU(nn.Module):
     """w12 -> (silu(x1) * x2) -> w3, the giant model's feed-forward (``SwiGLUFFNFused``)."""
 
@@ -147,17 +102,6 @@ class SwiGLU(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         x1, x2 = self.w12(x).chunk(2, dim=-1)
         return self.w3(F.silu(x1) * x2)
-
-
-class LayerScale(nn.Module):
-    """Per-channel learned scale of a residual branch."""
-
-    def __init__(self, dim: int, init_value: float = 1.0) -> None:
-        super().__init__()
-        self.gamma = nn.Parameter(torch.full((dim,), init_value))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return x * self.gamma
 
 
 class Block(nn.Module):
@@ -260,7 +204,7 @@ class DinoVisionTransformer(nn.Module):
         Skipped while tracing or exporting (shapes may be symbolic there); it holds under
         ``torch.compile``.
         """
-        if not _is_exporting():
+        if not is_exporting():
             check_image_batch(x, self.patch_size, torch.Tensor)
 
     def interpolate_pos_encoding(self, grid_h: int, grid_w: int) -> torch.Tensor:
@@ -269,7 +213,7 @@ class DinoVisionTransformer(nn.Module):
             return self._frozen_pos[1]
         n = self.pos_embed.shape[1] - 1
         m = int(math.sqrt(n))
-        exporting = _is_exporting()
+        exporting = is_exporting()
         # A Python test on symbolic sizes would specialise an export to one side of it.
         if not exporting and (grid_h, grid_w) == (m, m):
             return self.pos_embed
@@ -279,7 +223,7 @@ class DinoVisionTransformer(nn.Module):
             # Exporters bake a float scale_factor into a constant; the same resize as a product
             # with interpolation matrices stays shape-generic. At the native grid the official
             # code uses the table as is, which identity matrices reproduce.
-            native = (_length(grid_h) == m) & (_length(grid_w) == m)
+            native = (length_tensor(grid_h) == m) & (length_tensor(grid_w) == m)
             rows = torch.where(
                 native, _identity(grid_h, m), bicubic_matrix(grid_h, m, self.interpolate_offset)
             )
