@@ -10,30 +10,16 @@ interpolation in float32 with the ``+0.1`` offset (no registers) or exact size p
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from claravid.models.inputs import check_image_batch, check_image_size
+from claravid.models.inputs import check_image_batch, check_image_size, input_stats
 from claravid.models.layers import LayerScale, Mlp, PatchEmbed, swiglu_hidden
 from claravid.models.tracing import is_exporting, length_tensor
-from claravid.models.weights import download_official, load_backbone_state, read_state_dict
-
-# Architecture of each official size; the name suffix `_reg` adds 4 register tokens.
-ARCHS: dict[str, dict[str, Any]] = {
-    "vits14": {"embed_dim": 384, "depth": 12, "num_heads": 6, "ffn": "mlp"},
-    "vitb14": {"embed_dim": 768, "depth": 12, "num_heads": 12, "ffn": "mlp"},
-    "vitl14": {"embed_dim": 1024, "depth": 24, "num_heads": 16, "ffn": "mlp"},
-    "vitg14": {"embed_dim": 1536, "depth": 40, "num_heads": 24, "ffn": "swiglu"},
-}
-BACKBONE_NAMES: tuple[str, ...] = tuple(
-    f"dinov2_{arch}{suffix}" for arch in ARCHS for suffix in ("", "_reg")
-)
 
 
 def bicubic_matrix(out_size: Any, in_size: int, offset: float) -> torch.Tensor:
@@ -129,12 +115,16 @@ class Block(nn.Module):
 class DinoVisionTransformer(nn.Module):
     """DINOv2 ViT backbone.
 
+    The official sizes' arguments are in `claravid.models.backbones` (``build_backbone``).
+
     Args:
         embed_dim: Token width D.
         depth: Number of blocks.
         num_heads: Attention heads.
-        patch_size: Patch side in pixels (14 for the official models).
+        patch_size: Patch side in pixels.
         img_size: Training resolution; the stored positional grid is img_size // patch_size.
+        mean: Per-channel input mean (RGB, pixels in [0, 1]) of the weights' training data.
+        std: Per-channel input std.
         num_register_tokens: Extra learned tokens without positional embedding (0 or 4).
         ffn: ``"mlp"`` (GELU MLP) or ``"swiglu"`` (giant).
         mlp_ratio: Feed-forward expansion.
@@ -145,11 +135,14 @@ class DinoVisionTransformer(nn.Module):
 
     def __init__(
         self,
-        embed_dim: int = 384,
-        depth: int = 12,
-        num_heads: int = 6,
-        patch_size: int = 14,
-        img_size: int = 518,
+        *,
+        embed_dim: int,
+        depth: int,
+        num_heads: int,
+        patch_size: int,
+        img_size: int,
+        mean: Sequence[float],
+        std: Sequence[float],
         num_register_tokens: int = 0,
         ffn: str = "mlp",
         mlp_ratio: float = 4.0,
@@ -166,6 +159,8 @@ class DinoVisionTransformer(nn.Module):
         self.num_register_tokens = num_register_tokens
         self.interpolate_offset = interpolate_offset
         self.interpolate_antialias = interpolate_antialias
+        self.mean = input_stats(mean, "mean")
+        self.std = input_stats(std, "std")
         grid = img_size // patch_size
         self.patch_embed = PatchEmbed(patch_size, 3, embed_dim)
         self.cls_token = nn.Parameter(torch.zeros(1, 1, embed_dim))
@@ -205,7 +200,7 @@ class DinoVisionTransformer(nn.Module):
         ``torch.compile``.
         """
         if not is_exporting():
-            check_image_batch(x, self.patch_size, torch.Tensor)
+            check_image_batch(x, self.patch_size, torch.Tensor, mean=self.mean, std=self.std)
 
     def interpolate_pos_encoding(self, grid_h: int, grid_w: int) -> torch.Tensor:
         """Positional embedding [1, 1 + grid_h*grid_w, D] for a patch grid, official semantics."""
@@ -333,49 +328,3 @@ class DinoVisionTransformer(nn.Module):
         for blk in self.blocks:
             tokens = blk(tokens)
         return self.norm(tokens)[:, 0]
-
-
-def backbone_config(name: str, **overrides: Any) -> dict[str, Any]:
-    """Constructor arguments of a named backbone, with optional overrides (tiny test models).
-
-    Args:
-        name: One of ``BACKBONE_NAMES``, e.g. ``"dinov2_vitl14"`` or ``"dinov2_vitl14_reg"``.
-        **overrides: Any ``DinoVisionTransformer`` argument.
-    """
-    if name not in BACKBONE_NAMES:
-        raise ValueError(f"unknown backbone {name!r}: choose one of {', '.join(BACKBONE_NAMES)}")
-    arch = name.removeprefix("dinov2_").removesuffix("_reg")
-    cfg: dict[str, Any] = {**ARCHS[arch], "patch_size": 14, "img_size": 518}
-    if name.endswith("_reg"):
-        cfg.update(num_register_tokens=4, interpolate_offset=0.0, interpolate_antialias=True)
-    else:
-        cfg.update(num_register_tokens=0, interpolate_offset=0.1, interpolate_antialias=False)
-    unknown = set(overrides) - set(cfg) - {"mlp_ratio"}
-    if unknown:
-        raise ValueError(f"unknown backbone arguments {sorted(unknown)}; known: {sorted(cfg)}")
-    cfg.update(overrides)
-    return cfg
-
-
-def build_backbone(
-    name: str = "dinov2_vitl14", weights: str | os.PathLike | None = None, **overrides: Any
-) -> DinoVisionTransformer:
-    """Build a DINOv2 backbone, optionally with weights.
-
-    Args:
-        name: One of ``BACKBONE_NAMES``.
-        weights: ``None`` for a random init; a path to an official ``.pth`` or a Hugging Face
-            ``model.safetensors``; or ``"official"`` to download the official checkpoint into
-            the torch hub cache (the project's only network access).
-        **overrides: ``DinoVisionTransformer`` arguments replacing the named ones (tiny models).
-
-    Raises:
-        WeightsError: the file's keys or shapes do not match, listing them.
-        ConnectionError: ``"official"`` while offline, naming the URL and the cache path.
-    """
-    model = DinoVisionTransformer(**backbone_config(name, **overrides))
-    if weights is None:
-        return model
-    path = download_official(name) if str(weights) == "official" else Path(weights)
-    load_backbone_state(model, read_state_dict(path), str(path))
-    return model.eval()
