@@ -188,6 +188,8 @@ def test_a_compiled_model_checks_its_input():
             model(torch.randn(1, 3, 100, 100))
         with pytest.raises(TypeError, match=r"got dtype torch.int64"):
             model(torch.zeros(1, 3, 28, 28, dtype=torch.int64))
+        pixels = torch.randint(0, 256, (1, 3, 28, 42), dtype=torch.uint8)
+        torch.testing.assert_close(model(pixels), model._orig_mod(pixels), atol=1e-5, rtol=0)
 
 
 def test_uint8_input_is_normalised_with_the_backbones_own_statistics():
