@@ -1,8 +1,11 @@
-"""Models: DINOv2 ViT backbones in plain PyTorch, the DPT segmentation decoder, ONNX export.
+"""Models: DINOv2 and DINOv3 ViT backbones in plain PyTorch, the DPT segmentation decoder, ONNX
+export.
 
 Public API::
 
-    build_backbone(name, weights=None)      # DINOv2 ViT-S/B/L/g (+ _reg), official or HF weights
+    BACKBONES / backbone_spec(name)          # what each named backbone is (backbones.py)
+    build_backbone(name, weights=None)       # DINOv2 ViT-S/B/L/g (+ _reg), DINOv3 ViT-S/S+/B/
+                                             # L/H+/7B (+ _sat); official or Hugging Face weights
     build_model(backbone, num_classes, ...)  # frozen backbone + trainable DPT head
     save_checkpoint / load_checkpoint        # weights_only-safe model files
     export_onnx(model, path, ExportSettings(...))  # ONNX + onnxruntime check
@@ -19,22 +22,26 @@ from typing import Any
 
 # Public name -> module that defines it.
 _LAZY = {
+    "BACKBONES": "claravid.models.backbones",
+    "BACKBONE_NAMES": "claravid.models.backbones",
+    "BackboneSpec": "claravid.models.backbones",
+    "backbone_config": "claravid.models.backbones",
+    "backbone_spec": "claravid.models.backbones",
+    "build_backbone": "claravid.models.build",
     "CheckpointError": "claravid.models.checkpoint",
     "load_checkpoint": "claravid.models.checkpoint",
     "save_checkpoint": "claravid.models.checkpoint",
-    "DPT_DEFAULTS": "claravid.models.dpt",
+    "DinoV3VisionTransformer": "claravid.models.dinov3",
     "DPTHead": "claravid.models.dpt",
     "ExportCheckError": "claravid.models.export",
     "export_onnx": "claravid.models.export",
     "ExportSettings": "claravid.models.export",
     "Provenance": "claravid.models.export",
+    "NotEnoughMemoryError": "claravid.models.memory",
     "OnnxSegmenter": "claravid.models.onnx_runtime",
     "Segmenter": "claravid.models.segmenter",
     "build_model": "claravid.models.segmenter",
-    "BACKBONE_NAMES": "claravid.models.vit",
     "DinoVisionTransformer": "claravid.models.vit",
-    "backbone_config": "claravid.models.vit",
-    "build_backbone": "claravid.models.vit",
     "WeightsError": "claravid.models.weights",
     "hf_to_official": "claravid.models.weights",
     "official_to_hf": "claravid.models.weights",

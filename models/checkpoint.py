@@ -96,7 +96,7 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         keys = sorted(map(str, ckpt))[:8] if isinstance(ckpt, dict) else type(ckpt).__name__
         raise CheckpointError(
-            f"{path} is not a claravid model checkpoint (found {keys}); a bare DINOv2 weights "
+            f"{path} is not a claravid model checkpoint (found {keys}); a bare backbone weights "
             "file goes to build_model(weights=...), not load_checkpoint"
         )
     version = ckpt.get("version")

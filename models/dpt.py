@@ -1,8 +1,9 @@
 """DPT decoder (Ranftl et al.; as in Depth-Anything) with a segmentation head.
 
 Four backbone layers are reassembled into a feature pyramid at 4x, 2x, 1x and 1/2x the patch
-grid (180, 90, 45, 23 at 630x630 with patch 14), fused from coarse to fine, and classified at the
-finest level; logits are then upsampled to the input size.
+grid (180, 90, 45, 23 at 630x630 with patch 14; 160, 80, 40, 20 at 640x640 with patch 16), fused
+from coarse to fine, and classified at the finest level; logits are then upsampled to the input
+size. The per-backbone defaults (taps and widths) are in `claravid.models.backbones`.
 """
 
 from __future__ import annotations
@@ -12,14 +13,6 @@ from collections.abc import Sequence
 import torch
 import torch.nn.functional as F
 from torch import nn
-
-# Per backbone size: tapped blocks, fusion width, reassemble widths (docs/models.md).
-DPT_DEFAULTS: dict[str, dict[str, object]] = {
-    "vits14": {"layers": (2, 5, 8, 11), "features": 64, "out_channels": (48, 96, 192, 384)},
-    "vitb14": {"layers": (2, 5, 8, 11), "features": 128, "out_channels": (96, 192, 384, 768)},
-    "vitl14": {"layers": (4, 11, 17, 23), "features": 256, "out_channels": (256, 512, 1024, 1024)},
-    "vitg14": {"layers": (9, 19, 29, 39), "features": 384, "out_channels": (1536,) * 4},
-}
 
 
 class Reassemble(nn.Module):

@@ -29,6 +29,8 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
+from claravid.models import backbones
+
 FORMAT = "claravid-onnx"
 VERSION = 2
 #: The first version whose readable ``claravid.input_size`` is WxH (version 1 wrote HxW).
@@ -37,10 +39,11 @@ KEY = "claravid"  # the metadata_props key holding the JSON document
 PREFIX = "claravid."  # readable keys: claravid.patch_size, claravid.palette, ...
 PRECISIONS = ("fp32", "fp16", "int8")
 
-#: The input normalisation every claravid model is trained with unless its config says
-#: otherwise (the same numbers as ``claravid.data.transforms.IMAGENET_MEAN/STD``; a test checks).
-IMAGENET_MEAN = (0.485, 0.456, 0.406)
-IMAGENET_STD = (0.229, 0.224, 0.225)
+#: The input normalisation a training config without ``data.augment.mean/std`` used (the same
+#: numbers as ``claravid.data.transforms.IMAGENET_MEAN/STD``; a test checks). Defined once, with the
+#: backbone descriptions.
+IMAGENET_MEAN = backbones.IMAGENET_MEAN
+IMAGENET_STD = backbones.IMAGENET_STD
 
 
 def config_get(config: Any, *keys: str) -> Any:

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from claravid.models.backbones import BACKBONES, DEFAULT_BACKBONE
 from claravid.models.inputs import check_image_batch
 from claravid.models.onnx_metadata import read_input_size, read_metadata
 
@@ -121,9 +122,9 @@ class OnnxSegmenter:
         self.input_name = self.session.get_inputs()[0].name
         meta = self.session.get_modelmeta().custom_metadata_map
         self.metadata: dict[str, Any] | None = read_metadata(meta)
-        self.patch_size = int(meta.get(META_PREFIX + "patch_size", 14))
         self.num_classes = int(meta.get(META_PREFIX + "num_classes", 0)) or None
         self.model_args: dict[str, Any] = json.loads(meta.get(META_PREFIX + "model_args", "{}"))
+        self.patch_size = _patch_size(meta, self.model_args)
         self.input_size: tuple[int, int] | None = read_input_size(meta)
         if self.num_classes is None:  # a foreign file: K from the output shape when static
             dim = self.session.get_outputs()[0].shape[1]
@@ -181,7 +182,10 @@ class OnnxSegmenter:
 
     def check_input(self, images: np.ndarray) -> None:
         """Raise ``TypeError``/``ValueError`` when ``images`` cannot go through this model."""
-        check_image_batch(images, self.patch_size, np.ndarray)
+        norm = self.normalisation or {}
+        check_image_batch(
+            images, self.patch_size, np.ndarray, mean=norm.get("mean"), std=norm.get("std")
+        )
         h, w = images.shape[-2:]
         if self.input_size is not None and (h, w) != self.input_size:
             raise ValueError(
@@ -196,3 +200,12 @@ class OnnxSegmenter:
         self.check_input(images)  # before the cast, so uint8 pixels are refused, not converted
         images = np.ascontiguousarray(images, dtype=np.float32)
         return self.session.run(None, {self.input_name: images})[0]
+
+
+def _patch_size(meta: dict[str, str], model_args: dict[str, Any]) -> int:
+    """The recorded patch size; else the recorded backbone's; else the default backbone's (a file
+    exported elsewhere, assumed to be the toolkit's default model)."""
+    if META_PREFIX + "patch_size" in meta:
+        return int(meta[META_PREFIX + "patch_size"])
+    spec = BACKBONES.get(str(model_args.get("backbone")), BACKBONES[DEFAULT_BACKBONE])
+    return spec.patch_size

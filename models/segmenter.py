@@ -1,4 +1,4 @@
-"""The segmenter: a frozen DINOv2 backbone feeding a trainable DPT head."""
+"""The segmenter: a frozen DINOv2 or DINOv3 backbone feeding a trainable DPT head."""
 
 from __future__ import annotations
 
@@ -9,23 +9,26 @@ from typing import Any
 import torch
 from torch import nn
 
-from claravid.models.dpt import DPT_DEFAULTS, DPTHead
-from claravid.models.vit import DinoVisionTransformer, build_backbone
+from claravid.models.backbones import DEFAULT_BACKBONE, backbone_spec
+from claravid.models.build import Backbone, build_backbone
+from claravid.models.dpt import DPTHead
+from claravid.models.inputs import check_image_batch
+from claravid.models.tracing import is_exporting
 
 
 class Segmenter(nn.Module):
-    """Frozen backbone + DPT head: normalised images [B,3,H,W] -> logits [B,K,H,W].
+    """Frozen backbone + DPT head: images [B,3,H,W] -> logits [B,K,H,W].
 
     The backbone has no gradients, stays in eval mode whatever ``.train()`` says, and runs under
     ``no_grad`` so none of its activations are kept: training memory is the decoder's.
 
     Args:
-        backbone: The DINOv2 backbone (frozen here).
+        backbone: A backbone from `build_backbone` (frozen here).
         head: The DPT head.
         layers: Backbone block indices fed to the head, fine to coarse.
     """
 
-    def __init__(self, backbone: DinoVisionTransformer, head: DPTHead, layers: Sequence[int]):
+    def __init__(self, backbone: Backbone, head: DPTHead, layers: Sequence[int]) -> None:
         super().__init__()
         if len(layers) != 4:
             raise ValueError(f"layers needs 4 block indices, got {list(layers)}")
@@ -43,6 +46,16 @@ class Segmenter(nn.Module):
         return self.backbone.patch_size
 
     @property
+    def mean(self) -> tuple[float, float, float]:
+        """Per-channel mean (RGB, pixels in [0, 1]) the backbone's weights expect."""
+        return self.backbone.mean
+
+    @property
+    def std(self) -> tuple[float, float, float]:
+        """Per-channel std the backbone's weights expect."""
+        return self.backbone.std
+
+    @property
     def num_classes(self) -> int:
         """Number of output channels."""
         return self.head.head[-1].out_channels
@@ -57,14 +70,28 @@ class Segmenter(nn.Module):
         self.backbone.eval()
         return self
 
+    def normalise(self, pixels: torch.Tensor) -> torch.Tensor:
+        """uint8 pixels [B,3,H,W] -> float32 ``(x / 255 - mean) / std`` on their device."""
+        mean = torch.tensor(self.mean, device=pixels.device).view(1, 3, 1, 1)
+        std = torch.tensor(self.std, device=pixels.device).view(1, 3, 1, 1)
+        return (pixels.float() / 255 - mean) / std
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Logits [B,K,H,W] of normalised float images [B,3,H,W] (H, W patch multiples).
+        """Logits [B,K,H,W] of images [B,3,H,W] (H, W patch multiples).
+
+        ``x`` is either uint8 pixels in [0, 255], normalised here with the backbone's own mean
+        and std (`normalise`), or a float batch taken as normalised already.
 
         Raises:
-            TypeError: ``x`` is not a floating-point tensor (e.g. a numpy array or uint8).
+            TypeError: ``x`` is neither a floating-point nor a uint8 tensor (e.g. numpy).
             ValueError: ``x`` is not 4-D with 3 channels, or H/W are not patch multiples.
         """
-        self.backbone.check_input(x)  # before anything indexes x (skipped while exporting)
+        if not is_exporting():  # before anything indexes x (shapes are symbols while exporting)
+            check_image_batch(
+                x, self.patch_size, torch.Tensor, mean=self.mean, std=self.std, allow_uint8=True
+            )
+        if x.dtype == torch.uint8:
+            x = self.normalise(x)
         h, w = x.shape[-2:]
         with torch.no_grad():
             feats = self.backbone.get_intermediate_layers(x, self.layers, return_class_token=True)
@@ -76,7 +103,7 @@ class Segmenter(nn.Module):
 
 
 def build_model(
-    backbone: str = "dinov2_vitl14",
+    backbone: str = DEFAULT_BACKBONE,
     num_classes: int = 19,
     weights: str | os.PathLike | None = None,
     layers: Sequence[int] | None = None,
@@ -85,13 +112,14 @@ def build_model(
     use_cls: bool = False,
     backbone_kwargs: dict[str, Any] | None = None,
 ) -> Segmenter:
-    """Build the segmenter with per-size DPT defaults.
+    """Build the segmenter with the backbone's DPT defaults.
 
     Args:
-        backbone: DINOv2 name, e.g. ``"dinov2_vitl14"`` or ``"dinov2_vits14_reg"``.
+        backbone: A name of ``BACKBONE_NAMES``, e.g. ``"dinov2_vitl14"``, ``"dinov2_vits14_reg"``
+            or ``"dinov3_vitl16_sat"``.
         num_classes: Number of logits channels K.
         weights: Backbone weights: ``None`` (random), a ``.pth``/``.safetensors`` path or
-            ``"official"`` (see `build_backbone`).
+            ``"official"`` (DINOv2 only; see `build_backbone`).
         layers: Tapped block indices (default per size, e.g. 4, 11, 17, 23 for ViT-L).
         features: DPT fusion width (default per size).
         out_channels: DPT reassemble widths (default per size).
@@ -100,16 +128,17 @@ def build_model(
 
     Returns:
         A `Segmenter` whose ``model_args`` records these arguments (for checkpoints).
+
+    Raises:
+        ValueError: an unknown backbone name (e.g. from a newer checkpoint), naming the known
+            ones, or inconsistent head arguments.
     """
+    defaults = backbone_spec(backbone).dpt
     backbone_kwargs = dict(backbone_kwargs or {})
     vit = build_backbone(backbone, weights=weights, **backbone_kwargs)
-    arch = backbone.removeprefix("dinov2_").removesuffix("_reg")
-    defaults = DPT_DEFAULTS[arch]
-    layers = tuple(layers if layers is not None else defaults["layers"])  # type: ignore[arg-type]
-    features = int(features if features is not None else defaults["features"])  # type: ignore[arg-type]
-    out_channels = tuple(
-        out_channels if out_channels is not None else defaults["out_channels"]  # type: ignore[arg-type]
-    )
+    layers = tuple(layers if layers is not None else defaults.layers)
+    features = int(features if features is not None else defaults.features)
+    out_channels = tuple(out_channels if out_channels is not None else defaults.out_channels)
     head = DPTHead(vit.embed_dim, num_classes, features, out_channels, use_cls)
     model = Segmenter(vit, head, layers)
     model.model_args = {

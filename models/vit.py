@@ -10,41 +10,16 @@ interpolation in float32 with the ``+0.1`` offset (no registers) or exact size p
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from claravid.models.inputs import check_image_batch, check_image_size
-from claravid.models.weights import download_official, load_backbone_state, read_state_dict
-
-# Architecture of each official size; the name suffix `_reg` adds 4 register tokens.
-ARCHS: dict[str, dict[str, Any]] = {
-    "vits14": {"embed_dim": 384, "depth": 12, "num_heads": 6, "ffn": "mlp"},
-    "vitb14": {"embed_dim": 768, "depth": 12, "num_heads": 12, "ffn": "mlp"},
-    "vitl14": {"embed_dim": 1024, "depth": 24, "num_heads": 16, "ffn": "mlp"},
-    "vitg14": {"embed_dim": 1536, "depth": 40, "num_heads": 24, "ffn": "swiglu"},
-}
-BACKBONE_NAMES: tuple[str, ...] = tuple(
-    f"dinov2_{arch}{suffix}" for arch in ARCHS for suffix in ("", "_reg")
-)
-
-
-def _is_exporting() -> bool:
-    """True while tracing or exporting, when Python-side shape checks must not run.
-
-    Not while compiling (``torch.compile``): dynamo traces the check like any Python code and
-    guards on its outcome, so a compiled model refuses what the eager one refuses. Exporting
-    (``torch.export``, under the ONNX exporter) must skip it: there a dynamic H and W are
-    symbols the check would pin to the example's size.
-    """
-    return bool(
-        torch.jit.is_tracing() or torch.onnx.is_in_onnx_export() or torch.compiler.is_exporting()
-    )
+from claravid.models.inputs import check_image_batch, check_image_size, input_stats
+from claravid.models.layers import LayerScale, Mlp, PatchEmbed, swiglu_hidden
+from claravid.models.tracing import is_exporting, length_tensor
 
 
 def bicubic_matrix(out_size: Any, in_size: int, offset: float) -> torch.Tensor:
@@ -77,26 +52,10 @@ def bicubic_matrix(out_size: Any, in_size: int, offset: float) -> torch.Tensor:
     return (onehot * weights.unsqueeze(-1)).sum(dim=1).float()
 
 
-def _length(size: Any) -> torch.Tensor:
-    """A (possibly symbolic) size as a 0-d tensor, so comparisons stay in the exported graph."""
-    return torch.arange(size)[-1] + 1
-
-
 def _identity(size: Any, in_size: int) -> torch.Tensor:
     """[size, in_size] rows of the identity (only used where size == in_size)."""
     rows = torch.arange(size).clamp(max=in_size - 1)
     return F.one_hot(rows, in_size).to(torch.float32)
-
-
-class PatchEmbed(nn.Module):
-    """Non-overlapping patches -> tokens: one strided convolution, flattened to [B, N, D]."""
-
-    def __init__(self, patch_size: int, in_chans: int, embed_dim: int) -> None:
-        super().__init__()
-        self.proj = nn.Conv2d(in_chans, embed_dim, kernel_size=patch_size, stride=patch_size)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.proj(x).flatten(2).transpose(1, 2)
 
 
 class Attention(nn.Module):
@@ -118,24 +77,6 @@ class Attention(nn.Module):
         return self.proj(x.transpose(1, 2).reshape(b, n, c))
 
 
-class Mlp(nn.Module):
-    """fc1 -> exact GELU -> fc2."""
-
-    def __init__(self, dim: int, hidden: int) -> None:
-        super().__init__()
-        self.fc1 = nn.Linear(dim, hidden)
-        self.act = nn.GELU()
-        self.fc2 = nn.Linear(hidden, dim)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.fc2(self.act(self.fc1(x)))
-
-
-def swiglu_hidden(dim: int, mlp_ratio: float = 4.0) -> int:
-    """Hidden width of the official fused SwiGLU: 2/3 of the MLP width, rounded up to 8."""
-    return (int(int(dim * mlp_ratio) * 2 / 3) + 7) // 8 * 8
-
-
 class SwiGLU(nn.Module):
     """w12 -> (silu(x1) * x2) -> w3, the giant model's feed-forward (``SwiGLUFFNFused``)."""
 
@@ -147,17 +88,6 @@ class SwiGLU(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         x1, x2 = self.w12(x).chunk(2, dim=-1)
         return self.w3(F.silu(x1) * x2)
-
-
-class LayerScale(nn.Module):
-    """Per-channel learned scale of a residual branch."""
-
-    def __init__(self, dim: int, init_value: float = 1.0) -> None:
-        super().__init__()
-        self.gamma = nn.Parameter(torch.full((dim,), init_value))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return x * self.gamma
 
 
 class Block(nn.Module):
@@ -185,12 +115,16 @@ class Block(nn.Module):
 class DinoVisionTransformer(nn.Module):
     """DINOv2 ViT backbone.
 
+    The official sizes' arguments are in `claravid.models.backbones` (``build_backbone``).
+
     Args:
         embed_dim: Token width D.
         depth: Number of blocks.
         num_heads: Attention heads.
-        patch_size: Patch side in pixels (14 for the official models).
+        patch_size: Patch side in pixels.
         img_size: Training resolution; the stored positional grid is img_size // patch_size.
+        mean: Per-channel input mean (RGB, pixels in [0, 1]) of the weights' training data.
+        std: Per-channel input std.
         num_register_tokens: Extra learned tokens without positional embedding (0 or 4).
         ffn: ``"mlp"`` (GELU MLP) or ``"swiglu"`` (giant).
         mlp_ratio: Feed-forward expansion.
@@ -201,11 +135,14 @@ class DinoVisionTransformer(nn.Module):
 
     def __init__(
         self,
-        embed_dim: int = 384,
-        depth: int = 12,
-        num_heads: int = 6,
-        patch_size: int = 14,
-        img_size: int = 518,
+        *,
+        embed_dim: int,
+        depth: int,
+        num_heads: int,
+        patch_size: int,
+        img_size: int,
+        mean: Sequence[float],
+        std: Sequence[float],
         num_register_tokens: int = 0,
         ffn: str = "mlp",
         mlp_ratio: float = 4.0,
@@ -222,6 +159,8 @@ class DinoVisionTransformer(nn.Module):
         self.num_register_tokens = num_register_tokens
         self.interpolate_offset = interpolate_offset
         self.interpolate_antialias = interpolate_antialias
+        self.mean = input_stats(mean, "mean")
+        self.std = input_stats(std, "std")
         grid = img_size // patch_size
         self.patch_embed = PatchEmbed(patch_size, 3, embed_dim)
         self.cls_token = nn.Parameter(torch.zeros(1, 1, embed_dim))
@@ -260,8 +199,8 @@ class DinoVisionTransformer(nn.Module):
         Skipped while tracing or exporting (shapes may be symbolic there); it holds under
         ``torch.compile``.
         """
-        if not _is_exporting():
-            check_image_batch(x, self.patch_size, torch.Tensor)
+        if not is_exporting():
+            check_image_batch(x, self.patch_size, torch.Tensor, mean=self.mean, std=self.std)
 
     def interpolate_pos_encoding(self, grid_h: int, grid_w: int) -> torch.Tensor:
         """Positional embedding [1, 1 + grid_h*grid_w, D] for a patch grid, official semantics."""
@@ -269,7 +208,7 @@ class DinoVisionTransformer(nn.Module):
             return self._frozen_pos[1]
         n = self.pos_embed.shape[1] - 1
         m = int(math.sqrt(n))
-        exporting = _is_exporting()
+        exporting = is_exporting()
         # A Python test on symbolic sizes would specialise an export to one side of it.
         if not exporting and (grid_h, grid_w) == (m, m):
             return self.pos_embed
@@ -279,7 +218,7 @@ class DinoVisionTransformer(nn.Module):
             # Exporters bake a float scale_factor into a constant; the same resize as a product
             # with interpolation matrices stays shape-generic. At the native grid the official
             # code uses the table as is, which identity matrices reproduce.
-            native = (_length(grid_h) == m) & (_length(grid_w) == m)
+            native = (length_tensor(grid_h) == m) & (length_tensor(grid_w) == m)
             rows = torch.where(
                 native, _identity(grid_h, m), bicubic_matrix(grid_h, m, self.interpolate_offset)
             )
@@ -389,49 +328,3 @@ class DinoVisionTransformer(nn.Module):
         for blk in self.blocks:
             tokens = blk(tokens)
         return self.norm(tokens)[:, 0]
-
-
-def backbone_config(name: str, **overrides: Any) -> dict[str, Any]:
-    """Constructor arguments of a named backbone, with optional overrides (tiny test models).
-
-    Args:
-        name: One of ``BACKBONE_NAMES``, e.g. ``"dinov2_vitl14"`` or ``"dinov2_vitl14_reg"``.
-        **overrides: Any ``DinoVisionTransformer`` argument.
-    """
-    if name not in BACKBONE_NAMES:
-        raise ValueError(f"unknown backbone {name!r}: choose one of {', '.join(BACKBONE_NAMES)}")
-    arch = name.removeprefix("dinov2_").removesuffix("_reg")
-    cfg: dict[str, Any] = {**ARCHS[arch], "patch_size": 14, "img_size": 518}
-    if name.endswith("_reg"):
-        cfg.update(num_register_tokens=4, interpolate_offset=0.0, interpolate_antialias=True)
-    else:
-        cfg.update(num_register_tokens=0, interpolate_offset=0.1, interpolate_antialias=False)
-    unknown = set(overrides) - set(cfg) - {"mlp_ratio"}
-    if unknown:
-        raise ValueError(f"unknown backbone arguments {sorted(unknown)}; known: {sorted(cfg)}")
-    cfg.update(overrides)
-    return cfg
-
-
-def build_backbone(
-    name: str = "dinov2_vitl14", weights: str | os.PathLike | None = None, **overrides: Any
-) -> DinoVisionTransformer:
-    """Build a DINOv2 backbone, optionally with weights.
-
-    Args:
-        name: One of ``BACKBONE_NAMES``.
-        weights: ``None`` for a random init; a path to an official ``.pth`` or a Hugging Face
-            ``model.safetensors``; or ``"official"`` to download the official checkpoint into
-            the torch hub cache (the project's only network access).
-        **overrides: ``DinoVisionTransformer`` arguments replacing the named ones (tiny models).
-
-    Raises:
-        WeightsError: the file's keys or shapes do not match, listing them.
-        ConnectionError: ``"official"`` while offline, naming the URL and the cache path.
-    """
-    model = DinoVisionTransformer(**backbone_config(name, **overrides))
-    if weights is None:
-        return model
-    path = download_official(name) if str(weights) == "official" else Path(weights)
-    load_backbone_state(model, read_state_dict(path), str(path))
-    return model.eval()

@@ -1,8 +1,11 @@
-"""DINOv2 weights: official and Hugging Face key formats, file loading, the official download.
+"""Backbone weights files: reading, which family a file belongs to, strict loading, and the
+DINOv2 key formats and download.
 
 Our parameter names are the official ones, so an official ``.pth`` needs no mapping. A Hugging
 Face ``Dinov2Model`` / ``Dinov2WithRegistersModel`` ``model.safetensors`` is renamed key by key,
-with its separate query/key/value projections concatenated into ``qkv`` (rows q, k, v).
+with its separate query/key/value projections concatenated into ``qkv`` (rows q, k, v). DINOv3's
+Hugging Face names and checks are in `claravid.models.weights_v3`; `claravid.models.build`
+picks the family's conversion from the backbone's description.
 """
 
 from __future__ import annotations
@@ -10,13 +13,13 @@ from __future__ import annotations
 import os
 import re
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import nn
 
+from claravid.models.backbones import DINOV3_REQUEST_URL, FAMILIES, BackboneSpec, backbone_spec
 from claravid.models.torchfile import read_tensor_file
-
-BASE_URL = "https://dl.fbaipublicfiles.com/dinov2"
 
 # Hugging Face parameter name inside one block -> official name.
 _HF_BLOCK = {"layer_scale1.lambda1": "ls1.gamma", "layer_scale2.lambda1": "ls2.gamma"}
@@ -46,18 +49,34 @@ _QKV = ("query", "key", "value")
 
 
 class WeightsError(ValueError):
-    """A weights file does not match the backbone (missing, unexpected or mis-shaped keys)."""
+    """A weights file does not match the backbone (missing, unexpected or mis-shaped keys, another
+    family, other pre-training data), or cannot be read or fetched."""
+
+
+def licence_gated(spec: BackboneSpec) -> WeightsError:
+    """The one-line error for ``weights="official"`` where the files cannot be downloaded."""
+    return WeightsError(
+        f"the official {spec.family_name} weights are licence-gated and cannot be downloaded "
+        f"here: accept the licence at {DINOV3_REQUEST_URL} (the download URLs come by e-mail), "
+        f"fetch {spec.weights.file} and pass its path as weights=... "
+        f"(claravid-train: model.weights=PATH)"
+    )
 
 
 def official_url(name: str) -> str:
-    """URL of the official checkpoint of a backbone name such as ``dinov2_vitl14_reg``."""
-    base = name.removesuffix("_reg")
-    full = f"{base}_reg4" if name.endswith("_reg") else base
-    return f"{BASE_URL}/{base}/{full}_pretrain.pth"
+    """URL of the official checkpoint of a backbone name such as ``dinov2_vitl14_reg``.
+
+    Raises:
+        WeightsError: the backbone's weights are licence-gated (DINOv3): there is no public URL.
+    """
+    spec = backbone_spec(name)
+    if spec.weights.url is None:
+        raise licence_gated(spec)
+    return spec.weights.url
 
 
 def is_hf_state_dict(state: dict[str, torch.Tensor]) -> bool:
-    """True when the keys are Hugging Face ``Dinov2Model`` names."""
+    """True when the keys are Hugging Face ``Dinov2Model`` names (given a DINOv2 file)."""
     return any(k.startswith(("embeddings.", "encoder.layer.")) for k in state)
 
 
@@ -120,8 +139,10 @@ def official_to_hf(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     return out
 
 
-def read_state_dict(path: str | os.PathLike) -> dict[str, torch.Tensor]:
-    """Read an official ``.pth`` or a Hugging Face ``.safetensors`` into official keys.
+def read_weights_file(path: str | os.PathLike) -> dict[str, torch.Tensor]:
+    """Read a ``.pth`` or ``.safetensors`` into a dict of tensors, keys as in the file.
+
+    A training checkpoint's ``{"model": state_dict, ...}`` is unwrapped.
 
     Raises:
         FileNotFoundError: no such file.
@@ -143,8 +164,54 @@ def read_state_dict(path: str | os.PathLike) -> dict[str, torch.Tensor]:
     if bad:
         raise WeightsError(
             f"{path} is not a state dict of tensors: entries {bad[:5]} are not name -> tensor; "
-            "pass a DINOv2 weights file (official .pth or Hugging Face model.safetensors)"
+            "pass backbone weights (an official .pth or a Hugging Face model.safetensors)"
         )
+    return dict(state)
+
+
+# Keys that only one family's files have, official and Hugging Face spellings. DINOv2: a learned
+# positional table, the giant model's fused SwiGLU, transformers' "encoder.layer" (and "dinov2."
+# of its task models). DINOv3: storage tokens, the RoPE periods, the masked key bias, and
+# transformers' "layer.N" / "model.layer.N" with q/k/v/o projections.
+_FAMILY_KEYS: dict[str, re.Pattern[str]] = {
+    "dinov2": re.compile(
+        r"(dinov2\.)?(pos_embed|embeddings\.position_embeddings|encoder\.layer\..*"
+        r"|blocks\.\d+\.mlp\.w12\..*)"
+    ),
+    "dinov3": re.compile(
+        r"(model\.)?(storage_tokens|rope_embed\.periods|local_cls_norm\..*"
+        r"|blocks\.\d+\.attn\.qkv\.bias_mask|layer\.\d+\..*)"
+    ),
+}
+
+
+def weights_family(state: dict[str, Any]) -> tuple[str, str] | None:
+    """(family, a key that shows it) when the keys are one family's only, else None."""
+    found = {}
+    for family, pattern in _FAMILY_KEYS.items():
+        key = next((k for k in sorted(state) if pattern.fullmatch(k)), None)
+        if key is not None:
+            found[family] = key
+    return next(iter(found.items())) if len(found) == 1 else None
+
+
+def check_family(state: dict[str, Any], spec: BackboneSpec, source: str) -> None:
+    """Raise `WeightsError` naming both families when the file is the other family's."""
+    found = weights_family(state)
+    if found is None or found[0] == spec.family:
+        return
+    family, key = found
+    raise WeightsError(
+        f"{source} holds {FAMILIES[family]} weights (it has {key!r}), but {spec.name} is a "
+        f"{spec.family_name} backbone: build a {FAMILIES[family]} backbone ({family}_...) for "
+        f"this file, or pass {spec.family_name} weights for {spec.name}"
+    )
+
+
+def dinov2_state(
+    state: dict[str, torch.Tensor], model: nn.Module, spec: BackboneSpec, source: str
+) -> dict[str, torch.Tensor]:
+    """A DINOv2 file's tensors under official keys (Hugging Face names renamed)."""
     # Heads built on Dinov2Model (e.g. Dinov2ForImageClassification) prefix the backbone.
     if any(k.startswith("dinov2.") for k in state):
         state = {k.removeprefix("dinov2."): v for k, v in state.items() if k.startswith("dinov2.")}
@@ -169,26 +236,27 @@ def load_backbone_state(model: nn.Module, state: dict[str, torch.Tensor], source
             lines.append(f"  unexpected keys ({len(unexpected)}): {', '.join(unexpected[:20])}")
         if shapes:
             lines.append(f"  wrong shapes ({len(shapes)}): {'; '.join(shapes[:10])}")
-        lines.append("  check that the backbone name (size, _reg) matches the file")
+        lines.append("  check that the backbone name (size; _reg for DINOv2) matches the file")
         raise WeightsError("\n".join(lines))
     model.load_state_dict(state, strict=True)
 
 
 def official_checkpoint_path(name: str) -> Path:
     """Where the official checkpoint of ``name`` lives in the torch hub cache."""
-    return Path(torch.hub.get_dir()) / "checkpoints" / official_url(name).rsplit("/", 1)[1]
+    return Path(torch.hub.get_dir()) / "checkpoints" / backbone_spec(name).weights.file
 
 
 def download_official(name: str) -> Path:
     """Return the cached official checkpoint, downloading it once (the project's only network use).
 
     Raises:
+        WeightsError: the weights are licence-gated (DINOv3): nothing to download.
         ConnectionError: when offline, naming the URL and where to put the file by hand.
     """
+    url = official_url(name)
     target = official_checkpoint_path(name)
     if target.is_file():
         return target
-    url = official_url(name)
     target.parent.mkdir(parents=True, exist_ok=True)
     try:
         torch.hub.download_url_to_file(url, str(target), progress=True)

@@ -105,3 +105,57 @@ def test_damaged_checkpoint_entries(tmp_path):
         torch.save(payload, tmp_path / f"{name}.pt")
         with pytest.raises(CheckpointError, match=match):
             load_checkpoint(tmp_path / f"{name}.pt")
+
+
+def test_checkpoint_written_before_dinov3_support_loads_with_identical_outputs(tmp_path):
+    """A checkpoint in the format (and key layout) of the code before the backbone descriptions:
+    weights drawn from a seed in sorted key order; the logits are literals printed by that code
+    (commit 1867c9d) for the same weights and input."""
+    args = {"backbone": "dinov2_vits14", "num_classes": 3, "weights": None, "layers": [0, 1, 2, 3],
+            "features": 16, "out_channels": [8, 16, 32, 32], "use_cls": False,
+            "backbone_kwargs": TINY}  # fmt: skip
+    layout = build_model(**args).state_dict()
+    assert len(layout) == 121 and "backbone.pos_embed" in layout  # the old layout: 121 tensors
+    g = torch.Generator().manual_seed(0)
+    state = {}
+    for key, value in sorted(layout.items()):
+        one = (key.endswith("weight") and "norm" in key) or key.endswith("gamma")
+        state[key] = (1.0 if one else 0.0) + 0.1 * torch.randn(value.shape, generator=g)
+    old = {"format": "claravid-model", "version": 1, "model_args": args, "model": state,
+           "backbone_included": True}  # fmt: skip
+    torch.save(old, tmp_path / "old.pt")
+    model = load_checkpoint(tmp_path / "old.pt")
+    assert model.model_args == args
+    x = torch.randn(2, 3, 42, 56, generator=torch.Generator().manual_seed(1))
+    y = _outputs(model, x)
+    assert y.sum().item() == pytest.approx(440.79296875, rel=1e-5)
+    assert y.abs().sum().item() == pytest.approx(1746.5777587890625, rel=1e-5)
+    torch.testing.assert_close(
+        y[0, :, 5, 7],
+        torch.tensor([0.07611444592475891, 0.19100087881088257, -0.12607447803020477]),
+    )
+    torch.testing.assert_close(
+        y[1, :, 40, 50],
+        torch.tensor([0.019106261432170868, 0.11115619540214539, -0.14984847605228424]),
+    )
+
+
+def test_dinov3_checkpoint_round_trip(tmp_path):
+    tiny = {"embed_dim": 32, "depth": 4, "num_heads": 2}
+    model = build_model("dinov3_vitl16_sat", num_classes=3, backbone_kwargs=tiny, **HEAD)
+    path = save_checkpoint(model, tmp_path / "m.pt")
+    ckpt = torch.load(path, weights_only=True)
+    assert "backbone.rope_embed.periods" in ckpt["model"]
+    loaded = load_checkpoint(path)
+    assert loaded.mean == (0.430, 0.411, 0.296)
+    x = torch.randint(0, 256, (1, 3, 32, 48), dtype=torch.uint8)
+    torch.testing.assert_close(_outputs(loaded, x), _outputs(model, x), atol=0, rtol=0)
+
+
+def test_checkpoint_of_an_unknown_backbone_names_the_known_ones(tmp_path):
+    model = build_model("dinov2_vits14", 2, backbone_kwargs=TINY, **HEAD)
+    ckpt = torch.load(save_checkpoint(model, tmp_path / "m.pt"), weights_only=True)
+    ckpt["model_args"]["backbone"] = "dinov4_vitl16"
+    torch.save(ckpt, tmp_path / "future.pt")
+    with pytest.raises(ValueError, match=r"unknown backbone 'dinov4_vitl16'.*dinov3_vitl16"):
+        load_checkpoint(tmp_path / "future.pt")

@@ -104,6 +104,31 @@ def test_dynamic_export_other_sizes(tmp_path):
 
 
 @pytest.mark.slow
+def test_dinov3_fixed_and_dynamic_export(tmp_path):
+    """RoPE exports both ways: stored sin/cos at a fixed size, computed from the symbolic grid
+    when H and W are dynamic (ONNX Runtime then agrees at sizes other than the example's)."""
+    torch.manual_seed(0)
+    tiny = {"embed_dim": 32, "depth": 4, "num_heads": 2}
+    model = build_model("dinov3_vits16", num_classes=3, backbone_kwargs=tiny, **HEAD).eval()
+    fixed = export_onnx(model, tmp_path / "f.onnx", ExportSettings(height=48, width=80))
+    assert fixed["max_abs_diff"] < 1e-4
+    assert model.backbone.rope_embed._frozen is None  # export leaves the model as it was
+    runner = OnnxSegmenter(tmp_path / "f.onnx")
+    assert runner.patch_size == 16 and runner.input_size == (48, 80)
+    dynamic = export_onnx(
+        model, tmp_path / "d.onnx", ExportSettings(height=48, width=48, dynamic=True)
+    )
+    assert dynamic["max_abs_diff"] < 1e-4
+    runner = OnnxSegmenter(tmp_path / "d.onnx")
+    rng = np.random.default_rng(3)
+    for shape in [(1, 3, 48, 48), (2, 3, 64, 96), (1, 3, 80, 48)]:
+        x = rng.standard_normal(shape).astype(np.float32)
+        np.testing.assert_allclose(runner(x), _torch_logits(model, x), atol=1e-4)
+    with pytest.raises(ValueError, match="patch size 16: pad or resize it to 64x64"):
+        runner(np.zeros((1, 3, 50, 60), np.float32))
+
+
+@pytest.mark.slow
 def test_cli(tmp_path, capsys):
     model = _model("dinov2_vits14")
     ckpt = save_checkpoint(model, tmp_path / "m.pt")

@@ -136,7 +136,8 @@ def test_torch_compile_matches_eager():
         (lambda: [[0.0]], TypeError, r"expected a torch.Tensor of float images \[B,3,H,W\]"),
         (lambda: torch.zeros(3, 28, 28), ValueError, r"got shape \[3, 28, 28\].*x\[None\]"),
         (lambda: torch.zeros(1, 1, 3, 28, 28), ValueError, r"got shape \[1, 1, 3, 28, 28\]"),
-        (lambda: torch.zeros(1, 3, 28, 28, dtype=torch.uint8), TypeError, r"dtype torch.uint8"),
+        (lambda: torch.zeros(1, 3, 28, 28, dtype=torch.int32), TypeError, r"dtype torch.int32"),
+        (lambda: torch.zeros(3, 28, 28, dtype=torch.uint8), ValueError, r"shape \[3, 28, 28\]"),
         (lambda: torch.zeros(1, 28, 28, 3), ValueError, r"28 channels.*permute to \[B,3,H,W\]"),
         (lambda: torch.zeros(1, 4, 28, 28), ValueError, r"got 4 channels"),
         (lambda: torch.zeros(1, 1, 28, 28), ValueError, r"got 1 channels"),
@@ -185,5 +186,41 @@ def test_a_compiled_model_checks_its_input():
         assert model(torch.randn(1, 3, 28, 42)).shape == (1, 5, 28, 42)
         with pytest.raises(ValueError, match=r"100x100 is not a multiple of the patch size 14"):
             model(torch.randn(1, 3, 100, 100))
-        with pytest.raises(TypeError, match=r"got dtype torch.uint8"):
-            model(torch.zeros(1, 3, 28, 28, dtype=torch.uint8))
+        with pytest.raises(TypeError, match=r"got dtype torch.int64"):
+            model(torch.zeros(1, 3, 28, 28, dtype=torch.int64))
+        pixels = torch.randint(0, 256, (1, 3, 28, 42), dtype=torch.uint8)
+        torch.testing.assert_close(model(pixels), model._orig_mod(pixels), atol=1e-5, rtol=0)
+
+
+def test_uint8_input_is_normalised_with_the_backbones_own_statistics():
+    """A satellite backbone's uint8 input equals the float path normalised by hand with the
+    SAT-493M statistics (ImageNet's would give other logits)."""
+    torch.manual_seed(0)
+    tiny = {"embed_dim": 32, "depth": 4, "num_heads": 2}
+    model = build_model("dinov3_vitl16_sat", num_classes=5, backbone_kwargs=tiny, **HEAD).eval()
+    assert model.mean == (0.430, 0.411, 0.296) and model.std == (0.213, 0.156, 0.143)
+    pixels = torch.randint(0, 256, (2, 3, 32, 48), dtype=torch.uint8)
+    sat_mean = torch.tensor([0.430, 0.411, 0.296]).view(1, 3, 1, 1)
+    sat_std = torch.tensor([0.213, 0.156, 0.143]).view(1, 3, 1, 1)
+    imagenet_mean = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
+    imagenet_std = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
+    with torch.no_grad():
+        got = model(pixels)
+        by_hand = model((pixels.float() / 255 - sat_mean) / sat_std)
+        imagenet = model((pixels.float() / 255 - imagenet_mean) / imagenet_std)
+    torch.testing.assert_close(got, by_hand, atol=1e-5, rtol=0)
+    assert (got - imagenet).abs().max() > 1e-3
+
+
+def test_uint8_input_of_a_dinov2_model_uses_imagenet_statistics():
+    model = _model().eval()
+    assert model.mean == (0.485, 0.456, 0.406) and model.std == (0.229, 0.224, 0.225)
+    pixels = torch.randint(0, 256, (1, 3, 28, 42), dtype=torch.uint8)
+    mean = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
+    std = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
+    with torch.no_grad():
+        torch.testing.assert_close(
+            model(pixels), model((pixels / 255 - mean) / std), atol=1e-5, rtol=0
+        )
+    with pytest.raises(TypeError, match=r"dtype torch.uint8"):  # the backbone takes floats only
+        model.backbone.get_intermediate_layers(pixels, 1)

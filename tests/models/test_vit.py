@@ -4,7 +4,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from claravid.models import BACKBONE_NAMES, build_backbone
+from claravid.models import BACKBONES, build_backbone
 from claravid.models.vit import bicubic_matrix, swiglu_hidden
 from tests.models.reference import random_official_state, reference_layers
 
@@ -82,7 +82,7 @@ def test_official_shapes_and_parameter_counts():
         "dinov2_vitl14": 304.37,
         "dinov2_vitg14": 1136.48,
     }
-    for name in BACKBONE_NAMES:
+    for name in [n for n, spec in BACKBONES.items() if spec.family == "dinov2"]:
         with torch.device("meta"):
             model = build_backbone(name)
         state = model.state_dict()

@@ -1,0 +1,94 @@
+"""DINOv3 test material written from the official formats, not from the code under test.
+
+- `random_official_v3_state`: random values in the official ``.pth`` key layout, with the
+  buffers the official files hold set by hand (``bias_mask`` 1/0/1, ``rope_embed.periods``
+  ``100 ** (2k / (d/2))``) and LayerScale gammas drawn in [0.5, 1.5] (the official 1e-5 init
+  would make every block nearly the identity, and a wrong block would go unnoticed).
+- `to_hugging_face`: the same tensors under transformers' ``DINOv3ViTModel`` names, by a plain
+  rename written out here (q/k/v split by rows; no key bias; mask token [1, 1, D]; no periods,
+  bias masks or ``local_cls_norm``).
+"""
+
+from __future__ import annotations
+
+import re
+
+import torch
+
+#: Tiny architecture overrides shared by the DINOv3 tests (head width 16: 4 RoPE periods).
+TINY_V3 = {"embed_dim": 64, "depth": 3, "num_heads": 4}
+
+
+def random_official_v3_state(model: torch.nn.Module, seed: int = 0) -> dict[str, torch.Tensor]:
+    """Random official-layout values for every key of ``model``'s state dict."""
+    g = torch.Generator().manual_seed(seed)
+    state = {}
+    for key, value in model.state_dict().items():
+        shape = value.shape
+        if key.endswith("attn.qkv.bias_mask"):
+            d = shape[0] // 3
+            state[key] = torch.cat([torch.ones(d), torch.zeros(d), torch.ones(d)])
+        elif key == "rope_embed.periods":
+            quarter = shape[0]  # head_dim / 4
+            state[key] = torch.tensor([100.0 ** (2 * k / (2 * quarter)) for k in range(quarter)])
+        elif key.endswith(("ls1.gamma", "ls2.gamma")):
+            state[key] = 0.5 + torch.rand(shape, generator=g)
+        elif key.endswith(".weight") and "norm" in key:
+            state[key] = 1.0 + 0.1 * torch.randn(shape, generator=g)
+        elif key in ("cls_token", "storage_tokens", "mask_token"):
+            state[key] = torch.randn(shape, generator=g)
+        else:
+            scale = 0.2 if len(shape) > 1 else 0.05
+            state[key] = scale * torch.randn(shape, generator=g)
+    return state
+
+
+def to_hugging_face(state: dict[str, torch.Tensor], prefix: str = "") -> dict[str, torch.Tensor]:
+    """Official DINOv3 keys -> transformers ``DINOv3ViTModel`` keys.
+
+    ``prefix`` goes before ``layer.`` (``"model."`` in transformers 5, ``""`` in 4.57).
+    """
+    gated = any(".mlp.w1." in k for k in state)
+    ffn = {"w1": "gate_proj", "w2": "up_proj", "w3": "down_proj", "fc1": "up_proj",
+           "fc2": "down_proj"}  # fmt: skip
+    top = {
+        "cls_token": "embeddings.cls_token",
+        "storage_tokens": "embeddings.register_tokens",
+        "patch_embed.proj.weight": "embeddings.patch_embeddings.weight",
+        "patch_embed.proj.bias": "embeddings.patch_embeddings.bias",
+        "norm.weight": "norm.weight",
+        "norm.bias": "norm.bias",
+    }
+    out = {}
+    for key, value in state.items():
+        if key in top:
+            out[top[key]] = value.clone()
+        elif key == "mask_token":
+            out["embeddings.mask_token"] = value.reshape(1, 1, -1).clone()
+        elif key == "rope_embed.periods" or key.startswith("local_cls_norm."):
+            continue  # not stored by transformers
+        else:
+            i, rest = re.fullmatch(r"blocks\.(\d+)\.(.+)", key).groups()
+            layer = f"{prefix}layer.{i}."
+            d = value.shape[0] // 3
+            if rest == "attn.qkv.weight":
+                q, k, v = value[:d], value[d : 2 * d], value[2 * d :]
+                out[layer + "attention.q_proj.weight"] = q.clone()
+                out[layer + "attention.k_proj.weight"] = k.clone()
+                out[layer + "attention.v_proj.weight"] = v.clone()
+            elif rest == "attn.qkv.bias":
+                out[layer + "attention.q_proj.bias"] = value[:d].clone()
+                out[layer + "attention.v_proj.bias"] = value[2 * d :].clone()
+            elif rest == "attn.qkv.bias_mask":
+                continue
+            elif rest.startswith("attn.proj."):
+                out[layer + "attention.o_proj." + rest.split(".")[-1]] = value.clone()
+            elif rest in ("ls1.gamma", "ls2.gamma"):
+                out[layer + f"layer_scale{rest[2]}.lambda1"] = value.clone()
+            elif rest.startswith(("norm1.", "norm2.")):
+                out[layer + rest] = value.clone()
+            else:
+                _, name, kind = rest.split(".")  # mlp.<name>.<weight|bias>
+                assert gated == name.startswith("w"), key
+                out[layer + f"mlp.{ffn[name]}.{kind}"] = value.clone()
+    return out
