@@ -23,10 +23,11 @@ def readme_snippet() -> str:
 
 
 @pytest.mark.slow
-def test_readme_snippet_runs(tmp_path):
+def test_readme_snippet_runs(tmp_path, monkeypatch):
     from claravid.models import build_backbone
     from claravid.models.weights import official_checkpoint_path
 
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))  # this test's own hub cache
     data = tmp_path / "claravid"
     synthesize(data, seed=3, frames_per_viewpoint=2, size=(704, 660), missions=["urban_1"])
     weights = official_checkpoint_path("dinov2_vits14")
