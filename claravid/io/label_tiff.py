@@ -283,18 +283,18 @@ def read_window(fd: int, layout: TileLayout, x: int, y: int, width: int, height:
         InvalidEntry: a tile is cut, corrupt (CRC, inflation) or of the wrong size.
     """
     th, tw, cols = layout.tile_height, layout.tile_width, layout.columns
-    offsets, counts = layout.offsets, layout.bytecounts
     out = np.empty((height, width), dtype=np.uint8)
     c0, c1 = x // tw, (x + width - 1) // tw
     for row in range(y // th, (y + height - 1) // th + 1):
         first, last = row * cols + c0, row * cols + c1
-        start = int(offsets[first])
-        span = int(offsets[last] + counts[last]) - start
-        needed = int(counts[first : last + 1].sum())
-        chunk = memoryview(_pread(fd, span, start)) if span == needed else None
+        # Python ints of this row's tiles (indexing numpy arrays one by one is slower).
+        offsets = layout.offsets[first : last + 1].tolist()
+        counts = layout.bytecounts[first : last + 1].tolist()
+        start = offsets[0]
+        span = offsets[-1] + counts[-1] - start
+        chunk = memoryview(_pread(fd, span, start)) if span == sum(counts) else None
         top, bottom = max(y, row * th), min(y + height, (row + 1) * th)
-        for index in range(first, last + 1):
-            offset, count = int(offsets[index]), int(counts[index])
+        for index, offset, count in zip(range(first, last + 1), offsets, counts, strict=True):
             data = chunk[offset - start : offset - start + count] if chunk else None
             if data is None:
                 data = _pread(fd, count, offset)
