@@ -95,3 +95,27 @@ def test_one_size_syntax(command, flag, value, parsed):
 @pytest.mark.parametrize("command", ["claravid-export", "claravid-eval", "claravid-predict"])
 def test_the_checkpoint_is_given_with_checkpoint(command):
     assert str(_parse(command, "-o", "x", "--checkpoint", "m.pt").checkpoint) == "m.pt"
+
+
+SELECTING = {  # the commands that select ClaraVid frames by flags, and how each reads them
+    "claravid-cache": (cache_cli.main, cache_cli.selection_flags),
+    "claravid-eval": (evaluate.main, evaluate.selection_flags),
+}
+
+
+@pytest.mark.parametrize("command", SELECTING)
+def test_selection_flags_are_one_comma_separated_list(command, capsys):
+    """``--missions rural_1,urban_1`` everywhere; ``--missions rural_1 urban_1`` is a one-line
+    usage error everywhere, not a second spelling some commands accept."""
+    main, selection = SELECTING[command]
+    args = _parse(command, "--missions", "rural_1,urban_1", "--altitude", "high,low",
+                  "--direction", "v")  # fmt: skip
+    assert selection(args) == {
+        "missions": ["rural_1", "urban_1"], "altitude": ["high", "low"], "direction": ["v"]
+    }  # fmt: skip
+    needed = COMMANDS[command][1]
+    with pytest.raises(SystemExit) as info:
+        main([*needed, "-o", "x", "--missions", "rural_1", "urban_1"])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unrecognized arguments: urban_1" in err[0]

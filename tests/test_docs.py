@@ -5,6 +5,10 @@ nothing cites a file outside the repository.
   existing file, and its ``#anchor`` an existing heading (GitHub's slug rules).
 - Every ``docs/...`` path written anywhere in the repository (code, tests, configs, Markdown)
   exists.
+- Every Markdown file a text of the repository names (``ARCHITECTURE.md``, ``data.md#palettes``,
+  ``../README.md``) resolves inside the repository, beside the naming file, at the root or in
+  ``docs/``, and its ``#anchor`` to a heading; only the names of files the tools write
+  (``OUTPUTS``) are not references.
 - Every long option of every console script of ``[project.scripts]`` is named in that command's
   section of ``docs/cli.md`` (or on the command's own page). A command added later without a
   section, or a flag added without a line, fails here with the file to edit.
@@ -41,6 +45,13 @@ COMMAND_PAGES = {
     "claravid-predict": "evaluation.md",
 }
 
+#: Markdown files the tools write (``claravid-eval``'s report, ``--compare``'s table): names of
+#: outputs, not references to the repository's documents.
+OUTPUTS = {"report.md", "compare.md"}
+#: A Markdown file's name in any text: a relative path ending in ``.md``, an optional anchor.
+#: Not a suffix alone (``".md"``, ``*.md``) and not part of a URL (those are removed first).
+MD_NAME = re.compile(r"(?<![\w.*/-])((?:\.\./|\./)*[\w-]+(?:[./][\w-]+)*\.md)(#[\w-]+)?(?![\w-])")
+URL = re.compile(r"[a-z][a-z0-9+.-]*://\S+")
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
 FENCE = re.compile(r"^(```|~~~).*?^\1", re.M | re.S)
 DOCS_PATH = re.compile(r"(?<![\w./-])docs/[\w./#-]*[\w/]")
@@ -119,6 +130,65 @@ def test_docs_paths_mentioned_anywhere_exist():
             elif anchor and target.endswith(".md") and anchor not in anchors(ROOT / target):
                 missing.append(f"{path.relative_to(ROOT)}: {match.group(0)} (no such heading)")
     assert missing == [], "references to docs/ files that do not exist"
+
+
+def unresolved_md_names(path: Path) -> list[str]:
+    """The ``*.md`` names in a file that name no file of the repository (or no heading of it).
+
+    A name resolves beside the file, at the repository root, or in ``docs/`` (code cites
+    ``evaluation.md`` for ``docs/evaluation.md``); the names in ``OUTPUTS`` are skipped.
+    """
+    text = URL.sub("", path.read_text(encoding="utf-8", errors="replace"))
+    problems = []
+    for match in MD_NAME.finditer(text):
+        name, anchor = match.group(1), (match.group(2) or "")[1:]
+        if Path(name).name in OUTPUTS:
+            continue
+        found = [
+            p
+            for p in (path.parent / name, ROOT / name, ROOT / "docs" / name)
+            if p.resolve().is_relative_to(ROOT.resolve()) and p.is_file()
+        ]
+        where = f"{path.relative_to(ROOT)}: {match.group(0)}"
+        if not found:
+            problems.append(f"{where} (no such file in the repository)")
+        elif anchor and not any(anchor in anchors(p) for p in found):
+            problems.append(f"{where} (no such heading)")
+    return problems
+
+
+def test_every_markdown_file_named_anywhere_exists():
+    """Code, tests, configs and docs cite documents that the repository has."""
+    missing = []
+    for path in repository_files():
+        if path == Path(__file__):  # its checker's own examples are broken on purpose
+            continue
+        missing += unresolved_md_names(path)
+    assert missing == [], "Markdown files named that the repository does not have"
+
+
+def test_the_markdown_name_checker_catches_what_is_missing(tmp_path, monkeypatch):
+    """The check above would pass vacuously if it found no name: one of each kind, on purpose."""
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "guide.md").write_text("# Guide\n\n## Two words\n", encoding="utf-8")
+    (tmp_path / "README.md").write_text("# Read me\n", encoding="utf-8")
+    code = tmp_path / "pkg" / "mod.py"
+    code.parent.mkdir()
+    docs = "docs"  # not spelled out with the file name: the docs/ path check reads this file
+    code.write_text(
+        f'"""See ARCHITECTURE.md, guide.md#two-words, {docs}/guide.md#nowhere, ../README.md,\n'
+        "../../outside.md, README.md and https://example.org/x/LICENSE.md; writes report.md\n"
+        'and every *.md or ".md" file."""\n',
+        encoding="utf-8",
+    )
+    (tmp_path.parent / "outside.md").write_text("# Outside\n", encoding="utf-8")
+    problems = unresolved_md_names(code)
+    assert [p.split(": ", 1)[1] for p in problems] == [
+        "ARCHITECTURE.md (no such file in the repository)",
+        f"{docs}/guide.md#nowhere (no such heading)",
+        "../../outside.md (no such file in the repository)",
+    ]
 
 
 def test_the_link_checker_catches_a_broken_link(tmp_path, monkeypatch):

@@ -5,6 +5,7 @@ It installs one top-level package, ``claravid`` (``claravid.models``, ``claravid
 are shadowed by them.
 """
 
+import json
 import os
 import shutil
 import subprocess
@@ -13,6 +14,10 @@ import zipfile
 from pathlib import Path
 
 import pytest
+
+from claravid.models.checkpoint import read_checkpoint
+from claravid.train.config import from_plain
+from tests.train.conftest import miou_by_hand
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -110,11 +115,22 @@ def test_wheel_installed_outside_checkout_loads_palettes_and_a_sample(tmp_path):
         capture_output=True, text=True, cwd=user, env=env, timeout=600,
     )  # fmt: skip
     assert train.returncode == 0, train.stdout[-2000:] + train.stderr[-3000:]
-    assert (user / "run" / "last.pt").is_file()
+    last = read_checkpoint(user / "run" / "last.pt")
+    # 2 steps of 2 frames, on the data the wheel's probe generated, with the user's overrides.
+    assert last["step"] == 2 and last["sampler"] == {"step": 2, "frames_seen": 4}
+    assert last["config"]["data"]["root"] == str(data)
+    assert last["config"]["data"]["val_split"] == "all" and last["config"]["val"]["bins"] == 1
     evaluate = subprocess.run(
         [str(target / "bin" / "claravid-eval"), "--checkpoint", str(user / "run" / "last.pt"),
          "--split", "all", "--no-progress", "--output", str(user / "report")],
         capture_output=True, text=True, cwd=user, env=env, timeout=600,
     )  # fmt: skip
     assert evaluate.returncode == 0, evaluate.stdout[-2000:] + evaluate.stderr[-3000:]
-    assert (user / "report" / "report.json").is_file()
+    report = json.loads((user / "report" / "report.json").read_text())
+    # Every frame the probe generated (urban_1: 3 altitudes × 2 directions × 1), each once.
+    frames = sorted(str(p) for p in (data / "003_urban_1" / "left_rgb").glob("*/*.jpg"))
+    assert len(frames) == 6 and sorted(r["path"] for r in report["images"]) == frames
+    assert report["overall"]["num_images"] == 6
+    # Its mIoU, counted with numpy from the checkpoint's predictions on those frames.
+    cfg = from_plain(last["config"])
+    assert report["overall"]["miou"] == pytest.approx(miou_by_hand(user / "run" / "last.pt", cfg))

@@ -4,6 +4,7 @@ weights. Which frame comes when is `claravid.train.sampler`'s business.
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +13,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.data import DataLoader, Dataset
 
+from claravid.data.label_cache import CacheWriteError
 from claravid.data.masks import read_mask
 from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.data.splits import SPLITS
@@ -23,6 +25,17 @@ from claravid.train.sampler import StepSampler
 
 class EmptySplitError(ValueError):
     """A dataset split with no frame in it."""
+
+
+class UnreadableLabelsError(ValueError):
+    """Frames whose label files cannot be read: training would stop at the first of them."""
+
+
+#: What a cache folder that cannot take any entry advises a training run to do.
+CACHE_ADVICE = (
+    "set CLARAVID_CACHE=DIR to a writable folder, or data.label_cache=false to decode the "
+    "PNGs every epoch"
+)
 
 
 def _augment(cfg: DictConfig) -> AugmentConfig:
@@ -104,15 +117,48 @@ def build_val_dataset(cfg: DictConfig) -> Dataset:
 def prepare_label_caches(datasets: list[Dataset], workers: int, say: Any = print) -> None:
     """Build the label-cache entries the ClaraVid datasets miss, before the first step, so no
     epoch decodes a panoptic PNG (``claravid-cache`` does the same ahead of time). Says what
-    was built and how large the cache is."""
+    was built and how large the cache is, and which entries could not be written (their
+    frames are then decoded from the PNGs).
+
+    Raises:
+        UnreadableLabelsError: some frames' label files cannot be read (a truncated PNG, a
+            missing dynamic mask): named now, not by a worker's traceback in the first epoch.
+        CacheWriteError: the cache folder cannot take any entry (read-only, full disk).
+    """
+    unreadable: dict[str, str] = {}
+    roots: list[str] = []
     for dataset in datasets:
         if isinstance(dataset, ClaraVidSegmentation) and dataset.label_cache is not None:
-            summary = dataset.prepare_label_cache(workers=workers)
+            try:
+                summary = dataset.prepare_label_cache(workers=workers)
+            except CacheWriteError as exc:
+                error = CacheWriteError(exc.reason, exc.written, CACHE_ADVICE)
+                error.errno = exc.errno
+                raise error from None
+            unreadable.update(summary.failed)
+            if summary.failed:
+                roots.append(shlex.quote(str(dataset.root)))
             if summary.built:
                 say(
                     f"label cache: {summary.built} frame(s) prepared in {summary.seconds:.1f} s, "
                     f"{summary.bytes_per_frame / 1e3:.0f} kB per frame, in {summary.directory}"
                 )
+            if summary.unwritten:
+                pan, reason = summary.unwritten[0]
+                more = len(summary.unwritten) - 1
+                say(
+                    f"label cache: {len(summary.unwritten)} entr{'y' if not more else 'ies'} "
+                    f"could not be written ({reason}{f'; and {more} more' if more else ''}); "
+                    "those frames are decoded from their PNGs"
+                )
+    if unreadable:
+        pan, reason = next(iter(unreadable.items()))
+        first = reason if pan in reason else f"{pan}: {reason}"
+        more = f"; and {len(unreadable) - 1} more" if len(unreadable) > 1 else ""
+        raise UnreadableLabelsError(
+            f"the label files of {len(unreadable)} frame(s) cannot be read, and training would "
+            f"stop at them: {first}{more} (claravid-cache {roots[0]} lists them all)"
+        )
 
 
 def split_table(dataset: Dataset) -> str | None:

@@ -8,7 +8,9 @@ block goes whole to one split. :func:`block_ids` names each frame's block
 Each mission's grid is laid over its own extent (:func:`mission_origins`): along x (and
 likewise y), with E = max - min of the camera positions of the mission's frames that are split
 together, the grid has the fewest blocks whose span exceeds E, n = floor(E / block_size) + 1,
-centred on the extent; column ``floor((x - origin) / block_size)`` counts from 0. A block
+centred on the extent; column ``floor((x - origin) / block_size)`` counts from 0. An extent of
+exactly k blocks therefore has k + 1 of them, its edge cameras half a block inside the grid;
+"exactly" allows for floating-point rounding (450 m = 637.8 - 187.8 is k = 3, not 2.99...). A block
 larger than a mission's extent is then one block (a grid anchored at the world origin cut a
 mission around 0 into four however large the blocks), and the blocks at both edges are equal
 parts of the extent instead of a full one and a sliver.
@@ -98,9 +100,22 @@ def mission_origins(
     for mission in dict.fromkeys(missions.tolist()):
         mine = xy[missions == mission]
         lo, hi = mine.min(axis=0), mine.max(axis=0)
-        n = np.floor((hi - lo) / block_size) + 1
+        n = np.floor(_blocks_in(hi - lo, block_size)) + 1
         origins[mission] = (lo + hi) / 2 - n * block_size / 2
     return origins
+
+
+def _blocks_in(extent: np.ndarray, block_size: float) -> np.ndarray:
+    """``extent / block_size``, a whole number where it is one but for floating-point rounding.
+
+    Camera positions are decimal metres: 637.8 - 187.8 is 450 m, three 150 m blocks, but
+    449.99999999999994 in binary, whose floor would leave the grid one block short and the
+    cameras at its far edge alone in a block outside it. Within 1e-9 of a whole number (a
+    micrometre over a kilometre) the quotient is taken as that number.
+    """
+    quotient = np.asarray(extent, dtype=np.float64) / block_size
+    whole = np.round(quotient)
+    return np.where(np.isclose(quotient, whole, rtol=1e-9, atol=1e-9), whole, quotient)
 
 
 def _checked_positions(frames: Sequence[Frame], positions: np.ndarray) -> np.ndarray:

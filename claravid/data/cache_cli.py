@@ -12,8 +12,12 @@ carry the dynamic flag whenever the frame has a dynamic mask, the entries every
 :meth:`ClaraVidSegmentation.prepare_label_cache`). Running it again builds only what is missing
 or invalid.
 
-Exit status: 0 ok, 1 some frames' label files could not be read (listed), 2 bad arguments,
-a root that is not ClaraVid, or a cache that cannot be written (full disk, read-only).
+``--missions``, ``--altitude`` and ``--direction`` take one comma-separated list each, as
+``claravid-eval``'s do.
+
+Exit status: 0 ok, 1 some frames' label files could not be read or their entry location
+refused the write (listed), 2 bad arguments, a root that is not ClaraVid, or a cache folder
+that cannot take any entry (full disk, read-only).
 """
 
 from __future__ import annotations
@@ -41,15 +45,19 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description="Prepare the label-code cache of a ClaraVid selection (tiled TIFFs read by "
         "window), so training never decodes a panoptic PNG.",
-        epilog="Exit status: 0 ok, 1 some label files could not be read, 2 bad arguments, no "
-        "ClaraVid root, or a cache that cannot be written.",
+        epilog="Exit status: 0 ok, 1 some label files could not be read or entries written "
+        "(listed), 2 bad arguments, no ClaraVid root, or a cache that cannot be written.",
     )
     parser.add_argument("root", type=Path, metavar="ROOT", help="the ClaraVid root folder")
     parser.add_argument(
-        "--missions", nargs="+", metavar="MISSION", help="e.g. urban_1,urban_2 (default all)"
+        "--missions", metavar="LIST", help="ClaraVid missions, e.g. urban_1,urban_2 (default all)"
     )
-    parser.add_argument("--altitude", nargs="+", metavar="ALT", help="low, mid, high (default all)")
-    parser.add_argument("--direction", nargs="+", metavar="DIR", help="h, v (default both)")
+    parser.add_argument(
+        "--altitude", metavar="LIST", help="ClaraVid altitudes, e.g. low,mid (default all)"
+    )
+    parser.add_argument(
+        "--direction", metavar="LIST", help="ClaraVid directions h,v (default both)"
+    )
     add_workers_flag(parser, "building the cache")
     parser.add_argument(
         "--shard", help="k/n: prepare only every n-th frame from the k-th (0-based)"
@@ -69,14 +77,26 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _keys(values: list[str] | None) -> list[str] | None:
-    """``--missions a,b c`` -> ``[a, b, c]``: both spellings of the other commands."""
-    if values is None:
-        return None
-    keys = [v.strip() for text in values for v in text.split(",") if v.strip()]
-    if not keys:
-        raise UsageError("an empty selection flag; give e.g. --missions urban_1,urban_2")
-    return keys
+_EXAMPLE = {"missions": "urban_1,urban_2", "altitude": "low,mid", "direction": "h"}
+
+
+def selection_flags(args: argparse.Namespace) -> dict[str, list[str]]:
+    """``--missions a,b`` -> ``{"missions": [a, b]}`` (and ``--altitude``, ``--direction``): one
+    comma-separated list per flag, the spelling of ``claravid-eval``.
+
+    Raises:
+        UsageError: a flag given with nothing in it.
+    """
+    out = {}
+    for name in _EXAMPLE:
+        text = getattr(args, name)
+        if text is None:
+            continue
+        values = [v.strip() for v in text.split(",") if v.strip()]
+        if not values:
+            raise UsageError(f"--{name} is empty; give e.g. --{name} {_EXAMPLE[name]}")
+        out[name] = values
+    return out
 
 
 def _size(n: float) -> str:
@@ -88,41 +108,47 @@ def _size(n: float) -> str:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from claravid.data.label_cache import CacheWriteError
     from claravid.data.segmentation import ClaraVidSegmentation
     from claravid.infra.shards import parse_shard
 
-    shard = parse_shard(args.shard) if args.shard else (0, 1)  # cheap errors first
+    # Cheap errors first. An empty --shard (an unset variable) is an error, not "every frame".
+    shard = parse_shard(args.shard) if args.shard is not None else (0, 1)
+    selection = selection_flags(args)
     if args.output is not None and args.output.exists() and not args.output.is_dir():
         raise UsageError(f"--cache-dir {args.output} is a file; give a folder")
     dataset = ClaraVidSegmentation(
-        args.root,
-        split="all",
-        missions=_keys(args.missions),
-        altitude=_keys(args.altitude),
-        direction=_keys(args.direction),
-        label_cache=args.output or True,
+        args.root, split="all", label_cache=args.output or True, **selection
     )
-    summary = dataset.prepare_label_cache(
-        workers=args.workers, progress=not args.no_progress, shard=shard
-    )
+    try:
+        summary = dataset.prepare_label_cache(
+            workers=args.workers, progress=not args.no_progress, shard=shard
+        )
+    except CacheWriteError as exc:
+        where = "CLARAVID_CACHE=DIR or --cache-dir DIR" if args.output is None else "--cache-dir"
+        raise UsageError(
+            f"{exc.reason}; {exc.written} entries were written before it, none is half-written; "
+            f"free some space or choose a writable folder ({where})"
+        ) from None
     cache = dataset.label_cache
-    sources = dataset.frames
-    for pan, reason in summary.failed:
+    failures = summary.failed + summary.unwritten
+    order = {str(f.paths["pan_seg"]): i for i, f in enumerate(dataset.frames)}
+    for pan, reason in sorted(failures, key=lambda failure: order[failure[0]]):
         print(f"skipped {pan}: {reason}", file=sys.stderr)
-    part = f" (shard {shard[0]}/{shard[1]} of {len(sources)})" if args.shard else ""
-    if summary.built == 0 and not summary.failed:
+    part = f" (shard {shard[0]}/{shard[1]} of {len(dataset.frames)})" if args.shard else ""
+    if summary.built == 0 and not failures:
         print(f"nothing to do: all {summary.frames} frames{part} are already cached")
     else:
         print(
             f"built {summary.built} entries ({_size(summary.bytes_built)}) in "
             f"{summary.seconds:.1f} s; {summary.skipped} already cached; "
-            f"{len(summary.failed)} unreadable{part}"
+            f"{len(summary.failed)} unreadable; {len(summary.unwritten)} not writable{part}"
         )
     print(
         f"cache: {summary.built + summary.skipped} frames, {_size(summary.bytes_total)} in total, "
         f"{_size(summary.bytes_per_frame)} per frame, in {cache.directory}"
     )
-    return EXIT_PARTIAL if summary.failed else EXIT_OK
+    return EXIT_PARTIAL if failures else EXIT_OK
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,137 +1,77 @@
 """``LabelCache``: frames' label codes prepared once, then read whole or by window.
 
-An entry is a tiled TIFF (:mod:`claravid.io.label_tiff`) named after the fingerprint (path, size,
-mtime) of its source files, so an edited source misses instead of serving stale labels. A
-630×630 training crop reads the ~16 tiles it touches instead of decoding a 12 MP PNG.
+An entry is a tiled TIFF (:mod:`claravid.io.label_tiff`) named after the identity (path, size,
+mtime) of its source files, the panoptic PNG and the dynamic mask when the frame is read with
+one, and recording that identity: an edited source misses instead of serving stale labels, and
+an entry built from other sources (without the dynamic mask, another frame's entry copied over
+this one's) is refused. A 630×630 training crop reads the ~16 tiles it touches instead of
+decoding a 12 MP PNG. An entry that fails its checks (cut, corrupt tile, foreign, another
+version, class table, size or sources) is rebuilt from the sources, never served.
 
-Entries are written under a name unique to the writer (host, process, thread, random) and
-renamed into place: concurrent writers, on one machine or several sharing a network file
-system, never see or leave half a file. An entry that fails its checks (cut, corrupt, foreign,
-another size) is rebuilt from the sources, never served. When the cache cannot be written
-(read-only, full disk) reads fall back to decoding the sources, with one warning per process;
-:meth:`LabelCache.prepare` instead stops with an error that says why and where.
+Write failures (:mod:`claravid.data.cache_entries`). Only what proves that the cache folder
+cannot take any entry (a read-only file system, a full disk or quota, the folder itself not
+writable) turns writing off for that folder in this process, with one warning; reads then
+decode the sources. Any other failure (a folder where one entry should be, one sub-folder
+without permission, a transient I/O error) concerns that entry alone: one warning names it,
+its frame is decoded in this process, the other entries are cached as usual.
+:meth:`LabelCache.prepare` (:mod:`claravid.data.cache_prepare`) stops with an error for the
+first kind and lists the frames of the second.
+
+A ``LabelCache`` pickles (for DataLoader workers started by spawn or forkserver): what it keeps
+of parsed entries (plain offsets, byte counts and CRCs, at most :data:`LAYOUTS` of them) stays
+behind.
 """
 
 from __future__ import annotations
 
 import errno
-import multiprocessing
 import os
-import re
-import socket
-import struct
+import stat
 import threading
-import time
-import uuid
 import warnings
+from collections import OrderedDict
 from collections.abc import Iterable
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
 
+from claravid.data.cache_entries import (
+    CacheWriteError,
+    LabelCacheWarning,
+    entry_error,
+    entry_path,
+    entry_path_of,
+    folder_refuses,
+    png_shape,
+    write_atomic,
+    write_error,
+)
+from claravid.data.cache_prepare import PrepareSummary, Sources, prepare_entries
 from claravid.infra.cachedir import cache_dir
 from claravid.io import label_tiff
-from claravid.io.label_tiff import InvalidEntry, TileLayout
-from claravid.io.labels import read_label_codes, source_fingerprint
+from claravid.io.label_tiff import InvalidEntry, SourceIdentity, TileLayout
+from claravid.io.labels import read_label_codes, source_identity
 
-Sources = tuple[Path, Path | None]
+__all__ = [
+    "LAYOUTS",
+    "CacheWriteError",
+    "LabelCache",
+    "LabelCacheWarning",
+    "PrepareSummary",
+    "entry_path",
+    "png_shape",
+    "write_atomic",
+]
 
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_HOST = re.sub(r"[^A-Za-z0-9.-]", "_", socket.gethostname()) or "host"
-_warned_unwritable: set[str] = set()  # folders that refused a write: warned once, not retried
-
-
-class LabelCacheWarning(UserWarning):
-    """The label cache could not be written (labels decoded instead) or an entry was rebuilt."""
-
-
-class CacheWriteError(OSError):
-    """The cache could not be written while preparing it (full disk, read-only folder)."""
-
-
-@dataclass
-class PrepareSummary:
-    """What :meth:`LabelCache.prepare` did.
-
-    Attributes:
-        directory: the cache folder.
-        frames: frames of the selection (of this shard).
-        built: entries written now.
-        skipped: entries already present and valid.
-        failed: ``(panoptic PNG, reason)`` of frames whose sources could not be read.
-        bytes_built: bytes written now.
-        bytes_total: bytes of every entry of the selection now in the cache.
-        seconds: wall time.
-    """
-
-    directory: Path
-    frames: int = 0
-    built: int = 0
-    skipped: int = 0
-    failed: list[tuple[str, str]] = field(default_factory=list)
-    bytes_built: int = 0
-    bytes_total: int = 0
-    seconds: float = 0.0
-
-    @property
-    def bytes_per_frame(self) -> float:
-        """Mean entry size over the selection's cached frames (0 when none)."""
-        cached = self.built + self.skipped
-        return self.bytes_total / cached if cached else 0.0
-
-
-def png_shape(path: Path) -> tuple[int, int] | None:
-    """(height, width) from a PNG's header (24 bytes read), or None when it is not a PNG."""
-    with open(path, "rb") as fh:
-        head = fh.read(24)
-    if len(head) < 24 or not head.startswith(_PNG_SIGNATURE) or head[12:16] != b"IHDR":
-        return None
-    width, height = struct.unpack(">II", head[16:24])
-    return height, width
-
-
-def entry_path(directory: Path, pan_seg: Path, dynamic_mask: Path | None) -> Path:
-    """``directory/<2 hex>/<fingerprint>.tif``: the entry of a frame's sources."""
-    dyn = None if dynamic_mask is None else Path(dynamic_mask)
-    key = source_fingerprint(Path(pan_seg), dyn)
-    return Path(directory) / key[:2] / f"{key}.tif"
-
-
-def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` under a name unique to this writer, then rename it in place.
-
-    The temporary name carries host, process, thread and a random part: two threads, processes
-    or machines (a cache on a network file system) writing one entry never share it. On any
-    failure the temporary file is removed, so nothing half-written remains.
-    """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / (
-        f".{path.name}.{_HOST}.{os.getpid()}.{threading.get_ident()}.{uuid.uuid4().hex}.tmp"
-    )
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
-    try:
-        try:
-            view = memoryview(data)
-            while view:
-                view = view[os.write(fd, view) :]
-        finally:
-            os.close(fd)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
-def _write_error(exc: OSError, directory: Path) -> str:
-    """Why writing the cache failed, in words, naming the folder."""
-    if exc.errno in (errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)):
-        return f"the disk is full (no space left for the label cache in {directory})"
-    if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
-        return f"the label cache folder {directory} is not writable ({exc.strerror})"
-    return f"cannot write the label cache in {directory} ({exc.strerror or exc})"
+#: Parsed entry headers kept per ``LabelCache`` (least recently used dropped first): ~4 kB each
+#: for a 4032×3024 frame; a header parsed again costs ~0.25 ms.
+LAYOUTS = 1024
+# Per process, for every LabelCache: folders that cannot take an entry (warned once, not
+# written again), entries whose write failed (warned once, not retried), invalid entries that
+# could not be rebuilt (warned once).
+_unwritable_folders: set[str] = set()
+_unwritable_entries: set[str] = set()
+_unrepaired_entries: set[str] = set()
 
 
 class LabelCache:
@@ -140,15 +80,40 @@ class LabelCache:
     Args:
         directory: the cache root; None: ``$CLARAVID_CACHE`` or ``~/.cache/claravid``.
         tile_size: tile side of the entries this cache writes (reading takes any).
+        layouts: how many parsed entry headers to keep (least recently used dropped first).
     """
 
-    def __init__(self, directory: str | Path | None = None, tile_size: int = label_tiff.TILE):
+    def __init__(
+        self,
+        directory: str | Path | None = None,
+        tile_size: int = label_tiff.TILE,
+        layouts: int = LAYOUTS,
+    ):
+        #: Whether the folder came from $CLARAVID_CACHE (what a message advises to change).
+        self.from_environment = directory is None
         self.directory = Path(directory) if directory is not None else cache_dir()
         self.directory = self.directory / "label_codes"
         self.tile_size = tile_size
+        self.max_layouts = layouts
+        self._init_layouts()
+
+    def _init_layouts(self) -> None:
         # Parsed headers of entries read before, keyed by path and checked against the file's
-        # identity (inode, size, mtime): a warm window read is one open and a few reads.
-        self._layouts: dict[str, tuple[tuple[int, int, int], TileLayout]] = {}
+        # identity (inode, size, mtime): a warm window read is one open and a few reads. Plain
+        # arrays only (no tifffile object of a closed file), bounded, behind a lock: DataLoader
+        # threads and the prefetching of several readers share one cache.
+        self._layouts: OrderedDict[str, tuple[tuple[int, int, int], TileLayout]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def __getstate__(self) -> dict:
+        # A worker process starts with no parsed header (and its own lock).
+        state = self.__dict__.copy()
+        del state["_layouts"], state["_lock"]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._init_layouts()
 
     def path_for(self, pan_seg: Path, dynamic_mask: Path | None = None) -> Path:
         """The entry of a frame's sources (whether present or not)."""
@@ -189,7 +154,8 @@ class LabelCache:
     ) -> PrepareSummary:
         """Build every missing or invalid entry of ``frames``, in worker processes.
 
-        Idempotent: entries present and valid are counted as skipped, not rewritten.
+        Idempotent: entries present and valid (every tile checked against its CRC) are counted
+        as skipped, not rewritten.
 
         Args:
             frames: ``(panoptic PNG, dynamic mask or None)`` of each frame.
@@ -198,139 +164,155 @@ class LabelCache:
             shard: ``(k, n)``: only every n-th frame from the k-th (a job array's part).
 
         Raises:
-            CacheWriteError: the cache cannot be written (full disk, read-only); the message
-                says which and where. Entries written before stay; none is half-written.
+            CacheWriteError: the cache folder cannot take any entry (full disk, read-only); the
+                message says which and where. Entries written before stay; none is
+                half-written. A location that refuses one entry only is listed in
+                ``unwritten`` instead.
         """
-        start = time.perf_counter()
-        k, n = shard
-        if not (n >= 1 and 0 <= k < n):
-            raise ValueError(f"shard must be (k, n) with 0 <= k < n, got {shard}")
-        unique = list(dict.fromkeys((Path(p), None if d is None else Path(d)) for p, d in frames))
-        chosen = unique[k::n]
-        summary = PrepareSummary(self.directory, frames=len(chosen))
-        jobs = []
-        for pan, dyn in chosen:
-            missing = [p for p in (pan, dyn) if p is not None and not p.is_file()]
-            if missing:
-                summary.failed.append((str(pan), f"file not found: {missing[0]}"))
-                continue
-            try:
-                fd, _ = self._open_valid(self.path_for(pan, dyn), pan)
-            except (OSError, InvalidEntry):  # missing, unreadable or invalid: (re)build it
-                jobs.append((str(pan), None if dyn is None else str(dyn), self.tile_size))
-                continue
-            summary.skipped += 1
-            summary.bytes_total += os.fstat(fd).st_size
-            os.close(fd)
-        summary.bytes_total += self._build(jobs, summary, workers, progress)
-        order = {str(pan): i for i, (pan, _) in enumerate(chosen)}
-        summary.failed.sort(key=lambda failure: order[failure[0]])  # in the selection's order
-        summary.seconds = time.perf_counter() - start
-        return summary
+        return prepare_entries(self, frames, workers=workers, progress=progress, shard=shard)
 
-    # --------------------------------------------------------------------------------------
+    def advice(self) -> str:
+        """What a message advises to make this cache writable."""
+        if self.from_environment:
+            return "set CLARAVID_CACHE to a writable folder"
+        return "choose a writable cache folder"
 
-    def _build(self, jobs: list, summary: PrepareSummary, workers: int, progress: bool) -> int:
-        bar = tqdm(
-            total=len(jobs), desc="label cache", unit="frame", disable=not progress or not jobs
-        )
-        executor = None
-        try:
-            if workers <= 1 or len(jobs) <= 1:
-                outputs: Iterable = (_build_entry(self.directory, *job) for job in jobs)
-            else:
-                executor = ProcessPoolExecutor(
-                    max_workers=workers,
-                    mp_context=multiprocessing.get_context("spawn"),
-                    initializer=_init_worker,
-                )
-                outputs = executor.map(_build_job, [(self.directory, *job) for job in jobs])
-            for pan, size, failure, write_errno in outputs:
-                if write_errno is not None:
-                    error = CacheWriteError(
-                        f"{failure}; {summary.built} entries were written before it, none is "
-                        "half-written; free some space or choose another cache folder "
-                        "(--cache-dir, CLARAVID_CACHE)"
-                    )
-                    error.errno = write_errno
-                    raise error
-                if failure is not None:
-                    summary.failed.append((pan, failure))
-                else:
-                    summary.built += 1
-                    summary.bytes_built += size
-                bar.update(1)
-        finally:
-            bar.close()
-            if executor is not None:
-                executor.shutdown(cancel_futures=True)
-        return summary.bytes_built
+    def open_valid(
+        self, path: Path, pan_seg: Path, identity: SourceIdentity, verify: bool = False
+    ) -> tuple[int, TileLayout]:
+        """An open descriptor on the valid entry ``path`` of these sources, and its layout.
 
-    def _open_valid(self, path: Path, pan_seg: Path) -> tuple[int, TileLayout]:
-        """An open descriptor on a valid entry and its layout; raises when missing or invalid."""
+        Args:
+            path: the entry.
+            pan_seg: the frame's panoptic PNG (its size, from the header, must be the entry's).
+            identity: the frame's sources (:func:`claravid.io.labels.source_identity`).
+            verify: check every tile's CRC too (nothing inflated).
+
+        Raises:
+            OSError: no entry there (or not a file).
+            InvalidEntry: an entry that must not be served.
+        """
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_BINARY", 0))
         try:
             st = os.fstat(fd)
-            identity = (st.st_ino, st.st_size, st.st_mtime_ns)
-            known = self._layouts.get(str(path))
-            if known is not None and known[0] == identity:
-                return fd, known[1]
-            layout = label_tiff.read_layout(fd, png_shape(pan_seg), path.name)
-            self._layouts[str(path)] = (identity, layout)
+            if not stat.S_ISREG(st.st_mode):  # a folder in its place: no entry there
+                raise IsADirectoryError(errno.EISDIR, "not a file", str(path))
+            file_id = (st.st_ino, st.st_size, st.st_mtime_ns)
+            key = str(path)
+            with self._lock:
+                known = self._layouts.get(key)
+                if known is not None and known[0] == file_id:
+                    self._layouts.move_to_end(key)
+            if known is not None and known[0] == file_id:
+                layout = known[1]
+                label_tiff.check_sources(layout, identity)
+            else:
+                layout = label_tiff.read_layout(fd, png_shape(pan_seg), path.name, identity)
+                with self._lock:
+                    self._layouts[key] = (file_id, layout)
+                    self._layouts.move_to_end(key)
+                    while len(self._layouts) > self.max_layouts:
+                        self._layouts.popitem(last=False)
+            if verify:
+                label_tiff.verify_tiles(fd, layout)
             return fd, layout
         except BaseException:
             os.close(fd)
             raise
 
+    def _forget(self, path: Path) -> None:
+        with self._lock:
+            self._layouts.pop(str(path), None)
+
     def _read(
         self, pan_seg: Path, dynamic_mask: Path | None, window: tuple[int, int, int, int] | None
     ) -> np.ndarray:
-        path = self.path_for(pan_seg, dynamic_mask)
+        dyn = None if dynamic_mask is None else Path(dynamic_mask)
+        identity = source_identity(pan_seg, dyn)
+        path = entry_path_of(self.directory, identity)
+        problem = None
         try:
-            fd, layout = self._open_valid(path, pan_seg)
+            fd, layout = self.open_valid(path, pan_seg, identity)
         except OSError:  # missing, or a cache folder we cannot even read: decode instead
             pass
         except InvalidEntry as exc:
-            self._rebuilt(path, exc)
+            problem = exc
         else:
             try:
                 x, y, w, h = window or (0, 0, layout.width, layout.height)
                 _check_window(x, y, w, h, layout.width, layout.height)
                 return label_tiff.read_window(fd, layout, x, y, w, h)
             except InvalidEntry as exc:
-                self._rebuilt(path, exc)
+                problem = exc
             finally:
                 os.close(fd)
-        codes = read_label_codes(pan_seg, dynamic_mask)
-        if str(self.directory) not in _warned_unwritable:  # once refused, not encoded again
-            try:
-                write_atomic(path, label_tiff.encode_codes(codes, self.tile_size))
-            except OSError as exc:
-                self._warn_unwritable(exc)
+        if problem is not None:
+            self._forget(path)
+        codes = read_label_codes(pan_seg, dyn)
+        stored = self._store(path, codes, identity)
+        if problem is not None:
+            self._warn_invalid(path, problem, stored)
         if window is None:
             return codes
         x, y, w, h = window
         _check_window(x, y, w, h, codes.shape[1], codes.shape[0])
         return codes[y : y + h, x : x + w].copy()
 
-    def _rebuilt(self, path: Path, exc: InvalidEntry) -> None:
-        self._layouts.pop(str(path), None)
+    def _store(self, path: Path, codes: np.ndarray, identity: SourceIdentity) -> bool:
+        """Write the entry unless its folder or itself refused a write before; True if written."""
+        if str(self.directory) in _unwritable_folders or str(path) in _unwritable_entries:
+            return False  # once refused, not encoded and tried again in this process
+        try:
+            write_atomic(path, label_tiff.encode_codes(codes, self.tile_size, identity))
+        except OSError as exc:
+            if folder_refuses(exc, self.directory):
+                self._warn_unwritable(exc)
+            else:
+                self._warn_entry(path, exc)
+            return False
+        _unrepaired_entries.discard(str(path))
+        return True
+
+    def _warn_invalid(self, path: Path, exc: InvalidEntry, stored: bool) -> None:
+        if stored:
+            warnings.warn(
+                f"label cache entry {path} is invalid ({exc}); rebuilt from the sources",
+                LabelCacheWarning,
+                stacklevel=5,
+            )
+            return
+        if str(path) in _unrepaired_entries or str(path) in _unwritable_entries:  # warned before
+            return
+        _unrepaired_entries.add(str(path))
         warnings.warn(
-            f"label cache entry {path} is invalid ({exc}); rebuilt from the sources",
+            f"label cache entry {path} is invalid ({exc}) and the cache cannot be written to "
+            "rebuild it: this frame's labels are decoded from the sources instead",
             LabelCacheWarning,
-            stacklevel=4,
+            stacklevel=5,
+        )
+
+    def _warn_entry(self, path: Path, exc: OSError) -> None:
+        # Once per entry and process; the frame is decoded, the other entries still written.
+        if str(path) in _unwritable_entries:
+            return
+        _unwritable_entries.add(str(path))
+        warnings.warn(
+            f"{entry_error(exc, path)}; this frame's labels are decoded from the panoptic PNG "
+            "in this process (slower), the other frames are cached as usual",
+            LabelCacheWarning,
+            stacklevel=5,
         )
 
     def _warn_unwritable(self, exc: OSError) -> None:
         # Once per folder and process: a DataLoader worker would otherwise warn every sample.
-        if str(self.directory) in _warned_unwritable:
+        if str(self.directory) in _unwritable_folders:
             return
-        _warned_unwritable.add(str(self.directory))
+        _unwritable_folders.add(str(self.directory))
         warnings.warn(
-            f"{_write_error(exc, self.directory)}; label codes are decoded from the panoptic "
+            f"{write_error(exc, self.directory)}; label codes are decoded from the panoptic "
             "PNGs instead (slower); set CLARAVID_CACHE or label_cache= to a writable folder",
             LabelCacheWarning,
-            stacklevel=4,
+            stacklevel=5,
         )
 
 
@@ -339,35 +321,3 @@ def _check_window(x: int, y: int, width: int, height: int, frame_w: int, frame_h
         raise ValueError(
             f"window {width}×{height} at ({x}, {y}) is not inside the {frame_w}×{frame_h} frame"
         )
-
-
-def _init_worker() -> None:
-    import cv2
-
-    cv2.setNumThreads(1)  # the processes already fill the cores
-
-
-def _build_job(job: tuple) -> tuple[str, int, str | None, int | None]:
-    return _build_entry(*job)
-
-
-def _build_entry(
-    directory: Path, pan_seg: str, dynamic_mask: str | None, tile_size: int
-) -> tuple[str, int, str | None, int | None]:
-    """Decode a frame's sources and write its entry: ``(pan, bytes, failure, write errno)``.
-
-    Errors come back as values, not exceptions: a worker's exception may not survive pickling,
-    and one unreadable frame must not stop the others.
-    """
-    pan, dyn = Path(pan_seg), None if dynamic_mask is None else Path(dynamic_mask)
-    try:
-        codes = read_label_codes(pan, dyn)
-        path = entry_path(directory, pan, dyn)
-    except (OSError, ValueError) as exc:  # a missing, cut or foreign source file
-        return pan_seg, 0, str(exc), None
-    data = label_tiff.encode_codes(codes, tile_size)
-    try:
-        write_atomic(path, data)
-    except OSError as exc:
-        return pan_seg, 0, _write_error(exc, directory), exc.errno or errno.EIO
-    return pan_seg, len(data), None, None

@@ -143,14 +143,15 @@ def _run(args: argparse.Namespace) -> int:
     elif args.input is None:
         raise UsageError("give an INPUT (folder, list file or results JSON), --merge or --compare")
     elif json_input:
-        if args.shard:
+        if args.shard is not None:
             raise UsageError("--shard applies to a folder or a list file, not to a results JSON")
     else:
         # Cheap argument errors first, before a long directory walk.
-        k, n = parse_shard(args.shard) if args.shard else (0, 1)
+        # An empty --shard ($UNSET) is an error, not "no shard".
+        k, n = parse_shard(args.shard) if args.shard is not None else (0, 1)
         if not args.no_blur:
             check_blur_ksize(args.blur_ksize)
-        if args.shard:
+        if args.shard is not None:
             output = output or Path(f"complexity_results.shard-{k}-of-{n}.json")
         output = output or Path(DEFAULT_OUTPUT)
     _check_outputs(args, output)
@@ -162,7 +163,7 @@ def _run(args: argparse.Namespace) -> int:
     else:
         paths = find_images(args.input, args.pattern)
         shard = None
-        if args.shard:
+        if args.shard is not None:
             shard = {"index": k, "count": n, "num_candidates": len(paths)}
             paths = select_shard(paths, k, n)
         run = profile_images(

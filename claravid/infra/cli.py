@@ -1,4 +1,4 @@
-"""Conventions shared by every console script (see ARCHITECTURE.md, "Command-line conventions").
+"""Conventions shared by every console script (see docs/cli.md#conventions).
 
 Exit 0 on success; 1 when the work ran but some inputs could not be used (listed in the output);
 2 for a user's mistake, printed as one line that says what was wrong and what to do, never a

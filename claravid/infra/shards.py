@@ -7,7 +7,16 @@ from pathlib import Path
 
 
 def parse_shard(text: str) -> tuple[int, int]:
-    """``"k/n"`` -> (k, n) with 0 <= k < n; a ValueError says the expected form otherwise."""
+    """``"k/n"`` -> (k, n) with 0 <= k < n; a ValueError says the expected form otherwise.
+
+    An empty text is an error too, never "no shard": ``--shard $SLURM_ARRAY_TASK_ID`` with the
+    variable unset must not make one task of a job array do every task's work.
+    """
+    if not text.strip():
+        raise ValueError(
+            f"shard must look like k/n (e.g. 0/8), got {text!r}: is the variable that should "
+            "give it set?"
+        )
     try:
         k_text, n_text = text.split("/")
         k, n = int(k_text), int(n_text)

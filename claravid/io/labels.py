@@ -8,8 +8,8 @@ reduction (even one that splits static and moving vehicles) is a single 256-entr
 - an id outside the ClaraVid class table: ``UNKNOWN_CODE`` (254), ignored and counted.
 
 Codes are cheap to cache: ``claravid.data.label_cache.LabelCache`` keeps them as tiled TIFFs read by
-window, named after the source files' size and modification time so an edited source is never
-served stale.
+window, each named after and recording its source files' identity (:func:`source_identity`:
+path, size and modification time) so an edited source is never served stale.
 """
 
 from __future__ import annotations
@@ -87,11 +87,36 @@ def warn_unknown(codes: np.ndarray, source: str | Path) -> int:
     return count
 
 
+def _file_identity(path: Path) -> str:
+    """``<resolved path>:<size>:<mtime ns>``: what changes when a file is replaced or edited."""
+    stat = path.stat()
+    return f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}"
+
+
+def source_identity(
+    pan_seg: str | Path, dynamic_mask: str | Path | None = None
+) -> dict[str, str | None]:
+    """The staleness key of a frame's label codes: each label file's identity.
+
+    ``{"pan_seg": "<resolved path>:<size>:<mtime ns>", "dynamic_mask": the same, or None when
+    the codes are read without a dynamic mask}``. A label-cache entry records it and is served
+    only to the same sources (see ``claravid.data.label_cache``).
+
+    Raises:
+        OSError: a file is missing or cannot be looked at.
+    """
+    return {
+        "pan_seg": _file_identity(Path(pan_seg)),
+        "dynamic_mask": None if dynamic_mask is None else _file_identity(Path(dynamic_mask)),
+    }
+
+
+def identity_fingerprint(identity: dict[str, str | None]) -> str:
+    """A short hash of a :func:`source_identity` (the name of its label-cache entry)."""
+    return sha1("|".join(v for v in identity.values() if v is not None).encode()).hexdigest()[:16]
+
+
 def source_fingerprint(*paths: Path | None) -> str:
     """A short hash of files' resolved paths, sizes and mtimes (None entries skipped)."""
-    parts = []
-    for path in paths:
-        if path is not None:
-            stat = path.stat()
-            parts.append(f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}")
+    parts = [_file_identity(Path(path)) for path in paths if path is not None]
     return sha1("|".join(parts).encode()).hexdigest()[:16]

@@ -14,7 +14,7 @@ from claravid.models.checkpoint import read_checkpoint
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.checkpoint import save_training_checkpoint
 from claravid.train.cli import main
-from tests.train.conftest import tiny
+from tests.train.conftest import miou_by_hand, tiny
 
 
 def rows(out):
@@ -203,7 +203,8 @@ def test_every_shipped_config_trains_two_steps(name, claravid_root, uavid_root, 
                 "val.every=0", "data.num_workers=0", *extra)  # fmt: skip
     cfg = load_config(name, args)
     result = train(cfg)
-    assert result.step == 2 and result.best_miou is not None
+    assert result.step == 2 and result.best_step == 2  # the final validation, at step 2
+    assert result.best_miou == pytest.approx(miou_by_hand(tmp_path / "run" / "last.pt", cfg))
     assert read_checkpoint(tmp_path / "run" / "last.pt")["config"]["model"]["backbone"] == (
         load_config(name).model.backbone
     )
@@ -219,8 +220,10 @@ def test_class_weights_reach_the_loss(uavid_root, tmp_path):
                     "data.train_split=train", "data.val_split=val", "train.steps=1",
                     f"data.class_weights={weights}", "train.batch_size=2", "train.log_every=1",
                     "val.every=0")  # fmt: skip
-        result = train(load_config("demo", args))
-        assert result.step == 1 and result.best_miou is not None
+        cfg = load_config("demo", args)
+        result = train(cfg)
+        assert result.step == 1 and result.best_step == 1
+        assert result.best_miou == pytest.approx(miou_by_hand(out / "last.pt", cfg))
         first[weights] = rows(out)[0]["loss"]
     assert abs(first["median_frequency"] - first["none"]) > 1e-3 * first["none"], first
 

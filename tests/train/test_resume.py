@@ -2,11 +2,13 @@
 
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 import torch
 
@@ -128,3 +130,58 @@ def test_resume_after_a_stop_is_bit_for_bit(claravid_root, tmp_path, monkeypatch
     assert training_rows(out) == training_rows(reference)
     losses = [r["loss"] for r in training_rows(reference) if "loss" in r]
     assert len(losses) == 8 and all(math.isfinite(x) for x in losses)
+
+
+BEST = ("train.steps=8", "train.checkpoint_every=2", "val.every=2", "train.log_every=1",
+        "train.lr=1e-2")  # fmt: skip
+
+
+def test_a_resumed_run_keeps_the_best_of_before_the_interruption(
+    claravid_root, tmp_path, monkeypatch
+):
+    """Validated at steps 2 and 4, stopped at step 5 (an injected inf loss), resumed with its
+    val frames moved (``data.val_root``, a change a resume accepts) to a copy whose labels are
+    one class everywhere: every validation after the resume scores below the best before it,
+    which ``best.pt`` must keep, with its step, as must the run's own record of it."""
+    import claravid.train.loop as loop
+    from claravid.io import modalities
+    from claravid.train.data import build_val_dataset
+
+    out = tmp_path / "run"
+    cfg = load_config("demo", tiny(claravid_root, out, *BEST))
+    real, calls = loop.F.cross_entropy, []
+
+    def poisoned(*args, **kwargs):  # torch's loss, made infinite at the 5th step
+        calls.append(1)
+        loss = real(*args, **kwargs)
+        return loss * float("inf") if len(calls) == 5 else loss
+
+    with monkeypatch.context() as patch:
+        patch.setattr(loop.F, "cross_entropy", poisoned)
+        with pytest.raises(TrainingDiverged, match="at step 5"):
+            train(cfg)
+    before = {r["step"]: r["miou"] for r in read_metrics(out / "metrics.jsonl") if "miou" in r}
+    assert sorted(before) == [2, 4] and max(before.values()) > 0
+    best_step = max(before, key=lambda s: (before[s], -s))  # the first of equal scores
+    best_bytes = (out / "best.pt").read_bytes()
+
+    moved = tmp_path / "moved"
+    shutil.copytree(claravid_root, moved)
+    resumed_cfg = load_config("demo", tiny(claravid_root, out, *BEST, f"data.val_root={moved}"))
+    for frame in build_val_dataset(resumed_cfg).frames:
+        pan = frame.paths["pan_seg"]
+        shape = modalities.read_semantic(pan).shape
+        modalities.write_pan_seg(pan, np.full(shape, 16, np.uint8), np.zeros(shape, np.int64))
+    result = train(resumed_cfg, resume=True)
+
+    after = {r["step"]: r["miou"] for r in read_metrics(out / "metrics.jsonl") if "miou" in r}
+    assert sorted(after) == [2, 4, 6, 8] and {s: after[s] for s in (2, 4)} == before
+    assert max(after[6], after[8]) < before[best_step]  # the precondition: worse after resume
+    assert (out / "best.pt").read_bytes() == best_bytes
+    best = read_checkpoint(out / "best.pt")
+    assert (best["step"], best["best_step"], best["best_miou"]) == (
+        best_step, best_step, before[best_step]
+    )  # fmt: skip
+    last = read_checkpoint(out / "last.pt")
+    assert (last["step"], last["best_step"], last["best_miou"]) == (8, best_step, before[best_step])
+    assert (result.best_step, result.best_miou) == (best_step, before[best_step])

@@ -227,8 +227,9 @@ def _foreign_tiff(path):
 
 
 def _uint16_tiff(path):
+    description = _page(path).description  # ours, from the entry it replaces
     tifffile.imwrite(path, np.zeros((H, W), np.uint16), tile=(16, 16), compression="zlib",
-                     description=label_tiff._description((H, W)), metadata=None)  # fmt: skip
+                     description=description, metadata=None)  # fmt: skip
 
 
 def _flip_tile_bytes(path):

@@ -205,3 +205,34 @@ def test_a_block_larger_than_the_mission_is_one_block():
     assert set(block_ids(frames, centred, 100.0)) == {
         f"003_urban_1/{x}_{y}" for x in (0, 1) for y in (0, 1)
     }
+
+
+def _blocks_of(xs, ys, block_size=150.0):
+    from claravid.data.splits import block_ids
+
+    frames = [Frame("urban_1", "low", "h", f"{i:06d}", {}) for i in range(len(xs))]
+    names = block_ids(frames, np.column_stack([xs, ys]), block_size)
+    return [name.split("/")[1] for name in names]
+
+
+def test_an_extent_of_exact_blocks_puts_the_far_edge_in_the_last_block():
+    """x spans 300 m = 2 blocks of 150, y 150 m = 1 block: the rule (docs/data.md, "Where the
+    blocks lie") gives floor(300 / 150) + 1 = 3 columns and 2 rows, centred on the extent, so
+    the grid starts 75 m before the first camera: x origin 100 - 75 = 25, y origin -50 - 75 =
+    -125. The far edge, x = 400 (column floor(375 / 150) = 2) and y = 100 (row floor(225 / 150)
+    = 1), falls in the last column and row with its neighbours, never in a block of its own."""
+    xs = [100.0, 174.9, 175.0, 250.0, 324.9, 325.0, 399.0, 400.0, 400.0]
+    ys = [-50.0, -50.0, 24.9, 25.0, 100.0, 99.0, 100.0, -50.0, 100.0]
+    assert _blocks_of(xs, ys) == ["0_0", "0_0", "1_0", "1_1", "1_1", "2_1", "2_1", "2_0", "2_1"]
+
+
+def test_an_exact_extent_in_decimal_metres_is_not_cut_by_rounding():
+    """187.8 to 637.8 is 450 m, 3 blocks, in the metres the extrinsics hold; in binary floating
+    point 637.8 - 187.8 is a hair under 450, and the grid came out one column short, leaving
+    the cameras at x = 637.8 alone in a fourth column outside it. By the rule: 4 columns from
+    412.8 - 300 = 112.8, so 600.0 (3.25 blocks in) and 637.8 (3.5) share column 3; in y, 20.1 to
+    170.1 is 1 block: 2 rows from 95.1 - 150 = -54.9."""
+    xs = [187.8, 262.7, 262.9, 487.8, 562.7, 600.0, 637.8, 637.8]
+    ys = [20.1, 170.1, 20.1, 95.0, 95.2, 170.1, 20.1, 170.1]
+    assert 637.8 - 187.8 != 450.0  # what the floating point makes of it
+    assert _blocks_of(xs, ys) == ["0_0", "0_1", "1_0", "2_0", "2_1", "3_1", "3_0", "3_1"]

@@ -401,3 +401,16 @@ def test_unusable_outputs_fail_before_the_computation(collection, tmp_path, caps
     assert json.loads((tmp_path / "complexity_results.json").read_text())["num_images"] == 3
     leftovers = [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
     assert leftovers == []  # atomic writes leave no temp files
+
+
+def test_an_empty_shard_is_a_usage_error(collection, tmp_path, capsys):
+    """``--shard $UNSET`` must not make one task of a job array measure every image."""
+    out = tmp_path / "part.json"
+    assert (
+        _run([str(collection), "--pattern", "**/*.png", "--shard", "", "--output", str(out)]) == 2
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "k/n" in err[0] and "''" in err[0]
+    assert not out.exists()
+    assert _run([str(collection), "--pattern", "**/*.png", "--shard", " ", "-o", str(out)]) == 2
+    assert not out.exists()

@@ -6,6 +6,8 @@ import pytest
 from PIL import Image
 
 from claravid.synth.demo import main, prepare_data
+from tests.claravid.dsp.reference import official_image_complexity
+from tests.claravid.dsp.reference_profile import official_profile
 
 
 def test_demo_end_to_end(tmp_path, capsys):
@@ -19,7 +21,12 @@ def test_demo_end_to_end(tmp_path, capsys):
     assert "Delentropic Scene Profile per mission" in text
     profile = json.loads((out / "dsp_urban_1.json").read_text())
     assert profile["num_images"] == 6 and profile["metric"] == "delent"
-    assert 0 < profile["profile"]["mu"] < 8
+    # The profile of urban_1's 6 frames, recomputed by the reference formulation of the paper.
+    frames = sorted((out / "data" / "003_urban_1" / "left_rgb").glob("*/*.jpg"))
+    assert len(frames) == 6
+    expected = official_profile([official_image_complexity(p) for p in frames])
+    for key in ("mu", "sigma", "alpha", "beta"):
+        assert profile["profile"][key] == pytest.approx(expected[key], rel=1e-9), key
     assert Image.open(out / "dsp_profiles.png").size[0] > 600
     assert main([str(out), "--size", "64x48", "--frames-per-viewpoint", "1"]) == 0
     assert "reusing" in capsys.readouterr().out
