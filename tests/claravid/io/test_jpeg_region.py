@@ -145,20 +145,81 @@ def test_large_windows_of_a_larger_frame(tmp_path, decode, encoder):
         np.testing.assert_array_equal(decode(path, x, y, w, h), full[y : y + h, x : x + w])
 
 
-@needs_native
-def test_without_the_margin_borders_differ_and_one_mcu_is_enough(tmp_path):
-    # Smooth chroma upsampling reads one chroma sample beyond the window; libjpeg treats the
-    # edge of a cropped region as an image edge. The margin argument is the module's internal
-    # knob: 0 shows the tests above would catch a missing margin; 1 (the default) is exact.
-    path = write_jpeg(tmp_path / "f.jpg", "cv2-420", 203, 141)
+def _margin_failures(path, size, margins):
     data, full = path.read_bytes(), expected(path)
-    failures = {0: 0, 1: 0}
-    for x, y, w, h in windows(203, 141):
-        for margin in failures:
+    failures = dict.fromkeys(margins, 0)
+    for x, y, w, h in windows(*size, count=60):
+        for margin_x, margin_y in margins:
             out = np.empty((h, w, 3), np.uint8)
-            NATIVE.decode_window(data, x, y, w, h, out, margin)
-            failures[margin] += not np.array_equal(out, full[y : y + h, x : x + w])
-    assert failures[0] > 0 and failures[1] == 0, failures
+            NATIVE.decode_window(data, x, y, w, h, out, margin_x=margin_x, margin_y=margin_y)
+            failures[margin_x, margin_y] += not np.array_equal(out, full[y : y + h, x : x + w])
+    return failures
+
+
+@needs_native
+@pytest.mark.parametrize("encoder", ["cv2-420", "cv2-422", "pil-420", "cv2-440"])
+def test_each_margin_is_measured(tmp_path, encoder):
+    # Smooth chroma upsampling reads chroma beyond the window. The margins are the module's
+    # internal knobs, one per axis; each is removed alone (the C file's comment says what this
+    # measured). Horizontal: jpeg_crop_scanline makes the crop's sides image edges, so 4:2:0 and
+    # 4:2:2 windows differ without it. Vertical: libjpeg-turbo 2.1's jpeg_skip_scanlines decodes
+    # the context rows itself, so no window differs without it there (it is kept for older ones).
+    path = write_jpeg(tmp_path / "f.jpg", encoder, 203, 141)
+    failures = _margin_failures(path, (203, 141), [(1, 1), (0, 1), (1, 0)])
+    assert failures[1, 1] == 0, failures
+    if encoder != "cv2-440":  # 4:4:0 is subsampled vertically only
+        assert failures[0, 1] > 0, failures
+    else:
+        assert failures[0, 1] == 0, failures
+    if NATIVE.LIBJPEG_TURBO_VERSION // 1000 == 2001:
+        assert failures[1, 0] == 0, failures
+
+
+@needs_native
+def test_the_c_decoder_checks_its_arguments(tmp_path):
+    # The Python wrapper checks too, but the C function must not trust its caller: a coordinate
+    # beyond 32 bits must not wrap (2**32 + 5 is not 5), nor a negative one, and only a uint8
+    # C-contiguous (h, w, 3) array may be filled.
+    data = write_jpeg(tmp_path / "f.jpg", "cv2-420", 40, 30).read_bytes()
+    full = expected(tmp_path / "f.jpg")
+    out = np.zeros((4, 6, 3), np.uint8)
+    NATIVE.decode_window(data, 5, 2, 6, 4, out)
+    np.testing.assert_array_equal(out, full[2:6, 5:11])
+    for name, args in [
+        ("x", (2**32 + 5, 2, 6, 4)),
+        ("y", (5, 2**32 + 2, 6, 4)),
+        ("x", (-1, 2, 6, 4)),
+        ("y", (5, -3, 6, 4)),
+        ("x", (2**64, 2, 6, 4)),
+        ("w", (5, 2, 0, 4)),
+        ("h", (5, 2, 6, 0)),
+        ("w", (5, 2, 2**32 + 6, 4)),
+    ]:
+        before = out.copy()
+        with pytest.raises(ValueError, match=rf"^{name} = -?\d+ is out of range"):
+            NATIVE.decode_window(data, *args, out)
+        np.testing.assert_array_equal(out, before)  # nothing written
+    with pytest.raises(ValueError, match=r"outside the 40x30 image"):
+        NATIVE.decode_window(data, 35, 2, 6, 4, out)
+    with pytest.raises(TypeError, match="x must be an integer, got float"):
+        NATIVE.decode_window(data, 5.0, 2, 6, 4, out)
+    with pytest.raises(ValueError, match="margin_y = -1 is out of range"):
+        NATIVE.decode_window(data, 5, 2, 6, 4, out, margin_y=-1)
+    bad_outs = [
+        (np.zeros((4, 6, 3), np.float32), TypeError),  # the right byte count in 4-byte items
+        (np.zeros(4 * 6 * 3, np.uint8), ValueError),  # flat: the right byte count
+        (np.zeros((6, 4, 3), np.uint8), ValueError),  # width and height swapped
+        (np.zeros((4, 6, 4), np.uint8), ValueError),
+        (np.zeros((4, 12, 3), np.uint8)[:, ::2], (BufferError, ValueError)),  # not contiguous
+        (bytearray(4 * 6 * 3), ValueError),
+        (bytes(4 * 6 * 3), (BufferError, TypeError)),  # read-only
+    ]
+    for bad, error in bad_outs:
+        before = bytes(memoryview(bad).cast("B")) if memoryview(bad).c_contiguous else None
+        with pytest.raises(error):
+            NATIVE.decode_window(data, 5, 2, 6, 4, bad)
+        if before is not None:
+            assert bytes(memoryview(bad).cast("B")) == before
 
 
 def test_exif_orientation_is_ignored(tmp_path, decode):
