@@ -507,13 +507,16 @@ def test_trailer_data_after_the_end_marker_is_accepted(tmp_path, decode):
 def test_a_thumbnail_s_end_marker_does_not_make_a_cut_file_whole(tmp_path, decode):
     # An EXIF thumbnail is a whole JPEG inside an APP1 segment, with its own end marker: the cut
     # main image is still truncated.
+    # Small files: the thumbnail's end marker lies within the last 4 KiB of the cut file too.
     thumb = write_jpeg(tmp_path / "t.jpg", "cv2-420", 16, 12).read_bytes()
-    data = write_jpeg(tmp_path / "f.jpg", "cv2-420", 203, 141).read_bytes()
+    data = write_jpeg(tmp_path / "f.jpg", "cv2-420", 40, 24).read_bytes()
     app1 = b"\xff\xe1" + (len(thumb) + 8).to_bytes(2, "big") + b"Exif\x00\x00" + thumb
     with_thumb = data[:2] + app1 + data[2:]
     (tmp_path / "whole.jpg").write_bytes(with_thumb)
     np.testing.assert_array_equal(read_rgb(tmp_path / "whole.jpg"), expected(tmp_path / "f.jpg"))
-    (tmp_path / "cut.jpg").write_bytes(with_thumb[: len(with_thumb) - 3000])
+    cut = with_thumb[: len(with_thumb) - 300]
+    assert len(cut) < 4096 and cut.rindex(b"\xff\xd9") < cut.rindex(b"\xff\xda")
+    (tmp_path / "cut.jpg").write_bytes(cut)
     for read in (read_rgb, lambda p: decode(p, 0, 0, 8, 8)):
         with pytest.raises(CorruptFileError, match=r"cut\.jpg: truncated JPEG"):
             read(tmp_path / "cut.jpg")
