@@ -144,3 +144,13 @@ def test_a_truncated_jpeg_is_one_line_exit_2_with_and_without_workers(
         r"end-of-image marker\); re-copy or re-extract the file",
         err,
     ), err
+
+
+@pytest.mark.parametrize("value", ["0", "1000000"])
+def test_an_unusable_crop_size_is_one_line_before_training(claravid_root, tmp_path, capsys, value):
+    # 10**6 failed deep inside OpenCV at the first crop (0 the config's own check refuses).
+    argv = tiny(claravid_root, tmp_path / "run", f"data.augment.crop_height={value}")
+    assert main(["--config", "demo", *argv]) == 2
+    err = _one_line(capsys, "crop_height", value)
+    assert err.startswith("claravid-train: error: ")
+    assert not (tmp_path / "run" / "last.pt").exists()

@@ -1,11 +1,18 @@
 """Augmentations: crop size, mask values after augmentation, config from YAML, errors."""
 
+import re
+
 import cv2
 import numpy as np
 import pytest
 import torch
 
-from claravid.data.transforms import augment_config, eval_transforms, train_transforms
+from claravid.data.transforms import (
+    AugmentConfig,
+    augment_config,
+    eval_transforms,
+    train_transforms,
+)
 
 ALLOWED = set(range(8)) | {255}
 
@@ -148,3 +155,41 @@ def test_the_alignment_check_catches_a_misaligned_mask():
     rotated_image = torch.from_numpy(rotated).permute(2, 0, 1).float() / 255
     assert np.mean(decoded_from_image(rotated_image) == mask) < 0.9
     assert np.mean(decoded_from_image(s["image"].float() / 255) == mask) == 1.0
+
+
+@pytest.mark.parametrize(
+    ("setting", "value", "message"),
+    [
+        ("crop_height", 0, "crop_height=0: must be between 1 and 65500 pixels"),
+        ("crop_width", 10**6, "crop_width=1000000: must be between 1 and 65500 pixels"),
+        ("crop_width", 65501, "crop_width=65501: must be between 1 and 65500"),
+        ("crop_height", -3, "crop_height=-3: must be between 1 and 65500"),
+        ("rotate_p", 1.5, "rotate_p=1.5: a probability, must be between 0 and 1"),
+        ("ignore_index", 256, "ignore_index=256: masks are uint8"),
+    ],
+)
+def test_an_unusable_setting_is_refused_naming_it_at_every_entry(tmp_path, setting, value, message):
+    # crop_height=0 or 10**6 failed deep inside OpenCV at the first sample.
+    for make in (
+        lambda: AugmentConfig(**{setting: value}),
+        lambda: augment_config({setting: value}),
+        lambda: train_transforms({setting: value}),
+        lambda: augment_config(_yaml(tmp_path, f"{setting}: {value}\n")),
+    ):
+        with pytest.raises(ValueError, match=re.escape(message)):
+            make()
+
+
+def test_the_largest_and_smallest_crops_are_accepted():
+    assert AugmentConfig(crop_height=1, crop_width=65500).crop_width == 65500
+    assert AugmentConfig(crop_height=16384, crop_width=65500).crop_height == 16384
+    with pytest.raises(ValueError, match=r"65500×65500 is more than the 1,073,741,824 pixels"):
+        AugmentConfig(crop_height=65500, crop_width=65500)
+    with pytest.raises(ValueError, match="crop_width=True: must be an integer"):
+        AugmentConfig(crop_width=True)
+
+
+def _yaml(tmp_path, text):
+    path = tmp_path / "augment.yaml"
+    path.write_text(text)
+    return path
