@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from PIL import Image
 
 from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.data.transforms import AugmentConfig, train_transforms
@@ -102,19 +103,39 @@ def test_window_reads_give_the_crops_of_full_frames(odd_root, k, crop):
 def test_prepared_labels_and_rgb_windows_decode_no_whole_frame(odd_root, tmp_path, monkeypatch):
     if jpeg_region.decoder() != jpeg_region.REGION_DECODE:
         pytest.skip("the C window decoder is not built here (CI requires it: test_jpeg_region)")
-    transforms = train_transforms(AugmentConfig(crop_height=64, crop_width=64))
+    transforms = train_transforms(AugmentConfig(crop_height=64, crop_width=72, **PLAIN))
     ds = ClaraVidSegmentation(odd_root, split="all", palette="claravid", label_cache=tmp_path,
                               transforms=transforms)  # fmt: skip
     summary = ds.prepare_label_cache()
     assert summary.built == len(ds) and ds.prepare_label_cache().built == 0
+    # The expected values, before whole-frame decodes are refused: OpenCV's full decode, and the
+    # class ids of the panoptic PNG's red channel read by PIL, as train ids of the claravid
+    # palette: the 19 classes of docs/data.md's table in id order; anything else ignore (255).
+    class_ids = [*range(11), *range(13, 20), 22]
+    expected = []
+    for frame in ds.frames:
+        rgb = cv2.imread(str(frame.paths["rgb"]), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+        red = np.array(Image.open(frame.paths["pan_seg"]).convert("RGB"))[..., 0]
+        ids = np.full(red.shape, 255, np.uint8)
+        for train_id, class_id in enumerate(class_ids):
+            ids[red == class_id] = train_id
+        expected.append((rgb[..., ::-1], ids))
 
     def refuse(*args, **kwargs):
         raise AssertionError("a whole frame was decoded")
 
     monkeypatch.setattr(modalities, "read_semantic", refuse)  # the panoptic PNG
-    monkeypatch.setattr(jpeg_region, "read_rgb", refuse)  # the full-decode fallback
+    monkeypatch.setattr(jpeg_region.Photo, "full", refuse)  # the full-decode fallback
+    windows = set()
     for index in range(len(ds)):
-        assert tuple(ds[index]["mask"].shape) == (64, 64)
+        sample = ds[index]
+        x, y, w, h = sample["crop"]
+        assert (w, h) == (72, 64)
+        rgb, ids = expected[index]
+        np.testing.assert_array_equal(_pixels(sample), rgb[y : y + h, x : x + w])
+        np.testing.assert_array_equal(sample["mask"].numpy(), ids[y : y + h, x : x + w])
+        windows.add((x, y))
+    assert len(windows) > 1
 
 
 def _count_reads(monkeypatch, path):
