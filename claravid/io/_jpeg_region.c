@@ -1,6 +1,6 @@
 /* Decode one window of a JPEG with libjpeg(-turbo), pixel for pixel as a full decode gives it.
  *
- * Optional speed-up of claravid/jpeg_region.py, which falls back to a full OpenCV decode and a
+ * Optional speed-up of claravid/io/jpeg_region.py, which falls back to a full OpenCV decode and a
  * slice when this module is not built. A training crop needs about a thirtieth of a 12 MP frame:
  * the entropy-coded data must still be read in order, but the inverse DCT, chroma upsampling and
  * colour conversion are done only for the MCU columns (jpeg_crop_scanline) and rows
@@ -21,6 +21,13 @@
  *     iMCU row (16 rows, ~3 % of a 630-row crop), because jpeg_skip_scanlines had several fixes
  *     up to 2.0.6 and 2.1.4 (libjpeg-turbo's ChangeLog), which older libraries lack.
  * The test test_each_margin_is_measured pins both findings (the vertical one on 2.1.x).
+ *
+ * Only sequential (baseline) files are read by window: claravid/io/jpeg_region.py decodes
+ * progressive ones whole with OpenCV. Block smoothing of an incomplete progressive file (legal:
+ * its last scans missing) reads two blocks around each block, more than the margin, and the
+ * system's libjpeg-turbo 2.1 smooths differently from OpenCV's 3.x: no margin would make such a
+ * window equal OpenCV's full decode. (A one-pixel window of a progressive file still serves: it
+ * makes libjpeg read every scan, which refuses data that ends inside a scan.)
  *
  * libjpeg reports fatal errors through error_exit, which must not return: a custom error manager
  * jumps back (setjmp/longjmp) and the call raises a Python exception with libjpeg's message. The
