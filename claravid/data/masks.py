@@ -83,7 +83,7 @@ def read_label_image(path: str | Path) -> np.ndarray:
             "expected a lossless mask (PNG of ids or palette colours), found JPEG data, whose "
             "compression changes label values at every edge",
         )
-    image = decode_bytes(data, path, cv2.IMREAD_UNCHANGED)
+    image = decode_bytes(data, path, cv2.IMREAD_UNCHANGED, checked=True)
     header = png_header(data)
     if header is not None and header[1] == _PALETTE_COLOR_TYPE:
         return _palette_indices(image[..., :3] if image.ndim == 3 else image, data, path)

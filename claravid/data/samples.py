@@ -42,9 +42,47 @@ def finish_sample(
 def normalise(image: torch.Tensor, mean: Sequence[float], std: Sequence[float]) -> torch.Tensor:
     """uint8 images [..., 3, H, W] as a model's float32 input, ``(image / 255 - mean) / std``
     per channel, computed on the images' device: a batch travels there as uint8, a quarter of
-    the bytes of float32. A float image is returned as it is (normalised already)."""
+    the bytes of float32.
+
+    A float image is taken as normalised already and returned as it is, when every value lies
+    within what this normalisation gives for pixels 0..255 (per channel); otherwise it is refused:
+    a float image of 0..255 pixels would reach the model un-normalised, silently.
+
+    Raises:
+        ValueError: a float image with a value outside the normalised range of its channel (or
+            NaN), naming the channel, the value and the range.
+    """
     if image.is_floating_point():
+        check_normalised(image, mean, std)
         return image
     mean_ = torch.tensor(mean, dtype=torch.float32, device=image.device).view(3, 1, 1)
     std_ = torch.tensor(std, dtype=torch.float32, device=image.device).view(3, 1, 1)
     return (image.to(torch.float32) / 255.0 - mean_) / std_
+
+
+#: Slack on the normalised range: float rounding of ``(x / 255 - mean) / std``, not augmentations
+#: (those run on the pixels, before the normalisation).
+_SLACK = 1e-3
+
+
+def check_normalised(image: torch.Tensor, mean: Sequence[float], std: Sequence[float]) -> None:
+    """Raise unless every value of the float images [..., 3, H, W] lies within
+    ``[(0 - mean) / std, (1 - mean) / std]`` of its channel (see :func:`normalise`)."""
+    if image.ndim < 3 or image.shape[-3] != 3:
+        raise ValueError(f"expected images [..., 3, H, W], got shape {tuple(image.shape)}")
+    flat = image.detach().movedim(-3, 0).reshape(3, -1)
+    if flat.shape[1] == 0:
+        return
+    low, high = flat.amin(dim=1).tolist(), flat.amax(dim=1).tolist()
+    for c in range(3):
+        lo, hi = (0.0 - mean[c]) / std[c], (1.0 - mean[c]) / std[c]
+        lo, hi = min(lo, hi), max(lo, hi)  # a negative std flips them
+        # `not (a <= b)` is also true for NaN.
+        if not (lo - _SLACK <= low[c] and high[c] <= hi + _SLACK):
+            raise ValueError(
+                f"a float image reached normalise with channel {c} values in "
+                f"[{low[c]:.4g}, {high[c]:.4g}], outside [{lo:.4g}, {hi:.4g}], the range "
+                f"(x / 255 - mean) / std gives for pixels 0..255 (mean {mean[c]:g}, std "
+                f"{std[c]:g}): it is not normalised (0..255 floats?); pass uint8 images, which "
+                "normalise converts, or normalise them with this mean and std first"
+            )

@@ -49,7 +49,7 @@ from claravid.data.splits import (
 from claravid.data.transforms import CropWindow
 from claravid.infra.cachedir import cache_dir
 from claravid.io import modalities
-from claravid.io.jpeg_region import image_size, read_rgb_window
+from claravid.io.jpeg_region import Photo, image_size, open_photo
 from claravid.io.labels import read_label_codes, source_fingerprint, warn_unknown
 from claravid.io.layout import MISSIONS, frame_file
 
@@ -174,10 +174,14 @@ class ClaraVidSegmentation(Dataset):
         """
         frame = self.frames[index]
         width, height = image_size(frame.paths["rgb"])
-        labels = png_shape(frame.paths["pan_seg"])
-        if labels is not None and labels != (height, width):
-            self._size_mismatch(frame, (height, width), labels)
+        self._check_label_size(frame, (width, height))
         return width, height
+
+    def _check_label_size(self, frame: Frame, size: tuple[int, int]) -> None:
+        """Raise when the panoptic PNG's header gives another size than the RGB's ``size``."""
+        labels = png_shape(frame.paths["pan_seg"])
+        if labels is not None and labels != (size[1], size[0]):
+            self._size_mismatch(frame, (size[1], size[0]), labels)
 
     @staticmethod
     def _size_mismatch(frame: Frame, rgb: tuple[int, int], labels: tuple[int, int]) -> None:
@@ -198,7 +202,9 @@ class ClaraVidSegmentation(Dataset):
             "key": frame.key,
         }
 
-    def read_window(self, index: int, window: CropWindow) -> dict[str, Any]:
+    def read_window(
+        self, index: int, window: CropWindow, photo: Photo | None = None
+    ) -> dict[str, Any]:
         """The untransformed sample of one window of frame ``index``: only that window of the
         RGB is decoded (same pixels as a full decode) and only that window of the labels read
         (by region, with the label cache); ``crop`` records the window.
@@ -206,19 +212,26 @@ class ClaraVidSegmentation(Dataset):
         Args:
             index: the frame.
             window: ``(x, y, width, height)`` in the stored frame's pixels, inside the frame.
+            photo: the frame's RGB file, already read (:func:`claravid.io.jpeg_region.open_photo`);
+                None: read it here.
         """
         frame = self.frames[index]
-        rgb = read_rgb_window(frame.paths["rgb"], *window)
+        photo = photo if photo is not None else open_photo(frame.paths["rgb"])
+        rgb = photo.window(*window)
         sample = self._sample(index, rgb, self.palette.remap(self._codes(index, window)))
         sample["crop"] = tuple(int(v) for v in window)
         return sample
 
     def __getitem__(self, index: int) -> dict[str, Any]:
-        if getattr(self.transforms, "crop", None) is not None:
-            # Training transforms: draw the crop from the headers, decode the crop alone.
-            window = self.transforms.draw_window(*self.frame_size(index))  # type: ignore[union-attr]
-            return finish_sample(self.read_window(index, window), self.transforms, self.mask_dtype)
         frame = self.frames[index]
+        if getattr(self.transforms, "crop", None) is not None:
+            # Training transforms: the RGB file is read once, its size taken from its header
+            # (and the label PNG's), the crop drawn from it and decoded alone.
+            photo = open_photo(frame.paths["rgb"])
+            self._check_label_size(frame, photo.size)
+            window = self.transforms.draw_window(*photo.size)  # type: ignore[union-attr]
+            sample = self.read_window(index, window, photo)
+            return finish_sample(sample, self.transforms, self.mask_dtype)
         rgb = modalities.read_rgb(frame.paths["rgb"])
         mask = self.read_mask(index)
         if mask.shape != rgb.shape[:2]:

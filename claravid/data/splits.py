@@ -136,7 +136,12 @@ class SplitConfigError(ValueError):
     prefix (the datasets), ``data.split.seed`` from a training config.
     """
 
-    def __init__(self, setting: str, detail: str, message: str | None = None) -> None:
+    def __init__(self, setting: str, detail: str | None = None, message: str | None = None) -> None:
+        if detail is None and message is None:  # the message alone (a rebuilt error)
+            super().__init__(setting)
+            self.setting: str | None = None
+            self.detail: str | None = None
+            return
         super().__init__(message or f"{setting} {detail}")
         self.setting = setting
         self.detail = detail

@@ -32,8 +32,11 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
+from claravid.io.headers import MAX_PIXELS
 from claravid.io.yamlfile import YamlFileError, load_yaml
 
+#: The largest crop side: no JPEG frame is larger (libjpeg's JPEG_MAX_DIMENSION).
+MAX_CROP_SIDE = 65500
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
@@ -64,6 +67,35 @@ class AugmentConfig:
     mean: tuple[float, float, float] = IMAGENET_MEAN
     std: tuple[float, float, float] = IMAGENET_STD
     ignore_index: int = 255
+
+    def __post_init__(self) -> None:
+        """Refuse values the pipelines cannot use, naming the setting (they failed deep inside
+        OpenCV or albumentations, at the first sample)."""
+        for name in ("crop_height", "crop_width"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ValueError(f"{name}={value!r}: must be an integer number of pixels")
+            if not 1 <= value <= MAX_CROP_SIDE:
+                raise ValueError(
+                    f"{name}={value}: must be between 1 and {MAX_CROP_SIDE} pixels (no JPEG "
+                    "frame is larger; a frame smaller than the crop is padded)"
+                )
+        if self.crop_height * self.crop_width > MAX_PIXELS:
+            raise ValueError(
+                f"crop_height×crop_width = {self.crop_height}×{self.crop_width} is more than "
+                f"the {MAX_PIXELS:,} pixels the readers decode; choose a smaller crop"
+            )
+        for name in ("hflip_p", "color_jitter_p", "lighting_p", "rotate_p", "distortion_p"):
+            value = getattr(self, name)
+            if not 0 <= value <= 1:
+                raise ValueError(f"{name}={value}: a probability, must be between 0 and 1")
+        if len(self.mean) != 3 or len(self.std) != 3 or any(s == 0 for s in self.std):
+            raise ValueError(
+                f"mean={list(self.mean)}, std={list(self.std)}: three values each (R, G, B), "
+                "std non-zero"
+            )
+        if not 0 <= self.ignore_index <= 255:
+            raise ValueError(f"ignore_index={self.ignore_index}: masks are uint8, 0..255")
 
 
 def augment_config(overrides: Any = None) -> AugmentConfig:

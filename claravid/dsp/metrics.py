@@ -236,10 +236,7 @@ class ImageReadError(CorruptFileError):
     rather than raising, and because its message gives no re-copy advice for a missing file.
     """
 
-    def __init__(self, path: str | Path, reason: str) -> None:
-        ValueError.__init__(self, f"cannot read {path}: {reason}")
-        self.path = Path(path)
-        self.reason = reason
+    advice = ""  # a missing file needs no re-copy advice; the reason says what is wrong
 
 
 def check_metric(metric: str) -> str:

@@ -226,6 +226,29 @@ def short_warnings(prog: str) -> Iterator[None]:
         warnings.showwarning = original
 
 
+def worker_message(exc: BaseException) -> str:
+    """An error's message; for one that torch's DataLoader re-raised from a worker process, the
+    original message alone.
+
+    torch rebuilds a worker's error as ``type(error)(text)``, where ``text`` is "Caught X in
+    DataLoader worker process N." followed by the worker's whole traceback, whose last entry,
+    ``module.X: message``, is what the user needs (the traceback is for ``--debug``).
+    """
+    message = str(exc)
+    if not message.startswith(f"Caught {type(exc).__name__} ") or (
+        "\nOriginal Traceback" not in message
+    ):
+        return message
+    cls = type(exc)
+    prefixes = (f"{cls.__module__}.{cls.__qualname__}: ", f"{cls.__qualname__}: ")
+    lines = message.splitlines()
+    for i in range(len(lines) - 1, 0, -1):  # the last one: the error raised, not its causes
+        for prefix in prefixes:
+            if lines[i].startswith(prefix):
+                return "\n".join([lines[i][len(prefix) :], *lines[i + 1 :]])
+    return message
+
+
 def run_cli(
     prog: str,
     run: Callable[[argparse.Namespace], int | None],
@@ -252,7 +275,7 @@ def run_cli(
         except (*USER_ERRORS, *user_errors) as exc:
             if debug:
                 traceback.print_exc()
-            message = str(exc) or exc.__class__.__name__
+            message = worker_message(exc) or exc.__class__.__name__
             if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in message:
                 message = f"{message}: {exc.filename}"
             # One line: a multi-line message (a list of mismatched keys) is joined.

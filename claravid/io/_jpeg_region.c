@@ -1,6 +1,6 @@
 /* Decode one window of a JPEG with libjpeg(-turbo), pixel for pixel as a full decode gives it.
  *
- * Optional speed-up of claravid/jpeg_region.py, which falls back to a full OpenCV decode and a
+ * Optional speed-up of claravid/io/jpeg_region.py, which falls back to a full OpenCV decode and a
  * slice when this module is not built. A training crop needs about a thirtieth of a 12 MP frame:
  * the entropy-coded data must still be read in order, but the inverse DCT, chroma upsampling and
  * colour conversion are done only for the MCU columns (jpeg_crop_scanline) and rows
@@ -8,10 +8,26 @@
  *
  * Same settings as OpenCV's imread (ISLOW inverse DCT, smooth "fancy" chroma upsampling, RGB
  * output), so the pixels are the same. Smooth upsampling of subsampled chroma reads neighbouring
- * chroma samples, and libjpeg treats the edges of a cropped or skipped region like the edges of
- * the image; so a margin of `margin` iMCUs is decoded on every side of the window (where the image
- * has one) and cut away. The tests compare against full decodes and show that one iMCU is needed
- * and enough.
+ * chroma samples, so `margin_x` and `margin_y` iMCUs are decoded beside the window (where the
+ * image has them) and cut away. What each axis needs, measured on libjpeg-turbo 2.1.5 (Debian 12)
+ * over every sampling and encoder of tests/claravid/io/test_jpeg_region.py and 300 random windows
+ * of a 700x530 frame each (8,205 windows):
+ *   - horizontal: needed. jpeg_crop_scanline makes the crop's left and right columns image edges
+ *     for the h2v1 (4:2:2) and h2v2 (4:2:0) upsamplers; without it about half of the windows of
+ *     those files differ. 4:4:4, 4:1:1 (replicated, not smoothed), 4:4:0 and grey need none.
+ *   - vertical: not needed on 2.1.5 (no window differs without it): jpeg_skip_scanlines decodes
+ *     the row group above the first row it returns when the upsampler needs context rows, and the
+ *     main controller reads one row group ahead below the last. It is kept, at the cost of one
+ *     iMCU row (16 rows, ~3 % of a 630-row crop), because jpeg_skip_scanlines had several fixes
+ *     up to 2.0.6 and 2.1.4 (libjpeg-turbo's ChangeLog), which older libraries lack.
+ * The test test_each_margin_is_measured pins both findings (the vertical one on 2.1.x).
+ *
+ * Only sequential (baseline) files are read by window: claravid/io/jpeg_region.py decodes
+ * progressive ones whole with OpenCV. Block smoothing of an incomplete progressive file (legal:
+ * its last scans missing) reads two blocks around each block, more than the margin, and the
+ * system's libjpeg-turbo 2.1 smooths differently from OpenCV's 3.x: no margin would make such a
+ * window equal OpenCV's full decode. (A one-pixel window of a progressive file still serves: it
+ * makes libjpeg read every scan, which refuses data that ends inside a scan.)
  *
  * libjpeg reports fatal errors through error_exit, which must not return: a custom error manager
  * jumps back (setjmp/longjmp) and the call raises a Python exception with libjpeg's message. The
@@ -40,7 +56,7 @@ static void raise_error(j_common_ptr cinfo) {
     struct error_mgr *err = (struct error_mgr *)cinfo->err;
     int code = err->pub.msg_code;
     err->unsupported = code == JERR_BAD_PRECISION || code == JERR_CONVERSION_NOTIMPL ||
-                       code == JERR_NOT_COMPILED;
+                       code == JERR_NOT_COMPILED || code == JERR_SOF_UNSUPPORTED;
     (*err->pub.format_message)(cinfo, err->message);
     longjmp(err->jump, 1);
 }
@@ -63,7 +79,7 @@ static void silent(j_common_ptr cinfo) { (void)cinfo; }
 struct job {
     const unsigned char *data;
     unsigned long size;
-    unsigned int x, y, w, h, margin;
+    unsigned int x, y, w, h, margin_x, margin_y;
     unsigned char *out; /* h * w * 3 bytes, RGB */
 };
 
@@ -103,8 +119,8 @@ static int decode(struct job *job, struct error_mgr *err) {
     jpeg_start_decompress(&cinfo);
 
     /* The decoded region: the window plus `margin` iMCUs on each side, clipped to the image. */
-    unsigned long mw = (unsigned long)job->margin * cinfo.max_h_samp_factor * DCTSIZE;
-    unsigned long mh = (unsigned long)job->margin * cinfo.max_v_samp_factor * DCTSIZE;
+    unsigned long mw = (unsigned long)job->margin_x * cinfo.max_h_samp_factor * DCTSIZE;
+    unsigned long mh = (unsigned long)job->margin_y * cinfo.max_v_samp_factor * DCTSIZE;
     unsigned long x0 = job->x > mw ? job->x - mw : 0;
     unsigned long x1 = job->x + job->w + mw;
     unsigned long y0 = job->y > mh ? job->y - mh : 0;
@@ -135,15 +151,74 @@ static int decode(struct job *job, struct error_mgr *err) {
     return 0;
 }
 
-static PyObject *decode_window(PyObject *self, PyObject *args) {
-    Py_buffer data, out;
-    unsigned int x, y, w, h, margin = 1;
-    if (!PyArg_ParseTuple(args, "y*IIIIw*|I", &data, &x, &y, &w, &h, &out, &margin)) return NULL;
+/* A coordinate or size argument as a C integer in [low, JPEG_MAX_DIMENSION]: a Python int of
+ * any size is checked here, never wrapped (the `I` format would read 2**32 + 5 as 5). */
+static int dimension(PyObject *value, const char *name, long low, unsigned int *out) {
+    if (!PyLong_Check(value)) {
+        PyErr_Format(PyExc_TypeError, "%s must be an integer, got %.100s", name,
+                     Py_TYPE(value)->tp_name);
+        return -1;
+    }
+    int overflow = 0;
+    long long v = PyLong_AsLongLongAndOverflow(value, &overflow);
+    if (v == -1 && PyErr_Occurred()) return -1;
+    if (overflow != 0 || v < low || v > JPEG_MAX_DIMENSION) {
+        PyObject *text = PyObject_Repr(value);
+        if (text != NULL) {
+            PyErr_Format(PyExc_ValueError, "%s = %U is out of range: need %ld <= %s <= %d", name,
+                         text, low, name, (int)JPEG_MAX_DIMENSION);
+            Py_DECREF(text);
+        }
+        return -1;
+    }
+    *out = (unsigned int)v;
+    return 0;
+}
+
+/* `out` must be exactly what the caller gets back: uint8, C-contiguous, shape (h, w, 3). A float
+ * array or a flat byte buffer of the right length would be filled with bytes that mean nothing. */
+static int check_out(const Py_buffer *out, unsigned int w, unsigned int h) {
+    const char *format = out->format == NULL ? "B" : out->format;
+    if (strcmp(format, "B") != 0 || out->itemsize != 1) {
+        PyErr_Format(PyExc_TypeError, "out must be a uint8 array, got format '%s'", format);
+        return -1;
+    }
+    if (out->ndim != 3 || out->shape[0] != (Py_ssize_t)h || out->shape[1] != (Py_ssize_t)w ||
+        out->shape[2] != 3) {
+        PyErr_Format(PyExc_ValueError,
+                     "out must have the shape (h, w, 3) = (%u, %u, 3), got %d dimension(s)", h, w,
+                     out->ndim);
+        return -1;
+    }
+    return 0;
+}
+
+static PyObject *decode_window(PyObject *self, PyObject *args, PyObject *kwargs) {
+    (void)self;
+    static char *keywords[] = {"data", "x", "y", "w", "h", "out", "margin_x", "margin_y", NULL};
+    Py_buffer data;
+    PyObject *ox, *oy, *ow, *oh, *oout, *omx = NULL, *omy = NULL;
+    unsigned int x, y, w, h, margin_x = 1, margin_y = 1;
+    if (!PyArg_ParseTupleAndKeywords(args, kwargs, "y*OOOOO|OO", keywords, &data, &ox, &oy, &ow,
+                                     &oh, &oout, &omx, &omy))
+        return NULL;
     PyObject *result = NULL;
-    if (out.len != (Py_ssize_t)w * h * 3 || !PyBuffer_IsContiguous(&out, 'C')) {
-        PyErr_SetString(PyExc_ValueError, "out must be a contiguous h * w * 3 byte buffer");
-    } else {
-        struct job job = {data.buf, (unsigned long)data.len, x, y, w, h, margin, out.buf};
+    Py_buffer out;
+    out.obj = NULL;
+    if (dimension(ox, "x", 0, &x) < 0 || dimension(oy, "y", 0, &y) < 0 ||
+        dimension(ow, "w", 1, &w) < 0 || dimension(oh, "h", 1, &h) < 0 ||
+        (omx != NULL && dimension(omx, "margin_x", 0, &margin_x) < 0) ||
+        (omy != NULL && dimension(omy, "margin_y", 0, &margin_y) < 0))
+        goto done;
+    /* Writable, C-contiguous (the exporter refuses otherwise), with its format and shape. */
+    if (PyObject_GetBuffer(oout, &out, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
+        out.obj = NULL;
+        goto done;
+    }
+    if (check_out(&out, w, h) < 0) goto done;
+    {
+        struct job job = {data.buf, (unsigned long)data.len, x, y, w, h, margin_x, margin_y,
+                          out.buf};
         struct error_mgr err;
         int status;
         Py_BEGIN_ALLOW_THREADS
@@ -156,16 +231,18 @@ static PyObject *decode_window(PyObject *self, PyObject *args) {
             PyErr_SetString(err.unsupported ? UnsupportedError : PyExc_ValueError, err.message);
         }
     }
+done:
     PyBuffer_Release(&data);
-    PyBuffer_Release(&out);
+    if (out.obj != NULL) PyBuffer_Release(&out);
     return result;
 }
 
 static PyMethodDef methods[] = {
-    {"decode_window", decode_window, METH_VARARGS,
-     "decode_window(data, x, y, w, h, out, margin=1): decode the w x h window at (x, y) of the "
-     "JPEG bytes `data` into `out` (h * w * 3 bytes, RGB). ValueError for corrupt data or a "
-     "window outside the image; UnsupportedError for CMYK, 12-bit and similar files."},
+    {"decode_window", (PyCFunction)(void (*)(void))decode_window, METH_VARARGS | METH_KEYWORDS,
+     "decode_window(data, x, y, w, h, out, margin_x=1, margin_y=1): decode the w x h window at "
+     "(x, y) of the JPEG bytes `data` into `out` (a uint8 C-contiguous array of shape (h, w, 3), "
+     "RGB). TypeError for arguments of the wrong type; ValueError for a window outside the image "
+     "or corrupt data; UnsupportedError for CMYK, 12-bit, lossless and similar files."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -176,8 +253,14 @@ PyMODINIT_FUNC PyInit__jpeg_region(void) {
     if (m == NULL) return NULL;
     UnsupportedError = PyErr_NewException("claravid._jpeg_region.UnsupportedError",
                                           PyExc_ValueError, NULL);
-    if (UnsupportedError == NULL || PyModule_AddObjectRef(m, "UnsupportedError",
-                                                          UnsupportedError) < 0) {
+#ifdef LIBJPEG_TURBO_VERSION_NUMBER
+    const long version = LIBJPEG_TURBO_VERSION_NUMBER; /* 2001005 for 2.1.5 */
+#else
+    const long version = 0; /* not libjpeg-turbo */
+#endif
+    if (UnsupportedError == NULL ||
+        PyModule_AddObjectRef(m, "UnsupportedError", UnsupportedError) < 0 ||
+        PyModule_AddIntConstant(m, "LIBJPEG_TURBO_VERSION", version) < 0) {
         Py_DECREF(m);
         return NULL;
     }

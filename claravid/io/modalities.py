@@ -1,10 +1,14 @@
 """Read and write every ClaraVid modality, value for value as the official SDK does.
 
-Decoding goes through OpenCV (`cv2.imdecode`), which is faster than the SDK's PIL path;
-the results are identical for the lossless PNG/JSON modalities, and the JPEG RGB may differ
-only by decoder rounding. Every reader raises :class:`CorruptFileError` naming the file
-when it is truncated or undecodable (OpenCV alone would hand back a partly grey image for a
-truncated JPEG) and ``FileNotFoundError`` naming it when it is missing.
+Decoding goes through OpenCV (`cv2.imdecode`), which is faster than the SDK's PIL path, and
+for sequential JPEG photos through the libjpeg decoder of :mod:`claravid.io.jpeg_region` when it
+is built (the same pixels as OpenCV's); the results are identical for the lossless PNG/JSON
+modalities, and the JPEG RGB may differ only by decoder rounding. Every reader raises
+:class:`CorruptFileError` naming the file when it is truncated or undecodable (OpenCV alone would
+hand back a partly grey image for a truncated JPEG), ``UnsupportedFileError`` for files no reader
+decodes (more than 2^30 pixels, 12-bit or arithmetic-coded JPEG; see
+:mod:`claravid.io.headers`) and ``FileNotFoundError`` naming it when it is missing. The bytes are
+read and checked by :mod:`claravid.io.imagefile`.
 
 The writers produce the exact on-disk encodings (used by the scene generator and tests).
 """
@@ -18,91 +22,17 @@ import cv2
 import numpy as np
 
 from claravid.infra.errors import CorruptFileError
+from claravid.io.imagefile import (
+    PNG_COLOR_TYPES,
+    decode_bytes,
+    describe_bytes,
+    png_header,
+    read_checked,
+)
+from claravid.io.imagefile import decode_image as decode_image  # re-exported: where callers look
+from claravid.io.imagefile import read_bytes as read_bytes
+from claravid.io.jpeg_region import read_rgb
 from claravid.io.layout import DEPTH_MAX_M, DEPTH_SCALE, INTRINSICS
-
-_JPEG_SOI, _JPEG_EOI = b"\xff\xd8", b"\xff\xd9"
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_PNG_IEND = b"IEND\xaeB`\x82"
-
-
-def read_bytes(path: str | Path) -> np.ndarray:
-    """Read a whole file into a uint8 array (no copy on the way to ``cv2.imdecode``)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"file not found: {path}")
-    return np.fromfile(path, dtype=np.uint8)
-
-
-def _check_complete(data: np.ndarray, path: Path) -> None:
-    """Reject truncated JPEG and PNG files, which decoders may otherwise half-decode."""
-    if data.size == 0:
-        raise CorruptFileError(path, "the file is empty (0 bytes)")
-    head = data[:8].tobytes()
-    if head.startswith(_JPEG_SOI):
-        # Some cameras append data after the end-of-image marker: search the last 4 KiB.
-        if _JPEG_EOI not in data[-4096:].tobytes():
-            raise CorruptFileError(path, "truncated JPEG (no end-of-image marker)")
-    elif head.startswith(_PNG_SIGNATURE) and not data[-12:].tobytes().endswith(_PNG_IEND):
-        raise CorruptFileError(path, "truncated PNG (no IEND chunk)")
-
-
-def decode_image(
-    path: str | Path, flags: int = cv2.IMREAD_COLOR, *, exif_orientation: bool = False
-) -> np.ndarray:
-    """Decode an image file with OpenCV, raising errors that name the file.
-
-    Args:
-        path: the image file.
-        flags: ``cv2.IMREAD_*`` flags.
-        exif_orientation: rotate by the EXIF orientation tag, as ``cv2.imread`` does. Off by
-            default, as PIL (and so the official SDK) ignores the tag.
-    """
-    path = Path(path)
-    return decode_bytes(read_checked(path), path, flags, exif_orientation)
-
-
-def read_checked(path: str | Path) -> np.ndarray:
-    """A file's bytes, refusing empty files and truncated JPEG or PNG files (naming the file)."""
-    data = read_bytes(path)
-    _check_complete(data, Path(path))
-    return data
-
-
-def decode_bytes(
-    data: np.ndarray, path: str | Path, flags: int, exif_orientation: bool = False
-) -> np.ndarray:
-    """Decode a file's bytes with OpenCV; ``path`` names the file in the error."""
-    if not exif_orientation and flags != cv2.IMREAD_UNCHANGED:
-        flags |= cv2.IMREAD_IGNORE_ORIENTATION
-    image = cv2.imdecode(data, flags)
-    if image is None:
-        raise CorruptFileError(path, "OpenCV could not decode it (corrupt or not an image)")
-    return image
-
-
-PNG_COLOR_TYPES = {0: "grey", 2: "RGB", 3: "palette", 4: "grey+alpha", 6: "RGBA"}
-_RGB_TYPES = frozenset({2, 6})  # RGBA: the same R, G, B bytes; alpha is ignored
-_ANY_TYPE = frozenset(PNG_COLOR_TYPES)
-
-
-def png_header(data: np.ndarray) -> tuple[int, int] | None:
-    """(bit depth, colour type) from a PNG's IHDR chunk, or None when the bytes are no PNG."""
-    head = data[:26].tobytes()
-    if len(head) < 26 or not head.startswith(_PNG_SIGNATURE) or head[12:16] != b"IHDR":
-        return None
-    return head[24], head[25]
-
-
-def describe_bytes(data: np.ndarray) -> str:
-    """What a file's bytes are, for error messages: ``a 16-bit RGB PNG``, ``JPEG data``."""
-    header = png_header(data)
-    if header is not None:
-        depth, color_type = header
-        article = "an" if str(depth).startswith("8") else "a"
-        return f"{article} {depth}-bit {PNG_COLOR_TYPES.get(color_type, f'type-{color_type}')} PNG"
-    if data[:2].tobytes() == _JPEG_SOI:
-        return "JPEG data"
-    return "no PNG data"
 
 
 def _decode_png8(
@@ -118,33 +48,20 @@ def _decode_png8(
     header = png_header(data)
     if header is None or header[0] != 8 or header[1] not in color_types:
         raise CorruptFileError(path, f"expected {expected}, found {describe_bytes(data)}")
-    return decode_bytes(data, path, flags)
+    return decode_bytes(data, path, flags, checked=True)
 
+
+_RGB_TYPES = frozenset({2, 6})  # RGBA: the same R, G, B bytes; alpha is ignored
+_ANY_TYPE = frozenset(PNG_COLOR_TYPES)
 
 _PAN_SEG = "an 8-bit RGB PNG (R class id, G + 256·B instance id)"
 _DEPTH = "an 8-bit RGB PNG (24-bit depth code over R, G, B)"
 _DYNAMIC = "an 8-bit PNG mask (255 static, 0 dynamic)"
 
 
-# OpenCV >= 4.10 decodes straight to RGB order, saving a full-frame channel swap.
-_IMREAD_RGB = getattr(cv2, "IMREAD_COLOR_RGB", None)
-
-
-def _read_color(path: str | Path) -> np.ndarray:
-    """uint8 H×W×3 in RGB order, like PIL's ``Image.open(p).convert('RGB')``."""
-    if _IMREAD_RGB is not None:
-        return decode_image(path, _IMREAD_RGB)
-    return cv2.cvtColor(decode_image(path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-
-
-def read_rgb(path: str | Path) -> np.ndarray:
-    """The RGB photo: uint8 H×W×3, RGB order."""
-    return _read_color(path)
-
-
 def read_seg_color(path: str | Path) -> np.ndarray:
     """The semantic colour map (for viewing): uint8 H×W×3, RGB order."""
-    return _read_color(path)
+    return read_rgb(path)
 
 
 def read_depth(path: str | Path) -> np.ndarray:

@@ -119,7 +119,8 @@ def window_starts(length: int, window: int, stride: int) -> list[int]:
 
 def normalise(image: torch.Tensor, config: WindowConfig) -> torch.Tensor:
     """A uint8 image [3,H,W] as the model's float32 input, on the image's device; a float image
-    is returned as it is (normalised already)."""
+    is returned as it is when normalised already (``claravid.data.samples.normalise`` refuses one
+    whose values lie outside the normalised range, such as 0..255 floats)."""
     return normalise_image(image, config.mean, config.std)
 
 

@@ -310,3 +310,17 @@ def test_merging_a_val_and_a_test_report_warns(model_files, two_frames, tmp_path
         file.write_text(json.dumps(report))
     assert main([*merge, str(tmp_path / "m2")]) == 0
     assert "merging reports of different splits" in capsys.readouterr().err
+
+
+def test_a_label_png_claiming_more_than_2_30_pixels_is_one_line(
+    model_files, writable_root, two_frames, tmp_path, capsys
+):
+    # OpenCV's cv2.error, which nothing mapped, ended the evaluation in a traceback.
+    from tests.claravid.io.test_modalities import png_claiming
+
+    pan = writable_root / "003_urban_1" / "panoptic_seg" / "55deg_mid_v" / "000001.png"
+    pan.write_bytes(png_claiming(40000, 30000))
+    argv = ["--checkpoint", str(model_files["checkpoint"]), "--data", str(writable_root)]
+    assert _eval(tmp_path / "r", *argv, "--split", str(two_frames)) == 2
+    line = _one_line(capsys, str(pan), "40000×30000", "more than the 1,073,741,824 (2^30)")
+    assert "cv2.error" not in line

@@ -1,5 +1,6 @@
 """Bad inputs a hostile new user found (issue 12 §6): one line each, before work is lost."""
 
+import re
 import shlex
 import shutil
 
@@ -120,4 +121,36 @@ def test_uavid_labels_with_the_claravid_palette_stop_before_training(uavid_root,
                 "data.val_split=val", "data.palette=claravid", "train.steps=1")  # fmt: skip
     assert main(["--config", "demo", *args]) == 2
     _one_line(capsys, "outside palette claravid", "data.palette uavid")
+    assert not (tmp_path / "run" / "last.pt").exists()
+
+
+@pytest.mark.parametrize("workers", ["0", "1"])
+def test_a_truncated_jpeg_is_one_line_exit_2_with_and_without_workers(
+    writable_root, tmp_path, capsys, workers
+):
+    # With DataLoader workers torch rebuilds the worker's CorruptFileError from its text alone:
+    # it must come back as that error (exit 2, the original message), not a RuntimeError
+    # (a traceback, exit 1).
+    for path in writable_root.rglob("left_rgb/*/*.jpg"):
+        data = path.read_bytes()
+        path.write_bytes(data[: len(data) // 2])
+    argv = [
+        a for a in tiny(writable_root, tmp_path / "run", "train.steps=2") if "num_workers" not in a
+    ]
+    assert main(["--config", "demo", *argv, "--workers", workers]) == 2
+    err = _one_line(capsys)
+    assert re.fullmatch(
+        r"claravid-train: error: cannot read \S+/left_rgb/\w+/\d+\.jpg: truncated JPEG \(no "
+        r"end-of-image marker\); re-copy or re-extract the file",
+        err,
+    ), err
+
+
+@pytest.mark.parametrize("value", ["0", "1000000"])
+def test_an_unusable_crop_size_is_one_line_before_training(claravid_root, tmp_path, capsys, value):
+    # 10**6 failed deep inside OpenCV at the first crop (0 the config's own check refuses).
+    argv = tiny(claravid_root, tmp_path / "run", f"data.augment.crop_height={value}")
+    assert main(["--config", "demo", *argv]) == 2
+    err = _one_line(capsys, "crop_height", value)
+    assert err.startswith("claravid-train: error: ")
     assert not (tmp_path / "run" / "last.pt").exists()

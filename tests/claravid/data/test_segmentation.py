@@ -120,18 +120,38 @@ def test_size_mismatch_and_corrupt_files_name_the_files(writable_root):
 
 
 def test_dataloader_with_two_workers_and_augmentations(claravid_root):
+    # Each sample's values, computed independently: the stored pixels of its window (OpenCV's
+    # full decode) normalised by hand, flipped or not (p = 0.5), and the mask of the full frame
+    # over the same window, flipped alike.
+    mean, std = np.array([0.3, 0.5, 0.7]), np.array([0.2, 0.25, 0.5])
+    off = dict.fromkeys(["color_jitter_p", "lighting_p", "rotate_p", "distortion_p"], 0.0)
+    cfg = {"crop_height": 32, "crop_width": 40, "hflip_p": 0.5, "mean": mean.tolist(),
+           "std": std.tolist(), **off}  # fmt: skip
     ds = ClaraVidSegmentation(
-        claravid_root, split="all", palette="uavid",
-        transforms=train_transforms({"crop_height": 32, "crop_width": 40, "rotate_p": 1.0}),
-    )  # fmt: skip
+        claravid_root, split="all", palette="uavid", transforms=train_transforms(cfg)
+    )
+    whole = ClaraVidSegmentation(claravid_root, split="all", palette="uavid")
+    masks = {str(f.paths["rgb"]): whole.read_mask(i) for i, f in enumerate(whole.frames)}
     loader = DataLoader(ds, batch_size=4, num_workers=2, shuffle=True)
-    seen = 0
+    seen, flips = [], {True: 0, False: 0}
     for batch in loader:
-        assert batch["image"].shape[1:] == (3, 32, 40) and batch["image"].dtype == torch.float32
-        assert batch["mask"].dtype == torch.int64
-        assert set(batch["mask"].unique().tolist()) <= set(range(8)) | {255}
-        seen += len(batch["path"])
-    assert seen == len(ds)
+        assert batch["image"].dtype == torch.float32 and batch["mask"].dtype == torch.int64
+        for i, path in enumerate(batch["path"]):
+            x, y, w, h = (int(v[i]) for v in batch["crop"])
+            assert (w, h) == (40, 32)
+            rgb = cv2.imread(path, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)[..., ::-1]
+            image = (rgb[y : y + h, x : x + w] / 255.0 - mean) / std
+            mask = masks[path][y : y + h, x : x + w]
+            got = batch["image"][i].permute(1, 2, 0).numpy()
+            flipped = not np.allclose(got, image, atol=1e-5)
+            if flipped:
+                image, mask = image[:, ::-1], mask[:, ::-1]
+            np.testing.assert_allclose(got, image, atol=1e-5)
+            np.testing.assert_array_equal(batch["mask"][i].numpy(), mask)
+            flips[flipped] += 1
+            seen.append(path)
+    assert sorted(seen) == sorted(masks)  # every frame once
+    assert flips[True] > 0 and flips[False] > 0
 
 
 def test_plot_with_prediction(claravid_root):

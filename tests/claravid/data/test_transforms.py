@@ -1,11 +1,18 @@
 """Augmentations: crop size, mask values after augmentation, config from YAML, errors."""
 
+import re
+
 import cv2
 import numpy as np
 import pytest
 import torch
 
-from claravid.data.transforms import augment_config, eval_transforms, train_transforms
+from claravid.data.transforms import (
+    AugmentConfig,
+    augment_config,
+    eval_transforms,
+    train_transforms,
+)
 
 ALLOWED = set(range(8)) | {255}
 
@@ -18,15 +25,49 @@ def sample(h=300, w=400, seed=0):
     return {"image": torch.from_numpy(image).permute(2, 0, 1), "mask": torch.from_numpy(mask)}
 
 
-def test_train_crop_and_mask_values_only_palette_ids_and_ignore():
+#: A grey level per id (ignore: 0, the image's fill), far apart: the image tells the id.
+LEVELS = {0: 30, 1: 55, 2: 80, 3: 105, 4: 130, 5: 155, 6: 180, 7: 205, 255: 0}
+
+
+def test_geometric_augmentations_move_image_and_mask_together():
+    # An image that is its mask: 30×30 blocks of ids, each painted its grey level. Rotation and
+    # distortion warp the image (linear) and the mask (nearest) with the same geometry, and fill
+    # outside the frame with 0 and the ignore index: wherever the warped image is one flat level
+    # over a 5×5 neighbourhood, the mask must hold that level's id. (A mask warped otherwise,
+    # filled with another value or interpolated, breaks it.)
+    rng = np.random.default_rng(3)
+    ids = np.kron(rng.choice(sorted(ALLOWED), (10, 14)), np.ones((30, 30), int)).astype(np.uint8)
+    lut = np.zeros(256, np.uint8)
+    for class_id, level in LEVELS.items():
+        lut[class_id] = level
+    image = np.repeat(lut[ids][..., None], 3, axis=2)
+    unlevel = {level: class_id for class_id, level in LEVELS.items()}
     transform = train_transforms(
-        {"crop_height": 64, "crop_width": 96, "rotate_p": 1.0, "distortion_p": 1.0}
-    )
+        {"crop_height": 64, "crop_width": 96, "rotate_p": 1.0, "distortion_p": 1.0,
+         "color_jitter_p": 0.0, "lighting_p": 0.0, "mean": [0, 0, 0], "std": [1, 1, 1]}
+    )  # fmt: skip
+    checked = 0
     for seed in range(10):
-        out = transform(sample(seed=seed))
+        transform.pipeline.set_random_seed(seed)
+        pair = {"image": torch.from_numpy(image).permute(2, 0, 1), "mask": torch.from_numpy(ids)}
+        out = transform(pair)
         assert out["image"].shape == (3, 64, 96) and out["image"].dtype == torch.float32
-        assert out["mask"].shape == (64, 96)
+        grey = (out["image"].numpy() * 255).round().astype(np.int64)
+        assert (grey == grey[0]).all()  # the three channels warp alike
+        grey = grey[0]
+        flat = np.ones_like(grey, bool)
+        for dy in range(-2, 3):
+            for dx in range(-2, 3):
+                shifted = np.roll(np.roll(grey, dy, 0), dx, 1)
+                flat &= shifted == grey
+        flat[:2], flat[-2:], flat[:, :2], flat[:, -2:] = False, False, False, False
+        flat &= np.isin(grey, list(unlevel))
+        assert flat.mean() > 0.3, flat.mean()
+        expected = np.vectorize(unlevel.get)(grey[flat])
+        np.testing.assert_array_equal(out["mask"].numpy()[flat], expected)
         assert set(out["mask"].unique().tolist()) <= ALLOWED
+        checked += int(flat.sum())
+    assert checked > 10 * 64 * 96 * 0.3
 
 
 def test_small_image_is_padded_with_ignore():
@@ -148,3 +189,41 @@ def test_the_alignment_check_catches_a_misaligned_mask():
     rotated_image = torch.from_numpy(rotated).permute(2, 0, 1).float() / 255
     assert np.mean(decoded_from_image(rotated_image) == mask) < 0.9
     assert np.mean(decoded_from_image(s["image"].float() / 255) == mask) == 1.0
+
+
+@pytest.mark.parametrize(
+    ("setting", "value", "message"),
+    [
+        ("crop_height", 0, "crop_height=0: must be between 1 and 65500 pixels"),
+        ("crop_width", 10**6, "crop_width=1000000: must be between 1 and 65500 pixels"),
+        ("crop_width", 65501, "crop_width=65501: must be between 1 and 65500"),
+        ("crop_height", -3, "crop_height=-3: must be between 1 and 65500"),
+        ("rotate_p", 1.5, "rotate_p=1.5: a probability, must be between 0 and 1"),
+        ("ignore_index", 256, "ignore_index=256: masks are uint8"),
+    ],
+)
+def test_an_unusable_setting_is_refused_naming_it_at_every_entry(tmp_path, setting, value, message):
+    # crop_height=0 or 10**6 failed deep inside OpenCV at the first sample.
+    for make in (
+        lambda: AugmentConfig(**{setting: value}),
+        lambda: augment_config({setting: value}),
+        lambda: train_transforms({setting: value}),
+        lambda: augment_config(_yaml(tmp_path, f"{setting}: {value}\n")),
+    ):
+        with pytest.raises(ValueError, match=re.escape(message)):
+            make()
+
+
+def test_the_largest_and_smallest_crops_are_accepted():
+    assert AugmentConfig(crop_height=1, crop_width=65500).crop_width == 65500
+    assert AugmentConfig(crop_height=16384, crop_width=65500).crop_height == 16384
+    with pytest.raises(ValueError, match=r"65500×65500 is more than the 1,073,741,824 pixels"):
+        AugmentConfig(crop_height=65500, crop_width=65500)
+    with pytest.raises(ValueError, match="crop_width=True: must be an integer"):
+        AugmentConfig(crop_width=True)
+
+
+def _yaml(tmp_path, text):
+    path = tmp_path / "augment.yaml"
+    path.write_text(text)
+    return path

@@ -414,3 +414,24 @@ def test_an_empty_shard_is_a_usage_error(collection, tmp_path, capsys):
     assert not out.exists()
     assert _run([str(collection), "--pattern", "**/*.png", "--shard", " ", "-o", str(out)]) == 2
     assert not out.exists()
+
+
+def test_a_jpeg_header_claiming_more_than_2_30_pixels_is_an_unreadable_image(
+    collection, tmp_path, capsys
+):
+    # OpenCV raised cv2.error for it, which nothing mapped: a traceback. Now it is one more
+    # unreadable image, listed with the reason, like the collection's broken PNG.
+    good = next(collection.glob("left_rgb/**/*.jpg"))
+    data = good.read_bytes()
+    sof = data.index(b"\xff\xc0")
+    huge = good.with_name("000098.jpg")
+    huge.write_bytes(data[: sof + 5] + (65500).to_bytes(2, "big") * 2 + data[sof + 9 :])
+    out = tmp_path / "r.json"
+    assert _run([str(collection), "--pattern", "left_rgb/**/*.jpg", "--output", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "cv2.error" not in err
+    errors = {e["image_path"]: e["error"] for e in json.loads(out.read_text())["errors"]}
+    assert list(errors) == [str(huge)]
+    assert (
+        "its header claims 65500×65500 = 4,290,250,000 pixels, more than the " in errors[str(huge)]
+    )

@@ -17,9 +17,15 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from claravid.infra.errors import CorruptFileError
-from claravid.io import jpeg_region
+from claravid.infra.errors import CorruptFileError, UnsupportedFileError
+from claravid.io import jpeg_region, modalities
 from claravid.io.modalities import read_rgb
+from tests.claravid.io.jpeg_samples import (
+    incomplete_progressive,
+    lossless_jpeg,
+    scan_starts,
+    twelve_bit_jpeg,
+)
 
 NATIVE = jpeg_region._native
 needs_native = pytest.mark.skipif(
@@ -145,20 +151,81 @@ def test_large_windows_of_a_larger_frame(tmp_path, decode, encoder):
         np.testing.assert_array_equal(decode(path, x, y, w, h), full[y : y + h, x : x + w])
 
 
-@needs_native
-def test_without_the_margin_borders_differ_and_one_mcu_is_enough(tmp_path):
-    # Smooth chroma upsampling reads one chroma sample beyond the window; libjpeg treats the
-    # edge of a cropped region as an image edge. The margin argument is the module's internal
-    # knob: 0 shows the tests above would catch a missing margin; 1 (the default) is exact.
-    path = write_jpeg(tmp_path / "f.jpg", "cv2-420", 203, 141)
+def _margin_failures(path, size, margins):
     data, full = path.read_bytes(), expected(path)
-    failures = {0: 0, 1: 0}
-    for x, y, w, h in windows(203, 141):
-        for margin in failures:
+    failures = dict.fromkeys(margins, 0)
+    for x, y, w, h in windows(*size, count=60):
+        for margin_x, margin_y in margins:
             out = np.empty((h, w, 3), np.uint8)
-            NATIVE.decode_window(data, x, y, w, h, out, margin)
-            failures[margin] += not np.array_equal(out, full[y : y + h, x : x + w])
-    assert failures[0] > 0 and failures[1] == 0, failures
+            NATIVE.decode_window(data, x, y, w, h, out, margin_x=margin_x, margin_y=margin_y)
+            failures[margin_x, margin_y] += not np.array_equal(out, full[y : y + h, x : x + w])
+    return failures
+
+
+@needs_native
+@pytest.mark.parametrize("encoder", ["cv2-420", "cv2-422", "pil-420", "cv2-440"])
+def test_each_margin_is_measured(tmp_path, encoder):
+    # Smooth chroma upsampling reads chroma beyond the window. The margins are the module's
+    # internal knobs, one per axis; each is removed alone (the C file's comment says what this
+    # measured). Horizontal: jpeg_crop_scanline makes the crop's sides image edges, so 4:2:0 and
+    # 4:2:2 windows differ without it. Vertical: libjpeg-turbo 2.1's jpeg_skip_scanlines decodes
+    # the context rows itself, so no window differs without it there (it is kept for older ones).
+    path = write_jpeg(tmp_path / "f.jpg", encoder, 203, 141)
+    failures = _margin_failures(path, (203, 141), [(1, 1), (0, 1), (1, 0)])
+    assert failures[1, 1] == 0, failures
+    if encoder != "cv2-440":  # 4:4:0 is subsampled vertically only
+        assert failures[0, 1] > 0, failures
+    else:
+        assert failures[0, 1] == 0, failures
+    if NATIVE.LIBJPEG_TURBO_VERSION // 1000 == 2001:
+        assert failures[1, 0] == 0, failures
+
+
+@needs_native
+def test_the_c_decoder_checks_its_arguments(tmp_path):
+    # The Python wrapper checks too, but the C function must not trust its caller: a coordinate
+    # beyond 32 bits must not wrap (2**32 + 5 is not 5), nor a negative one, and only a uint8
+    # C-contiguous (h, w, 3) array may be filled.
+    data = write_jpeg(tmp_path / "f.jpg", "cv2-420", 40, 30).read_bytes()
+    full = expected(tmp_path / "f.jpg")
+    out = np.zeros((4, 6, 3), np.uint8)
+    NATIVE.decode_window(data, 5, 2, 6, 4, out)
+    np.testing.assert_array_equal(out, full[2:6, 5:11])
+    for name, args in [
+        ("x", (2**32 + 5, 2, 6, 4)),
+        ("y", (5, 2**32 + 2, 6, 4)),
+        ("x", (-1, 2, 6, 4)),
+        ("y", (5, -3, 6, 4)),
+        ("x", (2**64, 2, 6, 4)),
+        ("w", (5, 2, 0, 4)),
+        ("h", (5, 2, 6, 0)),
+        ("w", (5, 2, 2**32 + 6, 4)),
+    ]:
+        before = out.copy()
+        with pytest.raises(ValueError, match=rf"^{name} = -?\d+ is out of range"):
+            NATIVE.decode_window(data, *args, out)
+        np.testing.assert_array_equal(out, before)  # nothing written
+    with pytest.raises(ValueError, match=r"outside the 40x30 image"):
+        NATIVE.decode_window(data, 35, 2, 6, 4, out)
+    with pytest.raises(TypeError, match="x must be an integer, got float"):
+        NATIVE.decode_window(data, 5.0, 2, 6, 4, out)
+    with pytest.raises(ValueError, match="margin_y = -1 is out of range"):
+        NATIVE.decode_window(data, 5, 2, 6, 4, out, margin_y=-1)
+    bad_outs = [
+        (np.zeros((4, 6, 3), np.float32), TypeError),  # the right byte count in 4-byte items
+        (np.zeros(4 * 6 * 3, np.uint8), ValueError),  # flat: the right byte count
+        (np.zeros((6, 4, 3), np.uint8), ValueError),  # width and height swapped
+        (np.zeros((4, 6, 4), np.uint8), ValueError),
+        (np.zeros((4, 12, 3), np.uint8)[:, ::2], (BufferError, ValueError)),  # not contiguous
+        (bytearray(4 * 6 * 3), ValueError),
+        (bytes(4 * 6 * 3), (BufferError, TypeError)),  # read-only
+    ]
+    for bad, error in bad_outs:
+        before = bytes(memoryview(bad).cast("B")) if memoryview(bad).c_contiguous else None
+        with pytest.raises(error):
+            NATIVE.decode_window(data, 5, 2, 6, 4, bad)
+        if before is not None:
+            assert bytes(memoryview(bad).cast("B")) == before
 
 
 def test_exif_orientation_is_ignored(tmp_path, decode):
@@ -281,12 +348,17 @@ def test_a_header_that_lies_about_the_size(tmp_path, decode):
 @needs_native
 def test_rows_missing_from_the_data_are_an_error_not_grey(tmp_path):
     # The header promises 3024 rows, the data (which ends properly) holds 141: libjpeg alone
-    # would fill the missing rows with grey; the window decoder refuses them, naming the file.
-    # (The fallback cannot tell: OpenCV returns the grey rows, as read_rgb does.)
+    # would fill the missing rows with grey; the window decoder refuses them, naming the file,
+    # and so does read_rgb, the full decode (it returned grey rows). (Without the C module
+    # nothing can tell: OpenCV returns the grey rows.)
     data = write_jpeg(tmp_path / "f.jpg", "cv2-420", 203, 141).read_bytes()
     (tmp_path / "lie.jpg").write_bytes(_lying_header(data, 3024))
     with pytest.raises(CorruptFileError, match=r"lie\.jpg: libjpeg: .*premature end"):
         jpeg_region.read_rgb_window(tmp_path / "lie.jpg", 0, 2000, 50, 50)
+    with pytest.raises(CorruptFileError, match=r"lie\.jpg: libjpeg: .*premature end"):
+        read_rgb(tmp_path / "lie.jpg")
+    with pytest.raises(CorruptFileError, match=r"lie\.jpg: libjpeg: .*premature end"):
+        modalities.read_seg_color(tmp_path / "lie.jpg")
     # Rows the data does hold decode as in the honest file.
     top = jpeg_region.read_rgb_window(tmp_path / "lie.jpg", 3, 5, 100, 60)
     np.testing.assert_array_equal(top, expected(tmp_path / "f.jpg")[5:65, 3:103])
@@ -312,3 +384,148 @@ def test_corrupt_data_raises_or_decodes_but_never_crashes(tmp_path):
         else:
             assert window.shape == (141, 203, 3)
     assert errors > 0  # bad Huffman codes are reported, not painted over
+
+
+# ------------------------------------------------------------------------------------------
+# Files the window decoder must not read by window, and files no reader takes (issue 24).
+
+
+def _pil_progressive(width=203, height=141, seed=0):
+    buffer = io.BytesIO()
+    Image.fromarray(textured(height, width, seed)).save(buffer, "JPEG", progressive=True)
+    return buffer.getvalue()
+
+
+@pytest.mark.parametrize("scans", [1, 2, 4, 7])
+def test_windows_of_an_incomplete_progressive_jpeg_equal_the_full_decode(tmp_path, decode, scans):
+    # A legal file: its last scans are missing, it ends with EOI. Block smoothing of such a file
+    # reads two blocks around each block, and OpenCV's libjpeg-turbo 3 smooths differently from
+    # the system's 2.1: windows are cut from the full decode.
+    data = _pil_progressive()
+    assert len(scan_starts(data)) == 10  # Pillow's default progressive script
+    path = tmp_path / "p.jpg"
+    path.write_bytes(incomplete_progressive(data, scans))
+    full = expected(path)
+    assert not np.array_equal(full, expected_bytes(data))  # the missing scans show
+    np.testing.assert_array_equal(read_rgb(path), full)
+    for x, y, w, h in windows(203, 141, seed=scans):
+        np.testing.assert_array_equal(decode(path, x, y, w, h), full[y : y + h, x : x + w])
+
+
+@needs_native
+def test_a_progressive_jpeg_cut_inside_a_scan_is_refused(tmp_path):
+    # Cut inside the first (DC) scan and closed with EOI: the rest of the image would be grey.
+    data = _pil_progressive()
+    starts = scan_starts(data)
+    cut = data[: (starts[0] + starts[1]) // 2] + b"\xff\xd9"
+    (tmp_path / "cut.jpg").write_bytes(cut)
+    for read in (read_rgb, lambda p: jpeg_region.read_rgb_window(p, 100, 50, 20, 20)):
+        with pytest.raises(CorruptFileError, match=r"cut\.jpg: libjpeg: .*premature end"):
+            read(tmp_path / "cut.jpg")
+
+
+def expected_bytes(data):
+    array = np.frombuffer(data, np.uint8)
+    return cv2.imdecode(array, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)[..., ::-1]
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_a_lossless_jpeg_is_decoded_whole_and_equals_its_pixels(tmp_path, decode, channels):
+    # libjpeg-turbo 2.1 (the window decoder's) cannot read lossless JPEGs; OpenCV's 3.x can.
+    rgb = textured(23, 37)
+    if channels == 1:
+        rgb = np.repeat(rgb[..., 1:2], 3, axis=2)  # grey: the reader expands it to RGB
+    path = tmp_path / "lossless.jpg"
+    path.write_bytes(lossless_jpeg(rgb[..., 1] if channels == 1 else rgb))
+    if channels == 3:  # lossless: the pixels themselves, also for OpenCV
+        np.testing.assert_array_equal(expected(path), rgb)
+    np.testing.assert_array_equal(read_rgb(path), rgb)
+    for x, y, w, h in windows(37, 23, count=8):
+        np.testing.assert_array_equal(decode(path, x, y, w, h), rgb[y : y + h, x : x + w])
+    assert jpeg_region.image_size(path) == (37, 23)
+
+
+def _refused(path, decode, error, pattern):
+    for read in (read_rgb, lambda p: decode(p, 0, 0, 8, 8), jpeg_region.image_size):
+        with pytest.raises(error, match=pattern) as caught:
+            read(path)
+        assert "re-copy" not in str(caught.value)
+
+
+def test_a_12_bit_jpeg_is_unsupported_not_corrupt(tmp_path, decode):
+    path = tmp_path / "deep.jpg"
+    path.write_bytes(twelve_bit_jpeg(np.arange(15).reshape(3, 5) * 273))
+    assert cv2.imread(str(path)) is None  # OpenCV decodes no 12-bit JPEG either
+    pattern = r"deep\.jpg: 12-bit JPEG: the readers decode 8-bit JPEGs only; convert it"
+    _refused(path, decode, UnsupportedFileError, pattern)
+
+
+def test_an_arithmetic_coded_jpeg_is_refused(tmp_path, decode):
+    # Arithmetic decoders feed zeros past the end of the data, which a complete file may also
+    # leave out: a cut file cannot be told from a whole one, so none is read. (The start of frame
+    # says SOF9; the data need not be arithmetic-coded for the header to be refused.)
+    data = write_jpeg(tmp_path / "f.jpg", "cv2-420", 40, 30).read_bytes()
+    sof = data.index(b"\xff\xc0")
+    (tmp_path / "arith.jpg").write_bytes(data[: sof + 1] + b"\xc9" + data[sof + 2 :])
+    _refused(tmp_path / "arith.jpg", decode, UnsupportedFileError, r"arith\.jpg: arithmetic")
+
+
+def test_a_header_claiming_more_than_2_30_pixels_is_refused(tmp_path, decode):
+    data = write_jpeg(tmp_path / "f.jpg", "cv2-420", 40, 30).read_bytes()
+    sof = data.index(b"\xff\xc0")
+    huge = data[: sof + 5] + (65500).to_bytes(2, "big") * 2 + data[sof + 9 :]
+    (tmp_path / "huge.jpg").write_bytes(huge)
+    pattern = r"huge\.jpg: its header claims 65500×65500 = 4,290,250,000 pixels, more than the "
+    _refused(tmp_path / "huge.jpg", decode, UnsupportedFileError, pattern + r"1,073,741,824")
+
+
+def test_a_tiny_cmyk_file_claiming_30000x30000_is_refused_at_once(tmp_path, decode):
+    # 3 kB cannot code 14 million blocks per component (one bit each at least); decoding it
+    # took 27 s and 5.2 GB to return grey.
+    Image.fromarray(textured(40, 48)).convert("CMYK").save(tmp_path / "c.jpg")
+    data = (tmp_path / "c.jpg").read_bytes()
+    sof = data.index(b"\xff\xc0")
+    lie = data[: sof + 5] + (30000).to_bytes(2, "big") * 2 + data[sof + 9 :]
+    (tmp_path / "lie.jpg").write_bytes(lie)
+    assert len(lie) < 4000
+    pattern = r"lie\.jpg: its header claims 30000×30000 pixels, but the file holds [\d,]+ bytes, "
+    for read in (read_rgb, lambda p: decode(p, 0, 0, 8, 8), jpeg_region.image_size):
+        with pytest.raises(CorruptFileError, match=pattern + r"fewer than the 1,757,812 any JPEG"):
+            read(tmp_path / "lie.jpg")
+
+
+def test_trailer_data_after_the_end_marker_is_accepted(tmp_path, decode):
+    # Motion photos append a video, cameras maker data: more than 4 KiB after the end marker.
+    data = write_jpeg(tmp_path / "f.jpg", "cv2-420", 203, 141).read_bytes()
+    full = expected(tmp_path / "f.jpg")
+    trailer = np.random.default_rng(2).integers(0, 256, 20000, dtype=np.uint8).tobytes()
+    (tmp_path / "motion.jpg").write_bytes(data + trailer.replace(b"\xff\xd9", b"\xff\x00"))
+    np.testing.assert_array_equal(read_rgb(tmp_path / "motion.jpg"), full)
+    np.testing.assert_array_equal(decode(tmp_path / "motion.jpg", 7, 9, 50, 40), full[9:49, 7:57])
+
+
+def test_a_thumbnail_s_end_marker_does_not_make_a_cut_file_whole(tmp_path, decode):
+    # An EXIF thumbnail is a whole JPEG inside an APP1 segment, with its own end marker: the cut
+    # main image is still truncated.
+    # Small files: the thumbnail's end marker lies within the last 4 KiB of the cut file too.
+    thumb = write_jpeg(tmp_path / "t.jpg", "cv2-420", 16, 12).read_bytes()
+    data = write_jpeg(tmp_path / "f.jpg", "cv2-420", 40, 24).read_bytes()
+    app1 = b"\xff\xe1" + (len(thumb) + 8).to_bytes(2, "big") + b"Exif\x00\x00" + thumb
+    with_thumb = data[:2] + app1 + data[2:]
+    (tmp_path / "whole.jpg").write_bytes(with_thumb)
+    np.testing.assert_array_equal(read_rgb(tmp_path / "whole.jpg"), expected(tmp_path / "f.jpg"))
+    cut = with_thumb[: len(with_thumb) - 300]
+    assert len(cut) < 4096 and cut.rindex(b"\xff\xd9") < cut.rindex(b"\xff\xda")
+    (tmp_path / "cut.jpg").write_bytes(cut)
+    for read in (read_rgb, lambda p: decode(p, 0, 0, 8, 8)):
+        with pytest.raises(CorruptFileError, match=r"cut\.jpg: truncated JPEG"):
+            read(tmp_path / "cut.jpg")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+def test_a_fifo_named_jpg_is_refused_without_blocking(tmp_path, decode):
+    os.mkfifo(tmp_path / "pipe.jpg")
+    pattern = r"pipe\.jpg: not a regular file"
+    _refused(tmp_path / "pipe.jpg", decode, UnsupportedFileError, pattern)
+    with pytest.raises(UnsupportedFileError, match=pattern):
+        jpeg_region.jpeg_size(tmp_path / "pipe.jpg")

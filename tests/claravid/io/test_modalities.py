@@ -5,13 +5,15 @@ arrays so our OpenCV path is compared value for value.
 """
 
 import json
+import struct
+import zlib
 
 import cv2
 import numpy as np
 import pytest
 from PIL import Image
 
-from claravid.infra.errors import CorruptFileError
+from claravid.infra.errors import CorruptFileError, UnsupportedFileError
 from claravid.io import modalities
 from claravid.io.layout import INTRINSICS
 
@@ -209,3 +211,70 @@ def test_extrinsics_with_nan_or_inf_name_the_file(tmp_path, bad):
     (tmp_path / "pose.json").write_text(text)
     with pytest.raises(CorruptFileError, match=r"pose\.json: the 4×4 pose holds NaN or infinite"):
         modalities.read_extrinsics(tmp_path / "pose.json")
+
+
+# ------------------------------------------------------------------------------------------
+# Headers that claim too much (issue 24): refused before decoding, naming the file and limit.
+
+
+def png_claiming(width, height, color_type=2, bit_depth=8):
+    """A PNG whose IHDR claims ``width``×``height``, with one tiny IDAT (never decoded)."""
+
+    def chunk(kind, body):
+        crc = zlib.crc32(kind + body).to_bytes(4, "big")
+        return len(body).to_bytes(4, "big") + kind + body + crc
+
+    ihdr = struct.pack(">IIBBBBB", width, height, bit_depth, color_type, 0, 0, 0)
+    idat = zlib.compress(b"\x00" * 64)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
+
+
+LABEL_READERS = {
+    "pan_seg": (modalities.read_pan_seg, 2),
+    "semantic": (modalities.read_semantic, 2),
+    "depth": (modalities.read_depth, 2),
+    "dynamic_mask": (modalities.read_dynamic_mask, 0),
+    "seg_color": (modalities.read_seg_color, 2),
+}
+
+
+@pytest.mark.parametrize("reader", LABEL_READERS)
+def test_a_png_claiming_more_than_2_30_pixels_is_refused_by_every_reader(tmp_path, reader):
+    # OpenCV raised cv2.error here, which nothing mapped: a traceback from claravid-cache.
+    read, color_type = LABEL_READERS[reader]
+    path = tmp_path / "big.png"
+    path.write_bytes(png_claiming(40000, 30000, color_type))
+    with pytest.raises(UnsupportedFileError) as caught:
+        read(path)
+    assert str(caught.value) == (
+        f"cannot read {path}: its header claims 40000×30000 = 1,200,000,000 pixels, more than "
+        "the 1,073,741,824 (2^30) the readers decode; a corrupt header, or an image to cut into "
+        "tiles first"
+    )
+    path.write_bytes(png_claiming(32768, 32768, color_type))  # 2^30 exactly: not too large
+    with pytest.raises(CorruptFileError, match="fewer than the") as caught:
+        read(path)
+    assert not isinstance(caught.value, UnsupportedFileError)
+
+
+def test_a_png_too_short_for_its_size_is_refused_before_decoding(tmp_path):
+    # 9000×7000 RGB is 189 MB of pixels; deflate shrinks at most 1032 times: at least 183,139 B.
+    path = tmp_path / "lie.png"
+    path.write_bytes(png_claiming(9000, 7000))
+    with pytest.raises(
+        CorruptFileError,
+        match=r"lie\.png: its header claims 9000×7000 pixels, "
+        r"but the file holds 69 bytes, fewer than the 183,139 any PNG",
+    ):
+        modalities.read_pan_seg(path)
+
+
+def test_opencv_errors_of_other_formats_name_the_file(tmp_path):
+    # A BMP header claiming 40000×40000 pixels: no header of ours, OpenCV raises cv2.error.
+    dib = struct.pack("<IiiHHIIiiII", 40, 40000, 40000, 1, 24, 0, 0, 2835, 2835, 0, 0)
+    path = tmp_path / "big.bmp"
+    path.write_bytes(b"BM" + struct.pack("<IHHI", 118, 0, 0, 54) + dib + bytes(64))
+    with pytest.raises(CorruptFileError, match=r"big\.bmp: OpenCV refused it \(.*MAX_IMAGE_PIXELS"):
+        modalities.read_rgb(path)
+    with pytest.raises(CorruptFileError, match=r"big\.bmp: OpenCV refused it"):
+        modalities.decode_bytes(np.fromfile(path, np.uint8), path, cv2.IMREAD_COLOR)

@@ -22,6 +22,12 @@ def test_window_starts_cover_the_axis_with_the_last_flush():
     assert window_starts(3, 4, 3) == [0]
 
 
+def _normalised_noise(*shape: int) -> torch.Tensor:
+    """Standard normal values clamped to what ImageNet normalisation gives every channel
+    ([-1.80, 2.25] lies in each): normalise refuses float images outside that range."""
+    return torch.randn(*shape).clamp(-1.8, 2.2)
+
+
 def _pointwise(weight: torch.Tensor):
     """A 1×1-conv model: its logits at a pixel depend on that pixel only."""
     return lambda x: torch.einsum("kc,bchw->bkhw", weight, x)
@@ -30,7 +36,7 @@ def _pointwise(weight: torch.Tensor):
 def test_pointwise_model_equals_the_full_image_forward():
     torch.manual_seed(0)
     weight = torch.randn(5, 3)
-    image = torch.randn(3, 37, 53)
+    image = _normalised_noise(3, 37, 53)
     config = WindowConfig(size=(14, 14), stride=(9, 9), batch_size=3)
     out = sliding_window_logits(_pointwise(weight), image, config)
     np.testing.assert_allclose(out, _pointwise(weight)(image[None])[0], atol=1e-5)
@@ -63,7 +69,7 @@ def test_small_images_are_padded_and_cut_back():
         shapes.append(tuple(x.shape))
         return x[:, :2]
 
-    image = torch.randn(3, 5, 7)
+    image = _normalised_noise(3, 5, 7)
     out = sliding_window_logits(model, image, WindowConfig(size=(14, 14)))
     assert shapes == [(1, 3, 14, 14)]  # the model always sees a full window
     np.testing.assert_allclose(out, image[:2])
@@ -76,7 +82,9 @@ def test_scale_resizes_and_logits_come_back_at_full_size():
         sizes.extend([tuple(x.shape[-2:])] * x.shape[0])
         return x[:, :1] * 0 + 1
 
-    out = sliding_window_logits(model, torch.randn(3, 40, 60), WindowConfig(size=14, scale=0.5))
+    out = sliding_window_logits(
+        model, _normalised_noise(3, 40, 60), WindowConfig(size=14, scale=0.5)
+    )
     assert all(s == (14, 14) for s in sizes)
     assert out.shape == (1, 40, 60)
     # The image the windows cut was 20×30: windows of 14 every 9 -> 2 rows × 3 columns.
@@ -86,7 +94,7 @@ def test_scale_resizes_and_logits_come_back_at_full_size():
 
 def test_numpy_models_work_and_labels_are_the_argmax():
     weight = torch.tensor([[1.0, 0, 0], [0, 1.0, 0]])
-    image = torch.randn(3, 20, 20)
+    image = _normalised_noise(3, 20, 20)
     labels = predict_labels(
         lambda x: _pointwise(weight)(x).numpy(), image, WindowConfig(size=(14, 14))
     )
@@ -105,7 +113,7 @@ def test_matches_a_real_segmenter_within_one_window():
         features=8,
         out_channels=[8, 8, 8, 8],
     ).eval()
-    image = torch.randn(3, 28, 42)
+    image = _normalised_noise(3, 28, 42)
     out = sliding_window_logits(model, image, WindowConfig(size=(28, 42)))
     with torch.no_grad():
         np.testing.assert_allclose(out, model(image[None])[0], atol=1e-5)
@@ -185,7 +193,7 @@ def test_scale_resizes_logits_back_bilinearly(scale):
     image's forward): nearest-neighbour resizing back would be off by the logits' gradients."""
     torch.manual_seed(1)
     weight = torch.randn(4, 3)
-    image = torch.randn(3, 40, 60)
+    image = _normalised_noise(3, 40, 60)
     config = WindowConfig(size=(14, 14), stride=(9, 9), scale=scale, batch_size=5)
     out = sliding_window_logits(_pointwise(weight), image, config)
     expected = _reference_at_scale(_pointwise(weight), image, scale)
@@ -216,7 +224,8 @@ def _smooth_image(h, w, seed=0):
     """A normalised image of smooth blobs (a real-looking input, not white noise)."""
     g = torch.Generator().manual_seed(seed)
     coarse = torch.randn(1, 3, h // 8 + 1, w // 8 + 1, generator=g) * 1.5
-    return torch.nn.functional.interpolate(coarse, size=(h, w), mode="bicubic")[0]
+    smooth = torch.nn.functional.interpolate(coarse, size=(h, w), mode="bicubic")[0]
+    return smooth.clamp(-1.8, 2.2)
 
 
 def test_bf16_windows_agree_with_float32_on_the_cpu():
