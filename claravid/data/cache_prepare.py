@@ -17,7 +17,7 @@ from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from tqdm.auto import tqdm
 
@@ -30,13 +30,24 @@ from claravid.data.cache_entries import (
     write_error,
 )
 from claravid.io import label_tiff
-from claravid.io.label_tiff import InvalidEntry
+from claravid.io.label_tiff import InvalidEntry, SourceIdentity, TileLayout
 from claravid.io.labels import read_label_codes, source_identity
 
-if TYPE_CHECKING:
-    from claravid.data.label_cache import LabelCache
-
 Sources = tuple[Path, Path | None]
+
+
+class PreparedCache(Protocol):
+    """What preparing entries needs of a cache (a :class:`~claravid.data.label_cache.LabelCache`,
+    which calls in here: a protocol keeps the imports one way)."""
+
+    directory: Path
+    tile_size: int
+
+    def advice(self) -> str: ...
+
+    def open_valid(
+        self, path: Path, pan_seg: Path, identity: SourceIdentity, verify: bool = False
+    ) -> tuple[int, TileLayout]: ...
 
 
 @dataclass
@@ -74,7 +85,7 @@ class PrepareSummary:
 
 
 def prepare_entries(
-    cache: LabelCache,
+    cache: PreparedCache,
     frames: Iterable[Sources],
     *,
     workers: int = 0,
@@ -134,7 +145,7 @@ def prepare_entries(
 
 
 def _build(
-    cache: LabelCache, jobs: list, summary: PrepareSummary, workers: int, progress: bool
+    cache: PreparedCache, jobs: list, summary: PrepareSummary, workers: int, progress: bool
 ) -> int:
     bar = tqdm(total=len(jobs), desc="label cache", unit="frame", disable=not progress or not jobs)
     executor = None
