@@ -45,7 +45,11 @@ class CacheWriteError(OSError):
         written: entries written before it (none is half-written).
     """
 
-    def __init__(self, reason: str, written: int, advice: str) -> None:
+    def __init__(self, reason: str, written: int | None = None, advice: str = "") -> None:
+        if written is None:  # rebuilt from its message (a worker's error, a pickle)
+            super().__init__(reason)
+            self.reason, self.written = reason, None
+            return
         super().__init__(
             f"{reason}; {written} entries were written before it, none is half-written; "
             f"free some space or {advice}"

@@ -13,6 +13,7 @@ import pkgutil
 import pytest
 from torch.utils.data import DataLoader, Dataset
 
+from claravid.data.cache_entries import CacheWriteError
 from claravid.data.splits import SplitConfigError
 from claravid.dsp.metrics import ImageReadError
 from claravid.infra.cli import run_cli
@@ -55,6 +56,9 @@ def example(cls, tmp_path):
         UnsupportedFileError: lambda: UnsupportedFileError(tmp_path / "x.jpg", "12-bit JPEG"),
         ImageReadError: lambda: ImageReadError(tmp_path / "y.png", "no such file"),
         SplitConfigError: lambda: SplitConfigError("split_config.seed", "must be >= 0, got -1"),
+        CacheWriteError: lambda: CacheWriteError(
+            f"no space left writing {tmp_path / 'c' / 'x.tif'}", 3, "set CLARAVID_CACHE"
+        ),
     }
     if cls in made_with_more:
         return made_with_more[cls]()
