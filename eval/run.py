@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from claravid.data.splits import SplitBalanceWarning
-from claravid.eval.analysis.units import DATASETS, default_cluster
+from claravid.eval.analysis.units import DATASETS, default_cluster, unit_labels
 from claravid.eval.report.files import REPORT, check_report_kind
 from claravid.eval.reports import warn_outside_edges
 from claravid.eval.settings import (
@@ -141,6 +141,8 @@ def evaluate(
         opened.groups(report.group_by)  # fails now, not after the inference
     report.check_bins(len(opened))
     intervals = report.intervals(opened.attributes, default_cluster(opened.name, opened.attributes))
+    # Refused now, not after the inference: the images' clusters are known before it runs.
+    intervals.check_memory(unit_labels(opened.paths, opened.attributes, intervals.cluster))
     source.update(opened.describe)
     source["measures"] = list(report.measures)
     if report.tiles is not None:
@@ -277,7 +279,7 @@ def score_metrics(
         UsageError: no data root, a foreign output folder, a bad CSV, images not in the data.
     """
     from claravid.eval.analysis.metric_bins import metric_report
-    from claravid.eval.analysis.units import group_indices, unit_labels
+    from claravid.eval.analysis.units import group_indices
     from claravid.eval.inference.complexity_job import ComplexityJob
     from claravid.eval.inference.data import open_data
     from claravid.eval.inference.metric_csv import match_images, read_metrics_csv
@@ -308,6 +310,7 @@ def score_metrics(
     report.check_bins(len(paths))
     attributes = {a: [v[i] for i in order] for a, v in opened.attributes.items()}
     clusters = unit_labels(paths, attributes, settings.cluster)
+    settings.check_memory(clusters)  # before the complexity of every image is measured
     # The one grouping rule of every report (viewpoint = mission/viewpoint).
     groups = None if report.group_by is None else group_indices(paths, attributes, report.group_by)
     values = ComplexityJob(paths, report.measures, threads=max(1, workers)).result()

@@ -117,6 +117,8 @@ def gap_analysis(
         names: how each report is named in the output.
         settings: resamples, level, seed and the cluster unit.
     """
+    for result in results:  # before anything is allocated: unpaired gaps draw each report's
+        settings.check_memory(result.cluster_labels(settings.cluster))
     base, base_report = results[0], reports[0]
     base_ids = _ids(base, settings.cluster)
     base_bins = report_bins(base, base_report)

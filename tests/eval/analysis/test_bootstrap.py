@@ -231,5 +231,7 @@ def test_too_few_resamples_are_refused(resamples):
 
 
 def test_a_bootstrap_larger_than_memory_is_refused_before_allocating():
-    with pytest.raises(ValueError, match=r"need 3725\.3 GiB .* lower --bootstrap"):
+    # 10^9 resamples of 1000 clusters: 4 bytes of draw count per cluster and at most 64 bytes
+    # of statistics per resample, 10^9 x 4064 bytes = 3784.9 GiB.
+    with pytest.raises(ValueError, match=r"need 3784\.9 GiB .* lower --bootstrap"):
         draw_counts(1000, 10**9, np.random.default_rng(0))
