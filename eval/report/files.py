@@ -125,6 +125,7 @@ def load_result(path: str | Path) -> EvalResult:
             # The real file behind each path: a symlinked or ../ spelling of the data root
             # is the same image (merge refuses it twice, compare pairs it).
             identity=[os.path.realpath(str(p)) for p in data["paths"]],
+            lineage=_lineage(report["source"]),
         )
     except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise UsageError(
@@ -147,6 +148,13 @@ def load_result(path: str | Path) -> EvalResult:
         if tiles.confusions.shape[1:] != (k, k) or not inside:
             raise UsageError(f"{npz_file}: its tiles do not match its images or classes")
     return result
+
+
+def _lineage(source: dict[str, Any]) -> tuple[str, ...]:
+    """The report's own ``report_id`` and the ids it was merged or re-binned from
+    (``derived_from``; reports of version 0.1 carry neither)."""
+    ids = [source.get("report_id"), *(source.get("derived_from") or [])]
+    return tuple(sorted({str(i) for i in ids if isinstance(i, str) and i}))
 
 
 def _load_tiles(data: dict[str, np.ndarray]) -> TileTable | None:

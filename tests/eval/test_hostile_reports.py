@@ -198,7 +198,7 @@ def test_a_report_and_its_own_rebinning_are_not_comparable(reps, tmp_path):
     out = tmp_path / "cmp"
     assert main(["--compare", str(reps["tmp"] / "a"), str(rebinned), "-o", str(out)]) == 0
     comp = json.loads((out / "compare.json").read_text())["comparisons"][0]
-    assert comp["comparable"] is False and "same predictions" in comp["reason"]
+    assert comp["comparable"] is False and "one run seen twice" in comp["reason"]
     assert comp["overall"] is None and comp["bins"] == []
     text = (out / "compare.md").read_text()
     assert "**not comparable**" in text and "**yes**" not in text and "paired (" not in text
