@@ -33,22 +33,40 @@ from claravid.eval.settings import (
     Evaluation,
     InferenceSettings,
     ReportSettings,
+    check_type,
 )
 from claravid.infra.cli import UsageError, check_output_dir
 
 
-def resolve_data(choice: DataChoice, defaults: dict[str, Any], *, hint: str = "") -> dict[str, Any]:
-    """The data to open: ``choice`` first, then what the model recorded, then the defaults.
+def resolve_data(
+    choice: DataChoice,
+    defaults: dict[str, Any],
+    *,
+    hint: str = "",
+    default_split: dict[str, str] | None = None,
+) -> dict[str, Any]:
+    """The data to open: ``choice`` first, then what the model recorded, then the defaults
+    (the one rule of evaluations and ``--scores``).
+
+    Args:
+        choice: the call's choice.
+        defaults: what the model (or the label maps) recorded.
+        hint: added to the message when no root is known.
+        default_split: the split per dataset kind when neither gives one (default ``val``).
 
     Raises:
-        UsageError: no root anywhere, ``masks`` or a ClaraVid selection with other data.
+        UsageError: no root anywhere, an unknown recorded dataset kind, ``masks`` or a ClaraVid
+            selection with other data.
     """
     root = choice.root or defaults.get("data")
     if root is None:
         raise UsageError(f"--data is required: the dataset root to evaluate on{hint}")
     dataset = choice.dataset or defaults.get("dataset") or "claravid"
-    if dataset not in DATASETS:
-        dataset = "claravid"
+    if dataset not in DATASETS:  # DataChoice checks its own; a record may be anything
+        raise UsageError(
+            f"the recorded dataset kind {dataset!r} is unknown; pass --dataset (one of "
+            f"{', '.join(DATASETS)})"
+        )
     if choice.masks is not None and dataset != "folder":
         raise UsageError(f"--masks does nothing with --dataset {dataset}; drop it")
     if choice.selection and dataset != "claravid":
@@ -65,7 +83,7 @@ def resolve_data(choice: DataChoice, defaults: dict[str, Any], *, hint: str = ""
     return {
         "root": Path(root),
         "dataset": dataset,
-        "split": choice.split or defaults.get("split") or "val",
+        "split": choice.split or defaults.get("split") or (default_split or {}).get(dataset, "val"),
         "palette": choice.palette or defaults.get("palette"),
         "masks": choice.masks,
         "selection": selection,
@@ -118,6 +136,10 @@ def evaluate(
 
     if sum(x is not None for x in (checkpoint, onnx, predictions)) != 1:
         raise UsageError("give exactly one of --checkpoint, --onnx and --predictions")
+    check_type(data, DataChoice, "data", "DataChoice(root='root')" if isinstance(data, str)
+               else "DataChoice(root='/data/claravid', split='val')")  # fmt: skip
+    check_type(inference, InferenceSettings, "inference", "InferenceSettings(scale=0.5)")
+    check_type(report, ReportSettings, "report", "ReportSettings(bins=5)")
     data, inference, report = (
         data or DataChoice(),
         inference or InferenceSettings(),
@@ -285,21 +307,24 @@ def score_metrics(
     from claravid.eval.inference.metric_csv import match_images, read_metrics_csv
     from claravid.eval.report.folder import write_metric_outputs
 
+    check_type(data, DataChoice, "data", "DataChoice(root='/data/uavid', dataset='uavid')")
+    check_type(report, ReportSettings, "report", "ReportSettings(bins=5)")
     report = report or ReportSettings()
     if data.root is None:
         raise UsageError("--scores needs --data: the dataset root the CSV's paths belong to")
+    # The rule of every evaluation, without a model's record; ClaraVid defaults to all frames.
+    spec = resolve_data(data, {}, default_split={"claravid": "all"})
     output = Path(output)
     check_output_dir(output, marker=REPORT, overwrite=overwrite)
     check_report_kind(output, scores=True, overwrite=overwrite)
-    dataset = data.dataset or "claravid"
-    csv_paths, metrics, csv_rows = read_metrics_csv(scores, data.root)
+    csv_paths, metrics, csv_rows = read_metrics_csv(scores, spec["root"])
     opened = open_data(
-        data.root,
-        dataset=dataset,
-        split=data.split or ("all" if dataset == "claravid" else "val"),
+        spec["root"],
+        dataset=spec["dataset"],
+        split=spec["split"],
         palette=data.palette,
-        masks=data.masks,
-        selection=resolve_data(data, {})["selection"],
+        masks=spec["masks"],
+        selection=spec["selection"],
         labels=False,
     )
     if report.group_by is not None:

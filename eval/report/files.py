@@ -147,6 +147,18 @@ def load_result(path: str | Path) -> EvalResult:
         inside = len(tiles) == 0 or (tiles.image.min() >= 0 and tiles.image.max() < n)
         if tiles.confusions.shape[1:] != (k, k) or not inside:
             raise UsageError(f"{npz_file}: its tiles do not match its images or classes")
+    # A confusion counts pixels: a negative cell is a damaged or edited file, whose mIoU and
+    # intervals would be numbers of nothing.
+    arrays = {"confusions": confusions}
+    if tiles is not None:
+        arrays["tile_confusions"] = tiles.confusions
+    for name, counts in arrays.items():
+        if counts.size and counts.min() < 0:
+            where = np.argwhere(counts < 0)
+            raise UsageError(
+                f"{npz_file} holds {len(where)} negative pixel count(s) in {name} (first: row "
+                f"{where[0][0]}), so it was damaged or edited: evaluate again"
+            )
     return result
 
 
