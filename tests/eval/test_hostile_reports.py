@@ -215,3 +215,48 @@ def test_a_report_and_its_own_rebinning_are_not_comparable(reps, tmp_path):
     a = load_result(reps["tmp"] / "a")
     other = dataclasses.replace(a, classes=[f"c{i}" for i in range(len(a.classes) + 1)])
     assert "different class sets" in not_comparable(a, other, "a", "x")
+
+
+@pytest.mark.parametrize("mode", ["evaluate", "merge", "scores", "api"])
+def test_a_users_plots_in_a_report_folder_are_kept(reps, tmp_path, mode):
+    """Issue 24 item 7: a report replaces the files it wrote, known by name, not every file
+    named like a plot (``*_per_bin.png``, ``*_vs_delent.png``): a user's own are kept, the old
+    report's own are gone."""
+    import claravid.eval as ev
+
+    out = tmp_path / "rep"
+    image_paths = sorted(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)
+    csv = tmp_path / "m.csv"
+    if mode == "scores":  # a --scores report of metric "err", replaced by one of "psnr"
+        csv.write_text("path,err\n" + "".join(f"{p},{i}\n" for i, p in enumerate(image_paths)))
+        argv = ["--scores", str(csv), "--data", str(reps["root"]), "--bootstrap", "0", "-o",
+                str(out)]  # fmt: skip
+        assert main(argv) == 0
+        old_own = ["err_per_bin.png", "err_vs_delent.png"]
+    else:  # an mIoU report with tiles, replaced by one without
+        argv = ["--predictions", str(reps["tmp"] / "pred_a"), *reps["common"], "--tiles", "32",
+                "-o", str(out)]  # fmt: skip
+        assert main(argv) == 0
+        old_own = ["tiles.png"]
+    assert all((out / name).is_file() for name in old_own)
+    mine = {"baseline_per_bin.png": b"my baseline", "paper_vs_delent.png": b"the paper's",
+            "notes_per_bin.png.txt": b"notes"}  # fmt: skip
+    for name, data in mine.items():
+        (out / name).write_bytes(data)
+    if mode == "evaluate":
+        argv = ["--predictions", str(reps["tmp"] / "pred_b"), *reps["common"], "-o", str(out)]
+        assert main(argv) == 0
+    elif mode == "merge":
+        assert main(["--merge", str(reps["tmp"] / "b"), "--bootstrap", "0", "-o", str(out)]) == 0
+    elif mode == "scores":
+        csv.write_text("path,psnr\n" + "".join(f"{p},{i}\n" for i, p in enumerate(image_paths)))
+        assert main(argv) == 0
+        assert (out / "psnr_per_bin.png").is_file() and (out / "psnr_vs_delent.png").is_file()
+    else:
+        data = ev.DataChoice(root=reps["root"], split="all", palette="uavid")
+        ev.evaluate(out, predictions=reps["tmp"] / "pred_b", data=data,
+                    report=ev.ReportSettings(bootstrap=ev.Bootstrap(resamples=0)))  # fmt: skip
+    for name, data in mine.items():
+        assert (out / name).read_bytes() == data, name
+    for name in old_own:
+        assert not (out / name).exists(), name
