@@ -81,3 +81,27 @@ def label_map_reports(claravid_root, tmp_path_factory):
             main(["--predictions", str(tmp / f"pred_{name}"), *common, "-o", str(tmp / name)]) == 0
         )
     return {"tmp": tmp, "common": common, "root": claravid_root, "ds": ds}
+
+
+@pytest.fixture
+def saved_figures(monkeypatch):
+    """The matplotlib figures the code under test saves, by the name of the file each ends up
+    in (``miou_per_bin.png``): a spy on ``Figure.savefig``, which still saves every figure, so a
+    test reads what a plot shows (bar heights, image arrays) instead of only that a PNG exists."""
+    from pathlib import Path
+
+    from matplotlib.figure import Figure
+
+    figures = {}
+    save = Figure.savefig
+
+    def spy(self, fname, *args, **kwargs):
+        name = Path(fname).name
+        if name.startswith("."):  # atomic_save writes ".<stem>.<random><suffix>", then renames
+            stem, _, suffix = name[1:].rsplit(".", 2)
+            name = f"{stem}.{suffix}"
+        figures[name] = self
+        return save(self, fname, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", spy)
+    return figures

@@ -4,7 +4,9 @@ images known by their key, options and inputs that would give a silent wrong num
 import json
 import os
 import shutil
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 from claravid.data.segmentation import ClaraVidSegmentation
@@ -169,16 +171,25 @@ def test_compare_without_intervals_excludes_nothing(reps, tmp_path):
         assert [c.strip() for c in line.strip("| ").split("|")][-2:] == ["–", "–"], line
 
 
-def test_a_scores_report_is_not_replaced_by_an_evaluation(reps, tmp_path, capsys):
+def test_a_scores_report_is_not_replaced_by_an_evaluation(reps, tmp_path, capsys, saved_figures):
     """Evaluating into a --scores report folder needs --overwrite, and leaves none of its plots."""
-    image = next(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)
-    others = sorted(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)[:4]
+    images = sorted(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)[:5]
+    err = dict(zip(images, [0.5, 4.0, 1.5, 9.0, 2.0], strict=True))
     csv = tmp_path / "m.csv"
-    csv.write_text("path,err\n" + "".join(f"{p},{i}\n" for i, p in enumerate({image, *others})))
+    csv.write_text("path,err\n" + "".join(f"{p},{v}\n" for p, v in err.items()))
     out = tmp_path / "rep"
     argv = ["--scores", str(csv), "--data", str(reps["root"]), "--split", "all", "--bins", "1",
             "--bootstrap", "0", "-o", str(out)]  # fmt: skip
     assert main(argv) == 0 and (out / "err_per_bin.png").is_file()
+    # What the plots show: one bar at the mean error (17 / 5), the overall mean dashed at the
+    # same height; each image at (its delentropy, its error).
+    (axes,) = saved_figures["err_per_bin.png"].axes
+    assert [bar.get_height() for bar in axes.patches] == pytest.approx([17 / 5])
+    assert axes.lines[-1].get_ydata()[0] == pytest.approx(17 / 5)
+    report = _json(out)
+    points = saved_figures["err_vs_delent.png"].axes[0].collections[0].get_offsets()
+    expected = [(row["delent"], err[Path(row["path"])]) for row in report["images"]]
+    np.testing.assert_allclose(sorted(map(tuple, np.asarray(points))), sorted(expected))
     evaluation = ["--predictions", str(reps["tmp"] / "pred_a"), *reps["common"], "-o", str(out)]
     assert main(evaluation) == 2
     _one_line(capsys, "holds a --scores report", "--overwrite")
