@@ -176,11 +176,11 @@ def test_a_tampered_negative_count_is_refused(label_map_reports, tmp_path, capsy
 
 
 def _parts(reps, tmp_path, roots):
-    """Two disjoint halves of the frames, evaluated with the data root spelled as ``roots``."""
+    """Two disjoint sets of 6 frames, evaluated with the data root spelled as ``roots``."""
     parts = []
     for k, root in enumerate(roots):
         listing = tmp_path / f"half{k}.txt"
-        listing.write_text("\n".join(f.key for f in reps["ds"].frames[k::2]) + "\n")
+        listing.write_text("\n".join(f.key for f in reps["ds"].frames[k:12:2]) + "\n")
         argv = ["--predictions", str(reps["tmp"] / "pred_a"), "--data", str(root), "--split",
                 str(listing), "--palette", "uavid", "--bootstrap", "0", "--no-progress",
                 "-o", str(tmp_path / f"part{k}")]  # fmt: skip
