@@ -136,8 +136,9 @@ def evaluate(
 
     if sum(x is not None for x in (checkpoint, onnx, predictions)) != 1:
         raise UsageError("give exactly one of --checkpoint, --onnx and --predictions")
-    check_type(data, DataChoice, "data", "DataChoice(root='root')" if isinstance(data, str)
-               else "DataChoice(root='/data/claravid', split='val')")  # fmt: skip
+    # A root given as data= is the usual slip: the message shows the call that was meant.
+    meant = f"DataChoice(root={str(data)!r})" if isinstance(data, (str, Path)) else None
+    check_type(data, DataChoice, "data", meant or "DataChoice(root='/data/claravid')")
     check_type(inference, InferenceSettings, "inference", "InferenceSettings(scale=0.5)")
     check_type(report, ReportSettings, "report", "ReportSettings(bins=5)")
     data, inference, report = (
