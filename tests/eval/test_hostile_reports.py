@@ -236,17 +236,20 @@ def test_a_users_plots_in_a_report_folder_are_kept(reps, tmp_path, mode):
     import claravid.eval as ev
 
     out = tmp_path / "rep"
-    image_paths = sorted(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)
+    image_paths = sorted(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)[::6]
+    six = tmp_path / "six.txt"  # 6 frames, one per viewpoint folder: a small report
+    six.write_text("".join(f"{p.parts[-4]}/{p.parts[-2]}/{p.stem}\n" for p in image_paths))
+    common = [str(six) if a == "all" else a for a in reps["common"]]
     csv = tmp_path / "m.csv"
     if mode == "scores":  # a --scores report of metric "err", replaced by one of "psnr"
         csv.write_text("path,err\n" + "".join(f"{p},{i}\n" for i, p in enumerate(image_paths)))
-        argv = ["--scores", str(csv), "--data", str(reps["root"]), "--bootstrap", "0", "-o",
-                str(out)]  # fmt: skip
+        argv = ["--scores", str(csv), "--data", str(reps["root"]), "--bins", "2", "--bootstrap",
+                "0", "-o", str(out)]  # fmt: skip
         assert main(argv) == 0
         old_own = ["err_per_bin.png", "err_vs_delent.png"]
     else:  # an mIoU report with tiles, replaced by one without
-        argv = ["--predictions", str(reps["tmp"] / "pred_a"), *reps["common"], "--tiles", "32",
-                "-o", str(out)]  # fmt: skip
+        argv = ["--predictions", str(reps["tmp"] / "pred_a"), *common, "--tiles", "32", "-o",
+                str(out)]  # fmt: skip
         assert main(argv) == 0
         old_own = ["tiles.png"]
     assert all((out / name).is_file() for name in old_own)
@@ -255,16 +258,16 @@ def test_a_users_plots_in_a_report_folder_are_kept(reps, tmp_path, mode):
     for name, data in mine.items():
         (out / name).write_bytes(data)
     if mode == "evaluate":
-        argv = ["--predictions", str(reps["tmp"] / "pred_b"), *reps["common"], "-o", str(out)]
+        argv = ["--predictions", str(reps["tmp"] / "pred_b"), *common, "-o", str(out)]
         assert main(argv) == 0
-    elif mode == "merge":
-        assert main(["--merge", str(reps["tmp"] / "b"), "--bootstrap", "0", "-o", str(out)]) == 0
+    elif mode == "merge":  # re-binned in place: the report's own folder
+        assert main(["--merge", str(out), "--bins", "2", "--bootstrap", "0", "-o", str(out)]) == 0
     elif mode == "scores":
         csv.write_text("path,psnr\n" + "".join(f"{p},{i}\n" for i, p in enumerate(image_paths)))
         assert main(argv) == 0
         assert (out / "psnr_per_bin.png").is_file() and (out / "psnr_vs_delent.png").is_file()
     else:
-        data = ev.DataChoice(root=reps["root"], split="all", palette="uavid")
+        data = ev.DataChoice(root=reps["root"], split=six, palette="uavid")
         ev.evaluate(out, predictions=reps["tmp"] / "pred_b", data=data,
                     report=ev.ReportSettings(bootstrap=ev.Bootstrap(resamples=0)))  # fmt: skip
     for name, data in mine.items():
