@@ -24,12 +24,15 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from claravid.eval.analysis.bins import parse_edges
 from claravid.eval.analysis.bootstrap import Bootstrap
-from claravid.eval.analysis.measures import parse_measures
 from claravid.eval.analysis.units import CLUSTER_UNITS, DATASETS, GROUP_BY
 from claravid.eval.report.files import REPORT
-from claravid.eval.settings import SELECTION, DataChoice, InferenceSettings, ReportSettings
+from claravid.eval.settings import (
+    SELECTION,
+    DataChoice,
+    InferenceSettings,
+    ReportSettings,
+)
 from claravid.infra.cli import (
     EXIT_PARTIAL,
     UsageError,
@@ -72,7 +75,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     data = p.add_argument_group("data")
     data.add_argument("--data", type=Path, help="dataset root (default: the checkpoint's)")
-    data.add_argument("--dataset", choices=DATASETS, help="kind of data (default claravid)")
+    # Choices shown, checked by DataChoice (the Python API's check and message).
+    data.add_argument(
+        "--dataset", metavar=_choices(DATASETS), help="kind of data (default claravid)"
+    )
     data.add_argument("--split", help="train, val, test or all (default val)")
     data.add_argument("--palette", help="palette name or YAML (default: the checkpoint's)")
     data.add_argument("--masks", type=Path, help="label folder mirroring --data (folder only)")
@@ -98,13 +104,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="PyTorch model: fp32 or bf16 autocast (default: fp32 on CPU, bf16/fp16 on CUDA)",
     )
     infer.add_argument("--no-amp", action="store_true", help="deprecated: --precision fp32")
-    infer.add_argument("--provider", choices=PROVIDERS, help="ONNX Runtime provider (--onnx)")
+    infer.add_argument(
+        "--provider", metavar=_choices(PROVIDERS), help="ONNX Runtime provider (--onnx)"
+    )
     rep = p.add_argument_group("report")
     rep.add_argument("--output", "-o", type=Path, help="report folder")
     rep.add_argument("--bins", type=positive_int, help="quantile bins of delentropy (default 3)")
     rep.add_argument("--edges", help="fixed delentropy edges e1,e2,... instead of --bins")
     rep.add_argument(
-        "--group-by", choices=GROUP_BY, help="rows per mission, viewpoint, UAVid sequence or folder"
+        "--group-by",
+        metavar=_choices(GROUP_BY),
+        help="rows per mission, viewpoint, UAVid sequence or folder",
     )
     rep.add_argument("--measures", help="delent,glcment,pixent (default delent)")
     rep.add_argument(
@@ -124,6 +134,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_uncertainty(p)
     add_debug_flag(p)
     return p
+
+
+def _choices(values: Any) -> str:
+    return "{" + ",".join(values) + "}"
 
 
 def _add_uncertainty(p: argparse.ArgumentParser) -> None:
@@ -148,25 +162,15 @@ def _check_args(args: argparse.Namespace) -> str:
         )
     if args.bins is not None and args.edges is not None:
         raise UsageError("give --bins or --edges, not both")
-    if args.bins is not None and args.bins < 1:
-        raise UsageError(f"--bins must be at least 1, got {args.bins}")
-    if args.edges is not None:
-        args.edges = parse_edges(args.edges)
-    from claravid.dsp.tiles import MIN_TILE_SIZE  # claravid/dsp/tiles.py says why
-
-    if args.tiles is not None and args.tiles < MIN_TILE_SIZE:
-        raise UsageError(
-            f"--tiles must be at least {MIN_TILE_SIZE} pixels (e.g. 630), got {args.tiles}"
-        )
-    # The one validation of the interval settings (its messages name the flags).
-    args.intervals = Bootstrap(resamples=args.bootstrap, level=args.ci_level, seed=args.seed,
-                               cluster=args.cluster or "image")  # fmt: skip
     source = given[0]
     _refuse_idle_options(args, source)
-    args.measures = parse_measures(args.measures or "delent")
     from claravid.infra.precision import flag_precision
 
     args.precision = flag_precision(args.precision, args.no_amp, pytorch=source == "checkpoint")
+    # The settings check themselves as they are made, with the messages the Python API gives
+    # (one validation for both): a mistake stops here, before any work.
+    args.settings = {"data": _data_choice(args), "inference": _inference(args),
+                     "report": _report_settings(args)}  # fmt: skip
     if source != "compare" and args.output is None:
         raise UsageError("--output is required: the folder the report is written to")
     return source
@@ -211,32 +215,23 @@ def _data_choice(args: argparse.Namespace) -> DataChoice:
         split=args.split,
         palette=args.palette,
         masks=args.masks,
-        selection=selection_flags(args),
+        # --missions/--altitude/--direction as given: DataChoice splits them into lists.
+        selection={n: getattr(args, n) for n in SELECTION if getattr(args, n) is not None},
     )
 
 
+def _inference(args: argparse.Namespace) -> InferenceSettings:
+    return InferenceSettings(window=args.window, stride=args.stride, scale=args.scale,
+                             batch_size=args.batch_size, device=args.device,
+                             precision=args.precision, provider=args.provider)  # fmt: skip
+
+
 def _report_settings(args: argparse.Namespace) -> ReportSettings:
+    intervals = Bootstrap(resamples=args.bootstrap, level=args.ci_level, seed=args.seed)
     return ReportSettings(bins=args.bins or 3, edges=args.edges, group_by=args.group_by,
-                          measures=args.measures, tiles=args.tiles,
+                          measures=args.measures or "delent", tiles=args.tiles,
                           hardest=4 if args.hardest is None else args.hardest,
-                          bootstrap=args.intervals, cluster=args.cluster)  # fmt: skip
-
-
-def selection_flags(args: argparse.Namespace) -> dict[str, list[str]]:
-    """``--missions``/``--altitude``/``--direction`` as lists (they replace the checkpoint's)."""
-    out = {}
-    for name in SELECTION:
-        text = getattr(args, name)
-        if text is None:
-            continue
-        values = [v.strip() for v in text.split(",") if v.strip()]
-        if not values:
-            raise UsageError(f"--{name} is empty; give e.g. --{name} {_EXAMPLE[name]}")
-        out[name] = values
-    return out
-
-
-_EXAMPLE = {"missions": "rural_1,urban_2", "altitude": "low,mid", "direction": "h"}
+                          bootstrap=intervals, cluster=args.cluster)  # fmt: skip
 
 
 def _print_done(out: Path, report: dict[str, Any], what: str = "plots and confusions") -> None:
@@ -251,8 +246,9 @@ def _print_done(out: Path, report: dict[str, Any], what: str = "plots and confus
 def _run_compare(args: argparse.Namespace) -> int:
     from claravid.eval.reports import compare
 
-    settings = Bootstrap(resamples=args.bootstrap, level=args.ci_level, seed=args.seed)
-    print(compare(args.compare, args.output, settings, args.cluster, overwrite=args.overwrite))
+    report = args.settings["report"]
+    print(compare(args.compare, args.output, report.bootstrap, report.cluster,
+                  overwrite=args.overwrite))  # fmt: skip
     if args.output is not None:
         print(f"comparison: {args.output / 'compare.md'} and {args.output / 'compare.png'}")
     return 0
@@ -261,7 +257,7 @@ def _run_compare(args: argparse.Namespace) -> int:
 def _run_merge(args: argparse.Namespace) -> int:
     from claravid.eval.reports import merge
 
-    done = merge(args.merge, args.output, _report_settings(args), overwrite=args.overwrite)
+    done = merge(args.merge, args.output, args.settings["report"], overwrite=args.overwrite)
     _print_done(done.output, done.report)
     return 0
 
@@ -269,17 +265,14 @@ def _run_merge(args: argparse.Namespace) -> int:
 def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
     from claravid.eval.run import evaluate
 
-    inference = InferenceSettings(window=args.window, stride=args.stride, scale=args.scale,
-                                  batch_size=args.batch_size, device=args.device,
-                                  precision=args.precision, provider=args.provider)  # fmt: skip
     done = evaluate(
         args.output,
         checkpoint=args.checkpoint,
         onnx=args.onnx,
         predictions=args.predictions,
-        data=_data_choice(args),
-        inference=inference,
-        report=_report_settings(args),
+        data=args.settings["data"],
+        inference=args.settings["inference"],
+        report=args.settings["report"],
         save_predictions=args.save_predictions,
         allow_missing=args.allow_missing,
         workers=args.workers,
@@ -303,8 +296,8 @@ def _run_scores(args: argparse.Namespace) -> int:
     """``--scores CSV``: the complexity analysis of any per-image metric (no model, no labels)."""
     from claravid.eval.run import score_metrics
 
-    done = score_metrics(args.scores, args.output, data=_data_choice(args),
-                         report=_report_settings(args), workers=args.workers,
+    done = score_metrics(args.scores, args.output, data=args.settings["data"],
+                         report=args.settings["report"], workers=args.workers,
                          overwrite=args.overwrite)  # fmt: skip
     # The bins and groups as report.md has them, less its warning lines: printed once, below.
     text = done.text.split("## Correlations")[0].rstrip()

@@ -13,6 +13,7 @@ reports that are not comparable bin by bin) is a :class:`UserWarning`.
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -23,7 +24,7 @@ import numpy as np
 from claravid.eval.analysis.bootstrap import Bootstrap
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.report.files import REPORT, check_report_kind
-from claravid.eval.settings import Evaluation, ReportSettings
+from claravid.eval.settings import Evaluation, ReportSettings, check_type
 from claravid.infra.cli import check_output_dir
 
 
@@ -60,6 +61,8 @@ def merge(
     from claravid.eval.report.files import load_result
     from claravid.eval.report.folder import write_outputs
 
+    parts = report_list(parts, "merge", "merge(['part0', 'part1'], 'all')")
+    check_type(settings, ReportSettings, "settings", "ReportSettings(bins=5)")
     settings = settings or ReportSettings()
     output = Path(output)
     check_output_dir(output, marker=REPORT, overwrite=overwrite)
@@ -81,12 +84,36 @@ def merge(
     return Evaluation(output, report, result)
 
 
+def report_list(paths: Any, verb: str, example: str) -> list[str | Path]:
+    """The report folders of a merge or a comparison, as a list.
+
+    Raises:
+        TypeError: one path given where a list is expected (a string would be read letter by
+            letter).
+        ValueError: no report at all.
+    """
+    if isinstance(paths, (str, bytes, Path)):
+        raise TypeError(
+            f"{verb} takes a list of report folders, got the single path {str(paths)!r}: write "
+            f"[{str(paths)!r}] (e.g. {example})"
+        )
+    paths = list(paths)
+    if not paths:
+        noun = "report folder to merge" if verb == "merge" else "report to compare"
+        raise ValueError(f"{verb} needs at least one {noun} (e.g. {example})")
+    return paths
+
+
 def _warn_different_runs(parts: Sequence[EvalResult]) -> None:
-    """Job-array parts share one model and one data selection; say when they do not."""
+    """Job-array parts share one model and one data selection; say when they do not. A model
+    file or data root is known by the real path behind it: one root spelled two ways (``..``,
+    a symlink, a trailing slash) is one root."""
     for key, what in (("path", "model"), ("split", "split"), ("data", "data root")):
         seen = {str(p.source.get(key)) for p in parts if p.source.get(key) is not None}
         if key == "split":  # split files are how job-array parts shard a split: fine
             seen &= {"train", "val", "test", "all"}
+        else:
+            seen = {os.path.realpath(s) for s in seen}
         if len(seen) > 1:
             warnings.warn(
                 f"merging reports of different {what}s ({', '.join(sorted(seen))}): the merged "
@@ -131,6 +158,8 @@ def compare(
     """
     from claravid.eval.report.compare import compare_reports
 
+    reports = report_list(reports, "compare", "compare(['a', 'b'], 'cmp')")
+    check_type(bootstrap, Bootstrap, "bootstrap", "Bootstrap(resamples=1000)")
     if output is not None:
         check_output_dir(output, marker="compare.md", overwrite=overwrite)
     text, messages = compare_reports(reports, output, bootstrap, cluster)

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from claravid.data.splits import SplitBalanceWarning
-from claravid.eval.analysis.units import DATASETS, default_cluster
+from claravid.eval.analysis.units import DATASETS, default_cluster, unit_labels
 from claravid.eval.report.files import REPORT, check_report_kind
 from claravid.eval.reports import warn_outside_edges
 from claravid.eval.settings import (
@@ -33,22 +33,40 @@ from claravid.eval.settings import (
     Evaluation,
     InferenceSettings,
     ReportSettings,
+    check_type,
 )
 from claravid.infra.cli import UsageError, check_output_dir
 
 
-def resolve_data(choice: DataChoice, defaults: dict[str, Any], *, hint: str = "") -> dict[str, Any]:
-    """The data to open: ``choice`` first, then what the model recorded, then the defaults.
+def resolve_data(
+    choice: DataChoice,
+    defaults: dict[str, Any],
+    *,
+    hint: str = "",
+    default_split: dict[str, str] | None = None,
+) -> dict[str, Any]:
+    """The data to open: ``choice`` first, then what the model recorded, then the defaults
+    (the one rule of evaluations and ``--scores``).
+
+    Args:
+        choice: the call's choice.
+        defaults: what the model (or the label maps) recorded.
+        hint: added to the message when no root is known.
+        default_split: the split per dataset kind when neither gives one (default ``val``).
 
     Raises:
-        UsageError: no root anywhere, ``masks`` or a ClaraVid selection with other data.
+        UsageError: no root anywhere, an unknown recorded dataset kind, ``masks`` or a ClaraVid
+            selection with other data.
     """
     root = choice.root or defaults.get("data")
     if root is None:
         raise UsageError(f"--data is required: the dataset root to evaluate on{hint}")
     dataset = choice.dataset or defaults.get("dataset") or "claravid"
-    if dataset not in DATASETS:
-        dataset = "claravid"
+    if dataset not in DATASETS:  # DataChoice checks its own; a record may be anything
+        raise UsageError(
+            f"the recorded dataset kind {dataset!r} is unknown; pass --dataset (one of "
+            f"{', '.join(DATASETS)})"
+        )
     if choice.masks is not None and dataset != "folder":
         raise UsageError(f"--masks does nothing with --dataset {dataset}; drop it")
     if choice.selection and dataset != "claravid":
@@ -65,7 +83,7 @@ def resolve_data(choice: DataChoice, defaults: dict[str, Any], *, hint: str = ""
     return {
         "root": Path(root),
         "dataset": dataset,
-        "split": choice.split or defaults.get("split") or "val",
+        "split": choice.split or defaults.get("split") or (default_split or {}).get(dataset, "val"),
         "palette": choice.palette or defaults.get("palette"),
         "masks": choice.masks,
         "selection": selection,
@@ -118,6 +136,11 @@ def evaluate(
 
     if sum(x is not None for x in (checkpoint, onnx, predictions)) != 1:
         raise UsageError("give exactly one of --checkpoint, --onnx and --predictions")
+    # A root given as data= is the usual slip: the message shows the call that was meant.
+    meant = f"DataChoice(root={str(data)!r})" if isinstance(data, (str, Path)) else None
+    check_type(data, DataChoice, "data", meant or "DataChoice(root='/data/claravid')")
+    check_type(inference, InferenceSettings, "inference", "InferenceSettings(scale=0.5)")
+    check_type(report, ReportSettings, "report", "ReportSettings(bins=5)")
     data, inference, report = (
         data or DataChoice(),
         inference or InferenceSettings(),
@@ -141,6 +164,8 @@ def evaluate(
         opened.groups(report.group_by)  # fails now, not after the inference
     report.check_bins(len(opened))
     intervals = report.intervals(opened.attributes, default_cluster(opened.name, opened.attributes))
+    # Refused now, not after the inference: the images' clusters are known before it runs.
+    intervals.check_memory(unit_labels(opened.paths, opened.attributes, intervals.cluster))
     source.update(opened.describe)
     source["measures"] = list(report.measures)
     if report.tiles is not None:
@@ -277,27 +302,30 @@ def score_metrics(
         UsageError: no data root, a foreign output folder, a bad CSV, images not in the data.
     """
     from claravid.eval.analysis.metric_bins import metric_report
-    from claravid.eval.analysis.units import group_indices, unit_labels
+    from claravid.eval.analysis.units import group_indices
     from claravid.eval.inference.complexity_job import ComplexityJob
     from claravid.eval.inference.data import open_data
     from claravid.eval.inference.metric_csv import match_images, read_metrics_csv
     from claravid.eval.report.folder import write_metric_outputs
 
+    check_type(data, DataChoice, "data", "DataChoice(root='/data/uavid', dataset='uavid')")
+    check_type(report, ReportSettings, "report", "ReportSettings(bins=5)")
     report = report or ReportSettings()
     if data.root is None:
         raise UsageError("--scores needs --data: the dataset root the CSV's paths belong to")
+    # The rule of every evaluation, without a model's record; ClaraVid defaults to all frames.
+    spec = resolve_data(data, {}, default_split={"claravid": "all"})
     output = Path(output)
     check_output_dir(output, marker=REPORT, overwrite=overwrite)
     check_report_kind(output, scores=True, overwrite=overwrite)
-    dataset = data.dataset or "claravid"
-    csv_paths, metrics, csv_rows = read_metrics_csv(scores, data.root)
+    csv_paths, metrics, csv_rows = read_metrics_csv(scores, spec["root"])
     opened = open_data(
-        data.root,
-        dataset=dataset,
-        split=data.split or ("all" if dataset == "claravid" else "val"),
+        spec["root"],
+        dataset=spec["dataset"],
+        split=spec["split"],
         palette=data.palette,
-        masks=data.masks,
-        selection=resolve_data(data, {})["selection"],
+        masks=spec["masks"],
+        selection=spec["selection"],
         labels=False,
     )
     if report.group_by is not None:
@@ -308,6 +336,7 @@ def score_metrics(
     report.check_bins(len(paths))
     attributes = {a: [v[i] for i in order] for a, v in opened.attributes.items()}
     clusters = unit_labels(paths, attributes, settings.cluster)
+    settings.check_memory(clusters)  # before the complexity of every image is measured
     # The one grouping rule of every report (viewpoint = mission/viewpoint).
     groups = None if report.group_by is None else group_indices(paths, attributes, report.group_by)
     values = ComplexityJob(paths, report.measures, threads=max(1, workers)).result()

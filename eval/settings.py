@@ -7,23 +7,100 @@
 
 A field left None takes what the model file recorded, else the default, so
 ``evaluate(out, checkpoint=...)`` evaluates a checkpoint the way it was trained.
+
+Each class checks its fields when it is made (``__post_init__``), with the messages
+``claravid-eval`` prints: the command line builds these very objects from its flags, so a
+mistake is refused the same way, before any work, from Python and from the shell.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from claravid.dsp.tiles import MIN_TILE_SIZE
+from claravid.eval.analysis.bins import parse_edges
 from claravid.eval.analysis.bootstrap import Bootstrap
+from claravid.eval.analysis.measures import parse_measures
 from claravid.eval.analysis.table import EvalResult
-from claravid.eval.analysis.units import check_unit
+from claravid.eval.analysis.units import CLUSTER_UNITS, DATASETS, GROUP_BY, check_unit
 from claravid.infra.cli import UsageError
+from claravid.infra.precision import PRECISIONS
+from claravid.models.onnx_runtime import PROVIDERS
 
 #: ClaraVid selection settings a checkpoint records and ``DataChoice.selection`` replaces.
 SELECTION = ("missions", "altitude", "direction")
+_EXAMPLE = {"missions": "rural_1,urban_2", "altitude": "low,mid", "direction": "h"}
+
+
+def _one_of(value: Any, choices: Sequence[str], flag: str, what: str) -> None:
+    if value is not None and value not in choices:
+        raise ValueError(f"unknown {flag} {value!r} ({what}); use one of {', '.join(choices)}")
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def _size(value: Any, flag: str) -> int | tuple[int, int] | None:
+    """A window or stride: None, N, or (height, width), positive integers."""
+    if value is None:
+        return None
+    pair = (value, value) if _is_int(value) else value
+    if (
+        not isinstance(pair, Sequence)
+        or isinstance(pair, str)
+        or len(pair) != 2
+        or not all(_is_int(v) and v >= 1 for v in pair)
+    ):
+        raise ValueError(
+            f"{flag} must be a positive integer N or a pair (height, width) of them, got {value!r}"
+        )
+    return int(value) if _is_int(value) else (int(pair[0]), int(pair[1]))
+
+
+def selection_lists(selection: Mapping[str, Any]) -> dict[str, list[str]]:
+    """ClaraVid ``missions``/``altitude``/``direction``, each a comma-separated string or a list,
+    as lists of names (blank names dropped).
+
+    Raises:
+        ValueError: an unknown key, or a selection with no name left.
+    """
+    if not isinstance(selection, Mapping):
+        raise TypeError(f"selection must be a dict such as {{'missions': ['rural_1']}}, got "
+                        f"{type(selection).__name__}")  # fmt: skip
+    out = {}
+    for name, given in selection.items():
+        if name not in SELECTION:
+            raise ValueError(
+                f"unknown selection {name!r}: the ClaraVid selection is {', '.join(SELECTION)}"
+            )
+        items = given.split(",") if isinstance(given, str) else list(given)
+        values = [str(v).strip() for v in items if str(v).strip()]
+        if not values:
+            raise ValueError(f"--{name} is empty; give e.g. --{name} {_EXAMPLE[name]}")
+        out[name] = values
+    return out
+
+
+def check_type(value: Any, kind: type, name: str, example: str) -> None:
+    """Refuse an argument of the wrong type with a message that shows the right one.
+
+    Raises:
+        TypeError: ``value`` is not a ``kind`` (e.g. ``evaluate(data="root")``).
+    """
+    if value is not None and not isinstance(value, kind):
+        article = "an" if kind.__name__[0] in "AEIOU" else "a"
+        raise TypeError(
+            f"{name} must be {article} {kind.__name__} (e.g. {example}), got "
+            f"{type(value).__name__} {value!r}"
+        )
 
 
 @dataclass(frozen=True)
@@ -42,10 +119,18 @@ class DataChoice:
 
     root: str | Path | None = None
     dataset: str | None = None
-    split: str | None = None
+    split: str | Path | None = None
     palette: str | Path | None = None
     masks: str | Path | None = None
     selection: dict[str, list[str]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        _one_of(self.dataset, DATASETS, "--dataset", "the kind of data")
+        for name in ("root", "split", "palette", "masks"):
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, (str, Path)):
+                raise TypeError(f"{name} must be a str or a Path, got {type(value).__name__}")
+        object.__setattr__(self, "selection", selection_lists(self.selection or {}))
 
 
 @dataclass(frozen=True)
@@ -69,6 +154,22 @@ class InferenceSettings:
     device: str | None = None
     precision: str = "auto"
     provider: str | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "window", _size(self.window, "--window"))
+        object.__setattr__(self, "stride", _size(self.stride, "--stride"))
+        if self.scale is not None and not (
+            isinstance(self.scale, (int, float)) and math.isfinite(self.scale)
+            and 0 < self.scale <= 8
+        ):  # fmt: skip
+            raise ValueError(f"--scale must be in (0, 8], got {self.scale!r}")
+        if self.batch_size is not None and not (_is_int(self.batch_size) and self.batch_size >= 1):
+            raise ValueError(f"--batch-size must be at least 1, got {self.batch_size!r}")
+        if self.precision not in PRECISIONS:
+            raise ValueError(
+                f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}"
+            )
+        _one_of(self.provider, tuple(PROVIDERS), "--provider", "the ONNX Runtime provider")
 
 
 @dataclass(frozen=True)
@@ -95,6 +196,31 @@ class ReportSettings:
     hardest: int = 4
     bootstrap: Bootstrap = field(default_factory=Bootstrap)
     cluster: str | None = None
+
+    def __post_init__(self) -> None:
+        if not _is_int(self.bins) or self.bins < 1:
+            raise ValueError(f"--bins must be at least 1, got {self.bins!r}")
+        if self.edges is not None:
+            object.__setattr__(self, "edges", parse_edges(self.edges))
+        _one_of(self.group_by, GROUP_BY, "--group-by", "the rows of the report")
+        # Bins and tiles are made of delentropy: it is always computed, first (as --measures).
+        object.__setattr__(self, "measures", tuple(parse_measures(self.measures)))
+        if self.tiles is not None and not (_is_int(self.tiles) and self.tiles >= MIN_TILE_SIZE):
+            raise ValueError(
+                f"--tiles must be at least {MIN_TILE_SIZE} pixels (e.g. 630), got {self.tiles!r}"
+            )
+        if not _is_int(self.hardest) or self.hardest < 0:
+            raise ValueError(f"--hardest must be >= 0, got {self.hardest!r}")
+        if not isinstance(self.bootstrap, Bootstrap):
+            raise ValueError(
+                f"bootstrap must be a Bootstrap (e.g. Bootstrap(resamples=1000)), got "
+                f"{self.bootstrap!r}"
+            )
+        if self.cluster is not None and self.cluster not in CLUSTER_UNITS:
+            raise ValueError(
+                f"unknown --cluster {self.cluster!r} (the resampled unit); use one of "
+                f"{', '.join(CLUSTER_UNITS)}"
+            )
 
     def intervals(self, attributes: dict[str, list[str]], default: str) -> Bootstrap:
         """The bootstrap settings for images with these ``attributes`` (the ``default`` unit

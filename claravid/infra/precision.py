@@ -11,9 +11,14 @@ from __future__ import annotations
 
 import contextlib
 import warnings
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import torch
+if TYPE_CHECKING:
+    import torch
+
+# torch is imported where a device or a dtype is needed, not at import: the argument check of
+# every command line reads this module (`flag_precision`), and ``claravid-eval --merge`` and
+# ``--compare`` must never pay for loading torch.
 
 #: The values of ``WindowConfig.precision``.
 PRECISIONS = ("auto", "fp32", "bf16", "fp16")
@@ -27,6 +32,8 @@ def autocast_dtype(precision: str, device: torch.device | str) -> torch.dtype | 
     Raises:
         ValueError: ``precision`` is not one of `PRECISIONS`.
     """
+    import torch
+
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     device = torch.device(device)
@@ -39,6 +46,8 @@ def autocast_dtype(precision: str, device: torch.device | str) -> torch.dtype | 
 
 def precision_name(dtype: torch.dtype | None) -> str:
     """``fp32``, ``bf16`` or ``fp16``: what `autocast_dtype` resolved to, for reports and logs."""
+    import torch
+
     return {None: "fp32", torch.bfloat16: "bf16", torch.float16: "fp16"}[dtype]
 
 
@@ -74,4 +83,6 @@ def autocast(dtype: torch.dtype | None, device: torch.device | str) -> Any:
     """An autocast context to ``dtype`` on ``device``'s type (a no-op context for None)."""
     if dtype is None:
         return contextlib.nullcontext()
+    import torch
+
     return torch.autocast(torch.device(device).type, dtype=dtype)

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import os
 import zlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,6 +41,12 @@ _CACHE_CELLS = 32768
 #: an extreme value or an interpolation that can exclude the estimate). Efron & Tibshirani
 #: advise 1000 or more for percentile intervals; 100 is the floor, 1000 the default.
 MIN_RESAMPLES = 100
+#: Bytes a bootstrap holds per resample beside its draw counts (4 bytes per cluster): the
+#: resampled statistics, 8-byte floats (mIoU and pixel accuracy, a model's mIoU, a gap, a
+#: Pearson and a Spearman r), the finite values a percentile interval keeps and the copy
+#: ``numpy.quantile`` sorts: at most 8 of them at a time. The resampled sums themselves are
+#: made and reduced :data:`_CHUNK` resamples at a time, so they do not grow with R.
+_BYTES_PER_RESAMPLE = 64
 #: The fewest image pairs, and clusters, a correlation interval is computed from: with 3
 #: points every resample holding all three gives the same r (a zero-width "interval"), and 3
 #: clusters have only 10 distinct resamples.
@@ -96,6 +102,24 @@ class Bootstrap:
         """Whether intervals are computed at all."""
         return self.resamples > 0
 
+    def check_memory(self, clusters: Sequence[Any] | int) -> None:
+        """Refuse, before anything is allocated, intervals that would not fit in memory: the
+        one check of every path that resamples (evaluation, merge, comparison, ``--scores``,
+        tiles), called first by each and by :func:`draw_counts`.
+
+        Args:
+            clusters: the cluster label of each image (or the number of clusters): the most
+                clusters any set of these images draws from.
+
+        Raises:
+            ValueError: the bootstrap needs more than the memory available (one line naming
+                the size and ``--bootstrap``).
+        """
+        if not self.enabled:
+            return
+        num = clusters if isinstance(clusters, int) else len(set(map(str, clusters)))
+        check_resamples(self.resamples, num)
+
     def rng(self, stream: str = "") -> np.random.Generator:
         """The generator of one set (bin, group, overall), named by ``stream``."""
         return np.random.default_rng([int(self.seed), zlib.crc32(stream.encode("utf-8"))])
@@ -130,7 +154,7 @@ def draw_counts(num_clusters: int, resamples: int, rng: np.random.Generator) -> 
         sums to C.
     """
     c, r = int(num_clusters), int(resamples)
-    check_memory(r * c * 4, f"the draw counts of {r} resamples x {c} clusters")
+    check_resamples(r, c)
     counts = np.zeros((r, c), dtype=np.int32)
     if c == 0 or r == 0:
         return counts
@@ -170,6 +194,24 @@ def check_memory(nbytes: int, what: str) -> None:
         )
 
 
+def bootstrap_bytes(resamples: int, num_clusters: int) -> int:
+    """The most memory one interval of ``resamples`` resamples over ``num_clusters`` clusters
+    holds at a time: its int32 draw counts and a few floats per resample."""
+    return int(resamples) * (4 * int(num_clusters) + _BYTES_PER_RESAMPLE)
+
+
+def check_resamples(resamples: int, num_clusters: int) -> None:
+    """Refuse, before allocating anything, a bootstrap larger than the memory available now.
+
+    Raises:
+        ValueError: see :func:`check_memory`.
+    """
+    check_memory(
+        bootstrap_bytes(resamples, num_clusters),
+        f"{int(resamples)} resamples of {int(num_clusters)} clusters",
+    )
+
+
 def _local_clusters(clusters: np.ndarray, members: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
     """Members' indices and their local cluster index 0..C-1 (sorted cluster-id order)."""
     members = np.asarray(members, dtype=np.int64).reshape(-1)
@@ -202,13 +244,20 @@ def _per_cluster(rows: np.ndarray, local: np.ndarray, num_clusters: int) -> np.n
     return out
 
 
-def _resampled(counts: np.ndarray, per_cluster: np.ndarray) -> np.ndarray:
-    """``counts @ per_cluster`` in chunks of resamples (float64)."""
-    out = np.empty((counts.shape[0], per_cluster.shape[1]), dtype=np.float64)
+def _resampled(
+    counts: np.ndarray, per_cluster: np.ndarray, statistic: Callable[[np.ndarray], np.ndarray]
+) -> np.ndarray:
+    """``statistic(counts @ per_cluster)``, :data:`_CHUNK` resamples at a time: the resampled
+    sums ([R, D] float64, D up to 6K) are never held whole, only the statistics ([R] or
+    [R, S]) are."""
+    out: np.ndarray | None = None
     for start in range(0, counts.shape[0], _CHUNK):
         block = counts[start : start + _CHUNK].astype(np.float64)
-        out[start : start + _CHUNK] = block @ per_cluster
-    return out
+        values = np.asarray(statistic(block @ per_cluster), dtype=np.float64)
+        if out is None:
+            out = np.empty((counts.shape[0], *values.shape[1:]), dtype=np.float64)
+        out[start : start + len(block)] = values
+    return out if out is not None else np.empty(0, dtype=np.float64)
 
 
 def confusion_features(confusions: np.ndarray) -> np.ndarray:
@@ -303,7 +352,8 @@ def confusion_interval(
     rows = features[members] if features is not None else confusion_features(confusions[members])
     per_cluster = _per_cluster(rows, local, num)
     draws = _counts_for(num, settings, counts, stream)
-    miou, acc = _miou_acc(_resampled(draws, per_cluster), k)
+    both = _resampled(draws, per_cluster, lambda sums: np.stack(_miou_acc(sums, k), axis=1))
+    miou, acc = both[:, 0], both[:, 1]
     return {
         "miou_ci": percentile_interval(miou, settings.level),
         "pixel_acc_ci": percentile_interval(acc, settings.level),
@@ -337,10 +387,11 @@ def mean_interval(
         return {"mean": mean, "ci": None, "ci_note": note}
     rows = np.stack([values[members], np.ones(len(members))], axis=1)
     per_cluster = _per_cluster(rows, local, num)
-    sums = _resampled(_counts_for(num, settings, counts, stream), per_cluster)
+    means = _resampled(_counts_for(num, settings, counts, stream), per_cluster,
+                       lambda sums: sums[:, 0] / sums[:, 1])  # fmt: skip
     return {
         "mean": mean,
-        "ci": percentile_interval(sums[:, 0] / sums[:, 1], settings.level),
+        "ci": percentile_interval(means, settings.level),
         "ci_note": None,
     }
 
@@ -489,10 +540,11 @@ def paired_gap(
     flat = np.concatenate(
         [confusion_features(conf_a[members]), confusion_features(conf_b[members])], axis=1
     )
-    both = _resampled(draws, _per_cluster(flat, local, num))
-    miou_a, _ = _miou_acc(both[:, : 3 * k], k)
-    miou_b, _ = _miou_acc(both[:, 3 * k :], k)
-    gaps = miou_b - miou_a
+
+    def gap_of(sums: np.ndarray) -> np.ndarray:
+        return _miou_acc(sums[:, 3 * k :], k)[0] - _miou_acc(sums[:, : 3 * k], k)[0]
+
+    gaps = _resampled(draws, _per_cluster(flat, local, num), gap_of)
     return {
         **out,
         "gap_ci": percentile_interval(gaps, settings.level),
@@ -531,7 +583,7 @@ def unpaired_gap(
             continue
         draws = draw_counts(num, settings.resamples, settings.rng(f"{stream}:{tag}"))
         per_cluster = _per_cluster(confusion_features(conf[members]), local, num)
-        values.append(_miou_acc(_resampled(draws, per_cluster), k)[0])
+        values.append(_resampled(draws, per_cluster, lambda sums, k=k: _miou_acc(sums, k)[0]))
     gap = point[1] - point[0]
     out: dict[str, Any] = {
         "gap": gap if np.isfinite(gap) else None,

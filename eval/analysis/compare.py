@@ -7,10 +7,12 @@ is taken per resample, which removes the spread between images. *Unpaired* other
 report resamples its own clusters independently (a wider interval), and the comparison says so.
 
 *Not comparable* (no gap, interval or p-value computed, and the reason given): reports of
-different class sets (palettes), whose mIoUs average different classes; and the same run seen
-twice, a report against its own re-binning or merge: the same images with the same per-image
-confusion for every image, i.e. the same predictions (any gap is 0 and any "significance" an
-artefact of the binning).
+different class sets (palettes), whose mIoUs average different classes; and one run seen twice,
+a report against its own re-binning or merge (or a copy of it): reports that share a
+``report_id`` in their lineage (:attr:`~claravid.eval.analysis.table.EvalResult.lineage`), whose
+gap is 0 by construction and any "significance" an artefact of the binning. Two *runs* that
+agree everywhere (a checkpoint and its ONNX export, two seeds that converged alike) are a fair
+comparison: a paired gap of 0, interval [0, 0], p = 1.
 """
 
 from __future__ import annotations
@@ -64,19 +66,18 @@ def comparison_warnings(reports: Sequence[dict[str, Any]], names: Sequence[str])
 
 
 def not_comparable(a: EvalResult, b: EvalResult, name_a: str, name_b: str) -> str | None:
-    """Why B's gap to A means nothing (None: it does): other classes, or the same predictions."""
+    """Why B's gap to A means nothing (None: it does): other classes, or one run seen twice
+    (a report and its own re-binning or merge: a shared ``report_id`` in their lineages).
+    Predictions that agree do not make one run: two runs that agree get a gap of 0."""
     if a.classes != b.classes:
         return (f"{name_b} and {name_a} score different class sets ({len(b.classes)} vs "
                 f"{len(a.classes)} classes, other palettes): their mIoUs average different "
                 "classes")  # fmt: skip
-    a_ids, b_ids = a.image_ids(), b.image_ids()
-    if sorted(a_ids) != sorted(b_ids):
-        return None
-    where = {p: i for i, p in enumerate(b_ids)}
-    order = np.asarray([where[p] for p in a_ids], dtype=np.int64)
-    if np.array_equal(a.confusions, b.confusions[order]):
-        return (f"{name_b} and {name_a} hold the same predictions of the same images (one run, "
-                "re-binned or merged): a model against itself")  # fmt: skip
+    shared = sorted(set(a.lineage) & set(b.lineage))
+    if shared:
+        return (f"{name_b} and {name_a} are one run seen twice (both come from report "
+                f"{shared[0]}: a report and its own re-binning, merge or copy): a model "
+                "against itself")  # fmt: skip
     return None
 
 
@@ -117,6 +118,8 @@ def gap_analysis(
         names: how each report is named in the output.
         settings: resamples, level, seed and the cluster unit.
     """
+    for result in results:  # before anything is allocated: unpaired gaps draw each report's
+        settings.check_memory(result.cluster_labels(settings.cluster))
     base, base_report = results[0], reports[0]
     base_ids = _ids(base, settings.cluster)
     base_bins = report_bins(base, base_report)
@@ -133,6 +136,7 @@ def gap_analysis(
         other_bins = report_bins(result, report)
         entry: dict[str, Any] = {
             "report": name,
+            "comparable": True,
             "paired": pair.paired,
             "overall": pair.gap(
                 range(len(base.paths)), range(len(result.paths)), f"compare:{j}:overall"

@@ -70,6 +70,7 @@ def metric_report(
         "spearman_ci"}``.
     """
     n = len(paths)
+    settings.check_memory(clusters)  # before anything is computed or allocated
     ids = cluster_ids(clusters)
     measure = PRIMARY_MEASURE if PRIMARY_MEASURE in complexity else next(iter(complexity), None)
     values = complexity.get(measure) if measure else None

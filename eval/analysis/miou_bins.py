@@ -95,6 +95,8 @@ def stratify(
         )
     if n == 0:
         raise ValueError("no image to report on")
+    if bootstrap is not None:  # refused before anything is computed or allocated
+        bootstrap.check_memory(list(paths) if clusters is None else clusters)
     complexity = {k: np.asarray(v, dtype=np.float64) for k, v in (complexity or {}).items()}
     for measure, values in complexity.items():
         if len(values) != n:

@@ -45,6 +45,9 @@ class EvalResult:
             (symlinks and ``..`` resolved, :func:`claravid.eval.report.files.load_result`), so
             one image reached through two spellings of the data root is one image; None: the
             normalised path.
+        lineage: the ``report_id`` of every report these rows were read from, and of every
+            report those were merged or re-binned from (empty for a fresh evaluation): two
+            tables sharing one are one run seen twice.
     """
 
     paths: list[str]
@@ -57,6 +60,7 @@ class EvalResult:
     source: dict[str, Any] = field(default_factory=dict)
     tiles: TileTable | None = None
     identity: list[str] | None = None
+    lineage: tuple[str, ...] = ()
 
     def groups(self, by: str | None) -> dict[str, list[int]] | None:
         """Image indices per unit (:func:`~claravid.eval.analysis.units.group_indices`), or None."""
@@ -114,6 +118,10 @@ def merge_results(results: Sequence[EvalResult], names: Sequence[str]) -> EvalRe
     sources = [r.source for r in results]
     source = dict(sources[0]) if len(results) == 1 else {"kind": "merge", "parts": sources}
     source["merged_from"] = [str(n) for n in names]
+    # The reports this one is made of, theirs included: a re-binning or a merge is the same
+    # run as each of them (--compare calls them not comparable), whatever its own new id.
+    lineage = tuple(sorted({i for r in results for i in r.lineage}))
+    source["derived_from"] = list(lineage)
     return EvalResult(
         paths=cat([r.paths for r in results]),
         keys=cat([r.keys for r in results]),
@@ -125,4 +133,5 @@ def merge_results(results: Sequence[EvalResult], names: Sequence[str]) -> EvalRe
         source=source,
         tiles=concat_tables([r.tiles for r in results], [len(r.paths) for r in results], order),
         identity=cat([r.image_ids() for r in results]),
+        lineage=lineage,
     )

@@ -175,10 +175,12 @@ def tile_report(
     Returns:
         ``{"size", "num_tiles", "num_without_labels", "binning", "bins", "correlation"}``.
     """
+    labels = list(paths) if clusters is None else list(clusters)
+    if bootstrap is not None:  # tiles draw their images' clusters
+        bootstrap.check_memory(labels)
     bin_list, outside, binning = tile_bins(table, paths, bins, edges)
     ids = None
     if bootstrap is not None:
-        labels = list(paths) if clusters is None else list(clusters)
         ids = cluster_ids(labels)[table.image]
         features = confusion_features(table.confusions)
     rows = []

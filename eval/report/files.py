@@ -125,6 +125,7 @@ def load_result(path: str | Path) -> EvalResult:
             # The real file behind each path: a symlinked or ../ spelling of the data root
             # is the same image (merge refuses it twice, compare pairs it).
             identity=[os.path.realpath(str(p)) for p in data["paths"]],
+            lineage=_lineage(report["source"]),
         )
     except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise UsageError(
@@ -146,7 +147,26 @@ def load_result(path: str | Path) -> EvalResult:
         inside = len(tiles) == 0 or (tiles.image.min() >= 0 and tiles.image.max() < n)
         if tiles.confusions.shape[1:] != (k, k) or not inside:
             raise UsageError(f"{npz_file}: its tiles do not match its images or classes")
+    # A confusion counts pixels: a negative cell is a damaged or edited file, whose mIoU and
+    # intervals would be numbers of nothing.
+    arrays = {"confusions": confusions}
+    if tiles is not None:
+        arrays["tile_confusions"] = tiles.confusions
+    for name, counts in arrays.items():
+        if counts.size and counts.min() < 0:
+            where = np.argwhere(counts < 0)
+            raise UsageError(
+                f"{npz_file} holds {len(where)} negative pixel count(s) in {name} (first: row "
+                f"{where[0][0]}), so it was damaged or edited: evaluate again"
+            )
     return result
+
+
+def _lineage(source: dict[str, Any]) -> tuple[str, ...]:
+    """The report's own ``report_id`` and the ids it was merged or re-binned from
+    (``derived_from``; reports of version 0.1 carry neither)."""
+    ids = [source.get("report_id"), *(source.get("derived_from") or [])]
+    return tuple(sorted({str(i) for i in ids if isinstance(i, str) and i}))
 
 
 def _load_tiles(data: dict[str, np.ndarray]) -> TileTable | None:

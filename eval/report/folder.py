@@ -8,6 +8,7 @@ knows the two belong together.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import re
 import shutil
@@ -34,15 +35,30 @@ from claravid.eval.report.plots import (
 )
 from claravid.infra.cli import atomic_write_text, current_umask
 
-#: Files a report folder of this tool holds (``--scores`` plots match the patterns below):
-#: replaced with the folder. Anything else found there (a user's notes, a predictions folder)
-#: is moved into the new folder.
-_OURS = {REPORT, CONFUSIONS, "report.md", *PLOTS.values()}
-_OUR_PATTERNS = (re.compile(r".+_per_bin\.png$"), re.compile(r".+_vs_delent\.png$"))
+#: Files every report folder of this tool may hold: replaced with the folder.
+_OURS = frozenset({REPORT, CONFUSIONS, "report.md", *PLOTS.values()})
 
 
-def _ours(name: str) -> bool:
-    return name in _OURS or any(p.match(name) for p in _OUR_PATTERNS)
+def report_files(folder: str | Path) -> set[str]:
+    """The names of the files the report in ``folder`` wrote: the fixed ones, and for a
+    ``--scores`` report ``<metric>_per_bin.png`` and ``<metric>_vs_delent.png`` of each metric
+    its ``report.json`` lists. Anything else there (a user's ``baseline_per_bin.png``, notes, a
+    predictions folder) is not the report's, and moves into the folder that replaces it."""
+    names = set(_OURS)
+    try:
+        old = json.loads((Path(folder) / REPORT).read_text(encoding="utf-8"))
+        metrics = old.get("metrics") if old["source"]["kind"] == "scores" else None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return names  # no readable report.json: only the fixed names are known to be ours
+    for name in metrics if isinstance(metrics, list) else []:
+        names |= set(metric_plot_names(str(name)))
+    return names
+
+
+def metric_plot_names(metric: str) -> tuple[str, str]:
+    """The two plot files of a ``--scores`` metric: per bin, and against delentropy."""
+    slug = _slug(metric)
+    return f"{slug}_per_bin.png", f"{slug}_vs_delent.png"
 
 
 @contextlib.contextmanager
@@ -51,8 +67,9 @@ def staged_folder(out: str | Path) -> Iterator[Path]:
 
     The new folder is written into a hidden sibling; once complete, the old folder is renamed
     aside and the new one into place (two renames: ``out`` never holds new files beside an old
-    report), files of the old folder that are not report files are moved over, and the old
-    folder is removed. An interrupted write (Ctrl-C, a full disk) leaves ``out`` as it was.
+    report), files of the old folder that its report did not write (:func:`report_files`) are
+    moved over, and the old folder is removed. An interrupted write (Ctrl-C, a full disk)
+    leaves ``out`` as it was.
     """
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -63,12 +80,13 @@ def staged_folder(out: str | Path) -> Iterator[Path]:
         if not out.exists():
             os.replace(staging, out)
             return
+        ours = report_files(out)  # read before the swap: what the old report wrote
         aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
         old = aside / out.name
         os.replace(out, old)
         os.replace(staging, out)
         for entry in old.iterdir():
-            if not _ours(entry.name) and not (out / entry.name).exists():
+            if entry.name not in ours and not (out / entry.name).exists():
                 os.replace(entry, out / entry.name)
         shutil.rmtree(aside, ignore_errors=True)
     finally:
@@ -131,13 +149,11 @@ def write_metric_outputs(out: str | Path, report: dict[str, Any]) -> str:
     with staged_folder(out) as folder:
         plots = {}
         for name in report["metrics"]:
-            slug = _slug(name)
+            per_bin, scatter = metric_plot_names(name)  # what report_files reads back
             if report["bins"]:
-                file = folder / f"{slug}_per_bin.png"
-                plots[f"{name} per bin"] = plot_metric_bins(report, name, file)
+                plots[f"{name} per bin"] = plot_metric_bins(report, name, folder / per_bin)
             if "delent" in report["correlation"]:
-                file = folder / f"{slug}_vs_delent.png"
-                plots[f"{name} vs delent"] = plot_metric_scatter(report, name, file)
+                plots[f"{name} vs delent"] = plot_metric_scatter(report, name, folder / scatter)
         text = metric_markdown(report, {k: Path(v).name for k, v in plots.items()})
         atomic_write_text(folder / "report.md", text)
         write_json(folder / REPORT, report)

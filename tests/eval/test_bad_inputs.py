@@ -129,15 +129,42 @@ def test_bad_numbers_name_the_flag_in_one_line(flag, value, tmp_path, capsys):
     assert f"argument {flag}" in err
 
 
-def test_predict_finds_webp_in_a_folder(model_files, tmp_path, capsys):
+def test_predict_finds_webp_in_a_folder(claravid_root, tmp_path, capsys):
+    """The WebP is found, decoded and predicted: its label map is the model's argmax on the
+    pixels normalised by hand (one 28-px window is the whole image), its overlay the image and
+    the uavid colours half and half."""
+    from claravid import models
+    from claravid.data.transforms import IMAGENET_MEAN, IMAGENET_STD
+    from tests.eval.conftest import tiny_model
+
+    # Seed 1: a model whose labels follow the pixels (seed 0's are one class everywhere).
+    checkpoint = models.save_checkpoint(tiny_model(seed=1), tmp_path / "m.pt",
+                                        config={"data": {"palette": "uavid"}})  # fmt: skip
     flight = tmp_path / "flight"
     flight.mkdir()
-    cv2.imwrite(str(flight / "a.webp"), np.full((28, 28, 3), 100, np.uint8))
+    frame = claravid_root / "001_rural_1" / "left_rgb" / "45deg_low_h" / "000000.jpg"
+    pixels = np.ascontiguousarray(cv2.imread(str(frame))[10:38, 20:48])  # a 28-px crop, BGR
+    cv2.imwrite(str(flight / "a.webp"), pixels, [cv2.IMWRITE_WEBP_QUALITY, 101])  # lossless
     out = tmp_path / "pred"
-    argv = ["--checkpoint", str(model_files["checkpoint"]), str(flight), "-o", str(out),
-            "--window", "28", "--no-progress"]  # fmt: skip
+    argv = ["--checkpoint", str(checkpoint), str(flight), "-o", str(out), "--window", "28",
+            "--no-progress"]  # fmt: skip
     assert predict_main(argv) == 0
-    assert (out / "a.png").is_file() and (out / "overlays" / "a.jpg").is_file()
+    rgb = pixels[..., ::-1].astype(np.float64)  # written as BGR
+    x = (rgb / 255 - np.array(IMAGENET_MEAN)) / np.array(IMAGENET_STD)
+    model = models.load_checkpoint(checkpoint).eval()
+    with torch.no_grad():
+        logits = model(torch.from_numpy(x.transpose(2, 0, 1)[None]).float())[0].numpy()
+    expected = logits.argmax(0)
+    assert len(np.unique(expected)) > 1  # a flat map would pass with any image
+    label_map = cv2.imread(str(out / "a.png"), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(label_map, expected)
+    blend = 0.5 * rgb + 0.5 * COLORS[expected]
+    overlay = cv2.cvtColor(cv2.imread(str(out / "overlays" / "a.jpg")), cv2.COLOR_BGR2RGB)
+    # JPEG (chroma halved): a few levels off on average; the image's channels swapped (BGR
+    # blended as RGB) would be far more.
+    off = np.abs(overlay - blend).mean()
+    swapped = np.abs(overlay - (0.5 * rgb[..., ::-1] + 0.5 * COLORS[expected])).mean()
+    assert off < 5 and swapped > 3 * off
 
 
 COLORS = load_palette("uavid").colors

@@ -44,7 +44,7 @@ def _without_source(report):
 
 
 def test_checkpoint_rebuilds_data_and_palette_and_matches_a_direct_count(
-    model_files, claravid_root, splits, tmp_path
+    model_files, claravid_root, splits, tmp_path, saved_figures
 ):
     # No --data, no --palette: both come from the checkpoint's training config.
     report = _run(tmp_path / "rep", "--checkpoint", str(model_files["checkpoint"]),
@@ -61,22 +61,63 @@ def test_checkpoint_rebuilds_data_and_palette_and_matches_a_direct_count(
 
     model = load_checkpoint(model_files["checkpoint"]).eval()
     with np.load(tmp_path / "rep" / "confusions.npz") as saved:
-        confusions = saved["confusions"]
-    for i in (0, 4):
+        confusions, delent = saved["confusions"], saved["complexity_delent"]
+        paths = [str(p) for p in saved["paths"]]
+    preds, masks = [], []
+    for i in range(len(ds)):
         sample = ds[i]
-        pred = predict_labels(model, sample["image"], WindowConfig(size=(42, 56))).numpy()
-        mask = sample["mask"].numpy()
+        preds.append(predict_labels(model, sample["image"], WindowConfig(size=(42, 56))).numpy())
+        masks.append(sample["mask"].numpy())
         expected = np.zeros((8, 8), dtype=np.int64)
-        valid = mask != 255
-        np.add.at(expected, (mask[valid], pred[valid]), 1)
+        valid = masks[i] != 255
+        np.add.at(expected, (masks[i][valid], preds[i][valid]), 1)
         np.testing.assert_array_equal(confusions[i], expected)
-    for name in ("miou_per_bin", "miou_vs_delent", "class_iou_per_bin", "hardest"):
-        image = cv2.imread(str(tmp_path / "rep" / f"{name}.png"))
-        assert image is not None and (image < 250).any(axis=2).mean() > 0.02, name  # drawn
+    _check_plots(saved_figures, report, confusions, delent, paths, ds, preds, masks)
     # 3 bins: 6.8 x 4 in at 100 dpi (the tiny model's bars are near 0: their size is known)
     assert cv2.imread(str(tmp_path / "rep" / "miou_per_bin.png")).shape == (400, 680, 3)
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "## mIoU per complexity bin" in md and "## Per mission" in md
+
+
+def _iou(conf):
+    """Per-class IoU = TP / (TP + FP + FN), NaN for a class absent from truth and prediction."""
+    tp = np.diag(conf).astype(float)
+    union = conf.sum(0) + conf.sum(1) - tp
+    return np.where(union > 0, tp / np.where(union > 0, union, 1), np.nan)
+
+
+def _check_plots(figures, report, confusions, delent, paths, ds, preds, masks):
+    """What the report's plots show, restated from the confusions counted above: bars of each
+    quantile bin's mIoU (images sorted by delentropy then path, split in 3 like
+    numpy.array_split, confusions summed), each image at (delentropy, mIoU), the per-class IoU
+    of each bin, and the 4 lowest-mIoU images in palette colours (ignored pixels white)."""
+    from claravid.data.palettes import load_palette
+
+    order = sorted(range(len(paths)), key=lambda i: (delent[i], paths[i]))
+    bins = [confusions[list(part)].sum(0) for part in np.array_split(order, 3)]
+    (ax,) = figures["miou_per_bin.png"].axes
+    heights = [bar.get_height() for bar in ax.patches]
+    np.testing.assert_allclose(heights, [np.nanmean(_iou(c)) for c in bins])
+    points = np.asarray(figures["miou_vs_delent.png"].axes[0].collections[0].get_offsets())
+    expected = [(delent[i], np.nanmean(_iou(confusions[i]))) for i in range(len(paths))]
+    np.testing.assert_allclose(sorted(map(tuple, points)), sorted(expected))
+    heat = figures["class_iou_per_bin.png"].axes[0].images[0].get_array()
+    grid = np.array([_iou(c) for c in bins]).T  # classes x bins
+    np.testing.assert_array_equal(np.ma.getmaskarray(heat), np.isnan(grid))
+    np.testing.assert_allclose(heat.filled(np.nan), grid)
+    colours = np.full((256, 3), 255, dtype=np.uint8)
+    colours[:8] = load_palette("uavid").colors
+    mious = [np.nanmean(_iou(c)) for c in confusions]
+    hardest = sorted(range(len(paths)), key=lambda i: (mious[i], i))[:4]
+    axes = figures["hardest.png"].axes
+    assert [axes[3 * r].get_title().splitlines()[0] for r in range(4)] == [
+        ds.frames[i].key for i in hardest
+    ]
+    for r, i in enumerate(hardest):
+        rgb = cv2.cvtColor(cv2.imread(paths[i]), cv2.COLOR_BGR2RGB)
+        for ax, panel in zip(axes[3 * r : 3 * r + 3],
+                             (rgb, colours[masks[i]], colours[preds[i]]), strict=True):  # fmt: skip
+            np.testing.assert_array_equal(ax.images[0].get_array(), panel)
 
 
 def test_windows_come_from_the_checkpoint_unless_given(model_files, splits, tmp_path):

@@ -4,7 +4,9 @@ images known by their key, options and inputs that would give a silent wrong num
 import json
 import os
 import shutil
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 from claravid.data.segmentation import ClaraVidSegmentation
@@ -169,16 +171,25 @@ def test_compare_without_intervals_excludes_nothing(reps, tmp_path):
         assert [c.strip() for c in line.strip("| ").split("|")][-2:] == ["–", "–"], line
 
 
-def test_a_scores_report_is_not_replaced_by_an_evaluation(reps, tmp_path, capsys):
+def test_a_scores_report_is_not_replaced_by_an_evaluation(reps, tmp_path, capsys, saved_figures):
     """Evaluating into a --scores report folder needs --overwrite, and leaves none of its plots."""
-    image = next(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)
-    others = sorted(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)[:4]
+    images = sorted(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)[:5]
+    err = dict(zip(images, [0.5, 4.0, 1.5, 9.0, 2.0], strict=True))
     csv = tmp_path / "m.csv"
-    csv.write_text("path,err\n" + "".join(f"{p},{i}\n" for i, p in enumerate({image, *others})))
+    csv.write_text("path,err\n" + "".join(f"{p},{v}\n" for p, v in err.items()))
     out = tmp_path / "rep"
     argv = ["--scores", str(csv), "--data", str(reps["root"]), "--split", "all", "--bins", "1",
             "--bootstrap", "0", "-o", str(out)]  # fmt: skip
     assert main(argv) == 0 and (out / "err_per_bin.png").is_file()
+    # What the plots show: one bar at the mean error (17 / 5), the overall mean dashed at the
+    # same height; each image at (its delentropy, its error).
+    (axes,) = saved_figures["err_per_bin.png"].axes
+    assert [bar.get_height() for bar in axes.patches] == pytest.approx([17 / 5])
+    assert axes.lines[-1].get_ydata()[0] == pytest.approx(17 / 5)
+    report = _json(out)
+    points = saved_figures["err_vs_delent.png"].axes[0].collections[0].get_offsets()
+    expected = [(row["delent"], err[Path(row["path"])]) for row in report["images"]]
+    np.testing.assert_allclose(sorted(map(tuple, np.asarray(points))), sorted(expected))
     evaluation = ["--predictions", str(reps["tmp"] / "pred_a"), *reps["common"], "-o", str(out)]
     assert main(evaluation) == 2
     _one_line(capsys, "holds a --scores report", "--overwrite")
@@ -198,7 +209,7 @@ def test_a_report_and_its_own_rebinning_are_not_comparable(reps, tmp_path):
     out = tmp_path / "cmp"
     assert main(["--compare", str(reps["tmp"] / "a"), str(rebinned), "-o", str(out)]) == 0
     comp = json.loads((out / "compare.json").read_text())["comparisons"][0]
-    assert comp["comparable"] is False and "same predictions" in comp["reason"]
+    assert comp["comparable"] is False and "one run seen twice" in comp["reason"]
     assert comp["overall"] is None and comp["bins"] == []
     text = (out / "compare.md").read_text()
     assert "**not comparable**" in text and "**yes**" not in text and "paired (" not in text
@@ -215,3 +226,51 @@ def test_a_report_and_its_own_rebinning_are_not_comparable(reps, tmp_path):
     a = load_result(reps["tmp"] / "a")
     other = dataclasses.replace(a, classes=[f"c{i}" for i in range(len(a.classes) + 1)])
     assert "different class sets" in not_comparable(a, other, "a", "x")
+
+
+@pytest.mark.parametrize("mode", ["evaluate", "merge", "scores", "api"])
+def test_a_users_plots_in_a_report_folder_are_kept(reps, tmp_path, mode):
+    """Issue 24 item 7: a report replaces the files it wrote, known by name, not every file
+    named like a plot (``*_per_bin.png``, ``*_vs_delent.png``): a user's own are kept, the old
+    report's own are gone."""
+    import claravid.eval as ev
+
+    out = tmp_path / "rep"
+    image_paths = sorted(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)[::6]
+    six = tmp_path / "six.txt"  # 6 frames, one per viewpoint folder: a small report
+    six.write_text("".join(f"{p.parts[-4]}/{p.parts[-2]}/{p.stem}\n" for p in image_paths))
+    common = [str(six) if a == "all" else a for a in reps["common"]]
+    csv = tmp_path / "m.csv"
+    if mode == "scores":  # a --scores report of metric "err", replaced by one of "psnr"
+        csv.write_text("path,err\n" + "".join(f"{p},{i}\n" for i, p in enumerate(image_paths)))
+        argv = ["--scores", str(csv), "--data", str(reps["root"]), "--bins", "2", "--bootstrap",
+                "0", "-o", str(out)]  # fmt: skip
+        assert main(argv) == 0
+        old_own = ["err_per_bin.png", "err_vs_delent.png"]
+    else:  # an mIoU report with tiles, replaced by one without
+        argv = ["--predictions", str(reps["tmp"] / "pred_a"), *common, "--tiles", "32", "-o",
+                str(out)]  # fmt: skip
+        assert main(argv) == 0
+        old_own = ["tiles.png"]
+    assert all((out / name).is_file() for name in old_own)
+    mine = {"baseline_per_bin.png": b"my baseline", "paper_vs_delent.png": b"the paper's",
+            "notes_per_bin.png.txt": b"notes"}  # fmt: skip
+    for name, data in mine.items():
+        (out / name).write_bytes(data)
+    if mode == "evaluate":
+        argv = ["--predictions", str(reps["tmp"] / "pred_b"), *common, "-o", str(out)]
+        assert main(argv) == 0
+    elif mode == "merge":  # re-binned in place: the report's own folder
+        assert main(["--merge", str(out), "--bins", "2", "--bootstrap", "0", "-o", str(out)]) == 0
+    elif mode == "scores":
+        csv.write_text("path,psnr\n" + "".join(f"{p},{i}\n" for i, p in enumerate(image_paths)))
+        assert main(argv) == 0
+        assert (out / "psnr_per_bin.png").is_file() and (out / "psnr_vs_delent.png").is_file()
+    else:
+        data = ev.DataChoice(root=reps["root"], split=six, palette="uavid")
+        ev.evaluate(out, predictions=reps["tmp"] / "pred_b", data=data,
+                    report=ev.ReportSettings(bootstrap=ev.Bootstrap(resamples=0)))  # fmt: skip
+    for name, data in mine.items():
+        assert (out / name).read_bytes() == data, name
+    for name in old_own:
+        assert not (out / name).exists(), name

@@ -1,7 +1,8 @@
 """A self-describing ONNX file, and one way to decide how a model is run (issue 13 §1, §2).
 
-A training-style checkpoint records val.window=14, val.scale=0.5 and the uavid palette; its
-export carries them; eval and predict, from either file, with no flags, run the same windows.
+A training-style checkpoint records val.window=14, val.scale=0.5, the uavid palette and an input
+normalisation that is not ImageNet's; its export carries them; eval and predict, from either
+file, with no flags, run the same windows on the same normalised pixels.
 """
 
 import hashlib
@@ -23,18 +24,25 @@ from tests.eval.conftest import tiny_model
 
 FRAMES = ["001_rural_1/45deg_low_h/000000", "001_rural_1/45deg_low_v/000001",
           "003_urban_1/90deg_high_v/000002"]  # fmt: skip
+#: The training run's input statistics, not ImageNet's: a reader that falls back to the
+#: defaults feeds the model other numbers (and changes 0.7-2.3 % of these frames' labels).
+MEAN, STD = [0.45, 0.42, 0.5], [0.2, 0.25, 0.3]
 
 
 @pytest.fixture(scope="module")
 def files(claravid_root, tmp_path_factory):
     folder = tmp_path_factory.mktemp("settings")
     config = {
-        "data": {"root": str(claravid_root), "palette": "uavid", "split": {"seed": 0}},
+        "data": {"root": str(claravid_root), "palette": "uavid", "split": {"seed": 0},
+                 "augment": {"mean": MEAN, "std": STD}},
         "val": {"window": 14, "scale": 0.5, "batch_size": 2},
-    }
+    }  # fmt: skip
     # Seed 1: a model whose maps hold two classes and change with the scale (seed 0's are flat).
     model = tiny_model(seed=1)
     ckpt = models.save_checkpoint(model, folder / "best.pt", config=config, step=7)
+    # The same model trained with ImageNet's statistics: what a file without metadata runs as.
+    imagenet = {**config, "data": {k: v for k, v in config["data"].items() if k != "augment"}}
+    ckpt_imagenet = models.save_checkpoint(model, folder / "imagenet.pt", config=imagenet)
     onnx_path = folder / "m.onnx"
     # A fixed-size export of the recorded window (a dynamic one costs 3x the export time).
     assert export_main([str(ckpt), "-o", str(onnx_path), "--height", "14", "--width", "14"]) == 0
@@ -46,7 +54,8 @@ def files(claravid_root, tmp_path_factory):
     onnx.save(proto, str(foreign))
     images = [claravid_root / f.replace("/", "/left_rgb/", 1) for f in FRAMES]
     return {"ckpt": ckpt, "onnx": onnx_path, "foreign": foreign, "split": split,
-            "config": config, "images": [p.with_suffix(".jpg") for p in images]}  # fmt: skip
+            "config": config, "images": [p.with_suffix(".jpg") for p in images],
+            "ckpt_imagenet": ckpt_imagenet}  # fmt: skip
 
 
 def test_metadata_round_trip(files):
@@ -60,8 +69,9 @@ def test_metadata_round_trip(files):
     }
     assert (runner.window, runner.stride, runner.scale, runner.batch_size) == ((14, 14), None,
                                                                                0.5, 2)  # fmt: skip
-    assert runner.normalisation["mean"] == list(IMAGENET_MEAN)
-    assert runner.normalisation["std"] == list(IMAGENET_STD)
+    # The training run's statistics, not ImageNet's (a writer that records the defaults fails).
+    assert runner.normalisation["mean"] == MEAN and runner.normalisation["std"] == STD
+    assert list(IMAGENET_MEAN) != MEAN and list(IMAGENET_STD) != STD
     assert runner.normalisation["channels"] == "RGB" and runner.precision == "fp32"
     text = json.dumps(files["config"], sort_keys=True, separators=(",", ":"))
     digest = hashlib.sha256(text.encode()).hexdigest()
@@ -96,6 +106,8 @@ def test_eval_onnx_without_flags_equals_checkpoint_and_predict_equals_eval(
         assert settings["batch_size"] == 2 and settings["palette"] == "uavid"
         assert settings["from"]["window"] == kind and settings["from"]["scale"] == kind
         assert settings["from"]["stride"] == "default"  # 2/3 of the recorded window
+        assert settings["normalisation"] == {"mean": MEAN, "std": STD}
+        assert settings["from"]["normalisation"] == kind
         assert report["palette"] == "uavid"
     for model, saved in (("--checkpoint", "pc"), ("--onnx", "po")):
         out = tmp_path / f"predict{saved}"
@@ -127,10 +139,16 @@ def test_foreign_onnx_runs_with_flags_and_says_what_is_missing(
     _one_line(capsys, "claravid-eval", "no claravid metadata", "--palette and --window")
     assert eval_main([*argv, "--palette", "uavid", "--output", str(tmp_path / "y")]) == 2
     _one_line(capsys, "claravid-eval", "pass --window")
-    _, foreign = _eval(tmp_path / "f", *argv, "--palette", "uavid", "--window", "14",
-                       "--scale", "0.5")  # fmt: skip
+    report, foreign = _eval(tmp_path / "f", *argv, "--palette", "uavid", "--window", "14",
+                            "--scale", "0.5")  # fmt: skip
+    # No metadata, no recorded statistics: ImageNet's, as the same model trained with them.
+    settings = report["source"]["settings"]
+    assert settings["normalisation"] == {"mean": list(IMAGENET_MEAN), "std": list(IMAGENET_STD)}
+    assert settings["from"]["normalisation"] == "default"
+    _, imagenet = _eval(tmp_path / "i", "--checkpoint", str(files["ckpt_imagenet"]))
+    np.testing.assert_array_equal(foreign, imagenet)
     _, ckpt = _eval(tmp_path / "c", "--checkpoint", str(files["ckpt"]))
-    np.testing.assert_array_equal(foreign, ckpt)
+    assert not np.array_equal(foreign, ckpt)  # the statistics matter to this model
     image = str(files["images"][0])
     assert predict_main(["--onnx", str(files["foreign"]), image, "-o", str(tmp_path / "p")]) == 2
     _one_line(capsys, "claravid-predict", "--palette and --window")
@@ -219,3 +237,54 @@ def test_predict_onnx_colours_come_from_the_file(claravid_root, tmp_path):
     assert predict_main(argv) == 0
     marker = json.loads((out / "predictions.json").read_text())
     assert marker["palette"] == "mine" and marker["classes"] == names
+
+
+@pytest.mark.parametrize("kind", ["checkpoint", "onnx"])
+def test_the_recorded_normalisation_is_what_reaches_the_model(
+    files, claravid_root, tmp_path, monkeypatch, kind
+):
+    """The first window the model receives, caught at the model's own door (a PyTorch forward
+    pre-hook, ONNX Runtime's ``run``), equals the frame's pixels normalised by hand with the
+    recorded statistics (not ImageNet's)."""
+    import cv2
+    import torch
+    from onnxruntime.capi.onnxruntime_inference_collection import Session
+
+    received = []
+    if kind == "checkpoint":
+
+        def hook(module, args):
+            if isinstance(module, models.Segmenter):
+                received.append(args[0].detach().cpu().numpy().copy())
+
+        handle = torch.nn.modules.module.register_module_forward_pre_hook(hook)
+        argv = ["--checkpoint", str(files["ckpt"])]
+    else:
+        run = Session.run
+
+        def spy(self, output_names, feed, *args, **kwargs):
+            received.append(np.array(next(iter(feed.values()))))
+            return run(self, output_names, feed, *args, **kwargs)
+
+        monkeypatch.setattr(Session, "run", spy)
+        handle = None
+        argv = ["--onnx", str(files["onnx"]), "--data", str(claravid_root)]
+    one = tmp_path / "one.txt"
+    one.write_text(FRAMES[2] + "\n")
+    try:  # --scale 1: the windows cut the frame as decoded (no resize between)
+        code = eval_main([*argv, "--split", str(one), "--scale", "1", "--bins", "1",
+                          "--hardest", "0", "--bootstrap", "0", "--no-progress",
+                          "--output", str(tmp_path / "r")])  # fmt: skip
+    finally:
+        if handle is not None:
+            handle.remove()
+    assert code == 0 and received
+    rgb = cv2.cvtColor(cv2.imread(str(files["images"][2])), cv2.COLOR_BGR2RGB)
+    window = rgb[:14, :14].astype(np.float64).transpose(2, 0, 1)  # the window at (0, 0)
+    expected = (window / 255 - np.array(MEAN)[:, None, None]) / np.array(STD)[:, None, None]
+    first = received[0][0]
+    assert first.shape == (3, 14, 14)
+    np.testing.assert_allclose(first, expected, atol=1e-5)
+    # Every window of the frame went in: 48 x 64 px, 14-px windows every 9 px (2/3), the last
+    # flush: rows 0, 9, 18, 27, 34 and columns 0, 9, ..., 45, 50.
+    assert sum(len(batch) for batch in received) == 5 * 7

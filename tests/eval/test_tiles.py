@@ -188,10 +188,46 @@ def test_cli_tiles_values(tiled):
     assert corr["n"] == int(keep.sum())
     expected = stats.spearmanr(saved["tile_delent"][keep], np.array(own)[keep]).statistic
     assert corr["spearman"] == pytest.approx(expected)
-    assert (tiled["out"] / "tiles.png").is_file()
     assert "## Tiles of about 32 px" in (tiled["out"] / "report.md").read_text()
     printed = bin_table(report)
     assert "tile bin" in printed and f"n = {corr['n']}" in printed
+
+
+def test_tiles_png_shows_the_hardest_images_their_tiles_and_their_errors(
+    tiled, tmp_path, saved_figures
+):
+    """tiles.png read back as drawn: one row per hardest image (the 4 lowest per-image mIoUs,
+    counted here), its pixels, its 2 x 2 tile delentropies and its wrong pixels in red."""
+    out = tmp_path / "rep"
+    argv = ["--predictions", str(tiled["preds"]), *tiled["common"][:-2], "--bootstrap", "0",
+            "--tiles", "32", "--output", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    _, saved = _load(out)
+    ds = tiled["ds"]
+
+    def miou(conf):  # IoU = TP / (TP + FP + FN) over classes present in truth or prediction
+        tp = np.diag(conf).astype(float)
+        union = conf.sum(0) + conf.sum(1) - tp
+        return (tp[union > 0] / union[union > 0]).mean()
+
+    mious = [miou(c) for c in saved["confusions"]]
+    hardest = sorted(range(len(mious)), key=lambda i: (mious[i], i))[:4]
+    axes = saved_figures["tiles.png"].axes[:12]  # 4 rows x 3 panels, then the colour bar
+    shades = np.array([[215, 215, 215], [214, 39, 40], [255, 255, 255]])
+    for row, i in enumerate(hardest):
+        image_ax, tile_ax, error_ax = axes[3 * row : 3 * row + 3]
+        key = str(saved["keys"][i])
+        assert image_ax.get_title().splitlines()[0] == key
+        rgb = cv2.cvtColor(cv2.imread(str(saved["paths"][i])), cv2.COLOR_BGR2RGB)
+        np.testing.assert_array_equal(image_ax.images[0].get_array(), rgb)
+        mine = saved["tile_image"] == i
+        grid = np.zeros((2, 2))
+        grid[saved["tile_row"][mine], saved["tile_col"][mine]] = saved["tile_delent"][mine]
+        np.testing.assert_array_equal(tile_ax.images[0].get_array(), grid)
+        truth = ds.read_mask([f.key for f in ds.frames].index(key))
+        pred = cv2.imread(str(tiled["preds"] / f"{key}.png"), cv2.IMREAD_UNCHANGED)
+        errors = np.where(truth == 255, 2, (pred != truth).astype(int))
+        np.testing.assert_array_equal(error_ax.images[0].get_array(), shades[errors])
 
 
 def test_merge_rebins_tiles_without_data(tiled):
@@ -329,3 +365,45 @@ def test_too_many_tiles_per_image_is_refused_before_the_work(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "x.jpg of 1200x1200 into 1444 tiles, more than 1024: use tiles of 37 px or more" in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    ("height", "width", "tiles", "message"),
+    [
+        # 16 rows x 64 columns of 32 px: exactly the bound, accepted.
+        (512, 2048, 1024, None),
+        # 25 x 41 = 1025: one past it. At 33 px, round(800/33) x round(1312/33) = 24 x 40 fit.
+        (800, 1312, 1025, "x.jpg of 1312x800 into 1025 tiles, more than 1024: use tiles of 33 px"),
+    ],
+)
+def test_the_tile_bound_is_1024_per_image(tmp_path, capsys, height, width, tiles, message):
+    from claravid.dsp.tiles import check_tile_count, tile_complexities
+
+    images, masks, preds = tmp_path / "images", tmp_path / "masks", tmp_path / "preds"
+    truth = np.zeros((height, width), np.uint8)
+    for folder in (images, masks, preds):
+        folder.mkdir()
+    gray = np.random.default_rng(0).integers(0, 256, (height, width), dtype=np.uint8)
+    cv2.imwrite(str(images / "x.jpg"), np.dstack([gray] * 3))
+    cv2.imwrite(str(masks / "x.png"), truth)
+    cv2.imwrite(str(preds / "x.png"), truth)
+    argv = ["--predictions", str(preds), "--dataset", "folder", "--data", str(images),
+            "--masks", str(masks), "--palette", "udd6", "--bins", "1", "--no-progress",
+            "--bootstrap", "0", "--hardest", "0", "--tiles", "32", "--output",
+            str(tmp_path / "rep")]  # fmt: skip
+    code = main(argv)
+    err = capsys.readouterr().err
+    if message is None:
+        assert code == 0, err
+        report, saved = _load(tmp_path / "rep")
+        assert report["tiles"]["num_tiles"] == tiles
+        assert (saved["tile_row"].max(), saved["tile_col"].max()) == (15, 63)
+        assert check_tile_count((height, width), 32) == tiles
+        assert tile_complexities(gray, 32).shape == (16, 64)
+    else:
+        assert code == 2 and message in err, err
+        assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+        for call in (lambda: check_tile_count((height, width), 32, "x.jpg"),
+                     lambda: tile_complexities(gray, 32)):  # fmt: skip
+            with pytest.raises(ValueError, match="1025 tiles, more than 1024"):
+                call()

@@ -139,11 +139,11 @@ def test_compare_identical_and_injected_error(runs, tmp_path, capsys):
     result = json.loads((out / "compare.json").read_text())
     assert result["baseline"] == "a" and result["uncertainty"]["cluster"] == "block"
     same, worse = result["comparisons"]
-    # B holds A's very predictions: a model against itself is not a comparison (no gap, no
-    # interval, no p-value), and the reason says so.
-    assert same["report"] == "b" and same["comparable"] is False
-    assert "same predictions" in same["reason"]
-    assert (same["overall"], same["bins"]) == (None, [])
+    # B is another run whose label maps equal A's: comparable, a paired gap of exactly 0 (a
+    # report and its own re-binning is what is not comparable: test_compare_lineage.py).
+    assert same["report"] == "b" and same["comparable"] is True and same["paired"] is True
+    for row in (same["overall"], *same["bins"]):
+        assert (row["gap"], row["gap_ci"], row["p_value"]) == (0.0, [0.0, 0.0], 1.0)
     a, c = _report(tmp / "a"), _report(tmp / "c")
     assert worse["paired"] and worse["overall"]["gap"] == pytest.approx(
         c["overall"]["miou"] - a["overall"]["miou"]
@@ -167,7 +167,7 @@ def _check_compare_png(path, bins, reports):
 
     for k in range(reports):
         assert drawn(top, colours[k]) > 100, f"no bars of report {k}"
-    # B = A draws no gap bar (not comparable); the injected error's gap is drawn.
+    # B = A draws a gap bar of height 0; the injected error's gap is drawn.
     assert drawn(bottom, colours[reports - 1]) > 100
 
 

@@ -219,8 +219,18 @@ def test_a_correlation_interval_needs_four_pairs_and_four_clusters():
     x8 = np.arange(8.0)
     out = correlation_interval(x8, x8**2, cluster_ids(list("aaabbbcc")), Bootstrap(resamples=200))
     assert out["pearson_ci"] is None and "in 3 image clusters" in out["ci_note"]
-    four = correlation_interval(x8, x8**2, cluster_ids(list("aabbccdd")), Bootstrap(resamples=200))
-    assert four["pearson_ci"] is not None and four["ci_note"] is None
+    ids = cluster_ids(list("aabbccdd"))
+    four = correlation_interval(x8, x8**2, ids, Bootstrap(resamples=200))
+    assert four["ci_note"] is None
+    # The interval restated from the same draws (the set's documented generator), with scipy;
+    # resamples of one cluster (2 distinct pairs) have no r and are left out.
+    draws = draw_counts(4, 200, Bootstrap().rng(""))
+    rs = []
+    for row in draws:
+        take = np.repeat(np.arange(8), row[ids])
+        if len(set(take.tolist())) >= 3:
+            rs.append(stats.pearsonr(x8[take], x8[take] ** 2).statistic)
+    assert four["pearson_ci"] == pytest.approx(np.quantile(rs, [0.025, 0.975]).tolist())
 
 
 @pytest.mark.parametrize("resamples", [1, 2, 5, 99])
@@ -231,5 +241,44 @@ def test_too_few_resamples_are_refused(resamples):
 
 
 def test_a_bootstrap_larger_than_memory_is_refused_before_allocating():
-    with pytest.raises(ValueError, match=r"need 3725\.3 GiB .* lower --bootstrap"):
+    # 10^9 resamples of 1000 clusters: 4 bytes of draw count per cluster and at most 64 bytes
+    # of statistics per resample, 10^9 x 4064 bytes = 3784.9 GiB.
+    with pytest.raises(ValueError, match=r"need 3784\.9 GiB .* lower --bootstrap"):
         draw_counts(1000, 10**9, np.random.default_rng(0))
+
+
+def test_non_finite_resamples_are_dropped_before_the_percentiles():
+    """Resamples whose statistic is undefined (one cluster of 2 pairs: no correlation; only
+    images without a labelled pixel: no mIoU) are left out, and the interval is the percentile
+    interval of the others, restated with scipy and numpy (an interval of [nan, nan] fails)."""
+    x = np.arange(8.0)
+    y = np.array([0.0, 3.0, 1.0, 5.0, 4.0, 2.0, 7.0, 6.0])
+    ids = cluster_ids(list("aabbccdd"))
+    draws = np.array([[4, 0, 0, 0], [1, 1, 1, 1], [0, 0, 0, 4], [2, 0, 1, 1], [0, 2, 2, 0],
+                      [1, 3, 0, 0]])  # fmt: skip
+    defined = []
+    for row in draws:
+        take = np.repeat(np.arange(8), row[ids])
+        if len(set(take.tolist())) >= 3:  # rows 0 and 2 hold one cluster: 2 distinct pairs
+            defined.append(stats.pearsonr(x[take], y[take]).statistic)
+    assert len(defined) == 4
+    out = correlation_interval(x, y, ids, Bootstrap(level=0.5), draws)
+    assert out["pearson_ci"] == pytest.approx(np.quantile(defined, [0.25, 0.75]).tolist())
+    # Confusions: cluster "b" (image 2) has no labelled pixel, so a resample of b alone has
+    # no mIoU; the others are counted by hand.
+    conf = np.array([[[3, 1], [0, 2]], [[1, 0], [1, 2]], [[0, 0], [0, 0]]], dtype=np.int64)
+    draws2 = np.array([[0, 2], [2, 0], [1, 1], [0, 2]])
+    miou = []
+    for row in draws2:
+        summed = row[0] * conf[:2].sum(0) + row[1] * conf[2]
+        tp = np.diag(summed)
+        union = summed.sum(0) + summed.sum(1) - tp
+        if (union > 0).any():
+            miou.append((tp[union > 0] / union[union > 0]).mean())
+    assert len(miou) == 2
+    out = confusion_interval(conf, cluster_ids(["a", "a", "b"]), range(3), Bootstrap(level=0.5),
+                             draws2)  # fmt: skip
+    assert out["miou_ci"] == pytest.approx(np.quantile(miou, [0.25, 0.75]).tolist())
+    gap = paired_gap(conf, conf, cluster_ids(["a", "a", "b"]), range(3), Bootstrap(level=0.5),
+                     draws2)  # fmt: skip
+    assert gap["gap_ci"] == [0.0, 0.0]  # the two undefined gaps left out, not [nan, nan]

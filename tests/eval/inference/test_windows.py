@@ -62,6 +62,50 @@ def test_overlapping_windows_are_averaged():
     np.testing.assert_allclose(out, expected)
 
 
+def _window_index_model():
+    """A model whose logits are the index of the window (in the order it was given), and the
+    index squared: a pixel's averaged logits tell which windows covered it."""
+    seen = []
+
+    def model(x):
+        out = torch.empty(x.shape[0], 2, *x.shape[-2:])
+        for i in range(x.shape[0]):
+            out[i, 0], out[i, 1] = len(seen), len(seen) ** 2
+            seen.append(tuple(x.shape[-2:]))
+        return out
+
+    return model, seen
+
+
+@pytest.mark.parametrize(
+    ("image_hw", "window_hw", "stride_hw", "rows", "cols"),
+    [
+        # Tall windows (12 high, 4 wide) whose vertical step (6) is more than their width.
+        ((20, 11), (12, 4), (6, 3), [0, 6, 8], [0, 3, 6, 7]),
+        # Wide windows (4 high, 12 wide) whose horizontal step (6) is more than their height.
+        ((11, 20), (4, 12), (3, 6), [0, 3, 6, 7], [0, 6, 8]),
+    ],
+)
+def test_non_square_windows_and_strides_cover_every_pixel(
+    image_hw, window_hw, stride_hw, rows, cols
+):
+    """Starts written out by hand (every step, the last window flush with the border); each
+    pixel's logits are the mean of the indices of the windows that cover it, built here."""
+    model, seen = _window_index_model()
+    config = WindowConfig(size=window_hw, stride=stride_hw, batch_size=5)
+    out = sliding_window_logits(model, torch.zeros(3, *image_hw), config).numpy()
+    (h, w), (wh, ww) = image_hw, window_hw
+    assert seen == [window_hw] * (len(rows) * len(cols))  # every window (height, width)
+    total, hits = np.zeros((2, h, w)), np.zeros((h, w))
+    for index, (y, x) in enumerate((y, x) for y in rows for x in cols):
+        total[0, y : y + wh, x : x + ww] += index
+        total[1, y : y + wh, x : x + ww] += index**2
+        hits[y : y + wh, x : x + ww] += 1
+    assert hits.min() >= 1  # the hand-built windows cover every pixel
+    assert np.isfinite(out).all()
+    np.testing.assert_allclose(out, total / hits, rtol=1e-6)
+
+
 def test_small_images_are_padded_and_cut_back():
     shapes = []
 
