@@ -99,7 +99,8 @@ def test_the_checkpoint_is_given_with_checkpoint(command):
 
 SELECTING = {  # the commands that select ClaraVid frames by flags, and how each reads them
     "claravid-cache": (cache_cli.main, cache_cli.selection_flags),
-    "claravid-eval": (evaluate.main, evaluate.selection_flags),
+    # claravid-eval hands the flags to DataChoice, which splits them (the API's rule too).
+    "claravid-eval": (evaluate.main, lambda args: evaluate._data_choice(args).selection),
 }
 
 
