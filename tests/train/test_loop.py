@@ -14,7 +14,7 @@ from claravid.models.checkpoint import read_checkpoint
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.checkpoint import save_training_checkpoint
 from claravid.train.cli import main
-from tests.train.conftest import tiny
+from tests.train.conftest import tiny, tiny_v3
 
 
 def rows(out):
@@ -193,8 +193,10 @@ SHIPPED = [n for n in shipped_names() if n != "augment"]
 @pytest.mark.slow
 @pytest.mark.parametrize("name", SHIPPED)
 def test_every_shipped_config_trains_two_steps(name, claravid_root, uavid_root, tmp_path):
-    cfg = load_config(name)
+    shipped = cfg = load_config(name, ["model.weights=null"])  # DINOv3's need a weights file
     extra = []
+    if models.backbone_spec(cfg.model.backbone).patch_size == 16:  # crops and windows of 32
+        extra += ["data.augment.crop_height=32", "data.augment.crop_width=32", "val.window=32"]
     if cfg.data.dataset == "uavid":
         extra += [f"data.root={uavid_root}", "data.val_split=val"]
     if cfg.data.val_dataset == "uavid":
@@ -205,7 +207,7 @@ def test_every_shipped_config_trains_two_steps(name, claravid_root, uavid_root, 
     result = train(cfg)
     assert result.step == 2 and result.best_miou is not None
     assert read_checkpoint(tmp_path / "run" / "last.pt")["config"]["model"]["backbone"] == (
-        load_config(name).model.backbone
+        shipped.model.backbone
     )
 
 
@@ -248,6 +250,68 @@ def test_the_model_sees_crops_normalised_with_the_config_s_mean_and_std(claravid
     pixels = (x * torch.tensor(std).view(3, 1, 1) + torch.tensor(mean).view(3, 1, 1)) * 255
     torch.testing.assert_close(pixels, pixels.round(), rtol=0, atol=2e-3)
     assert pixels.min() > -0.01 and pixels.max() < 255.01 and pixels.std() > 1  # not one flat value
+
+
+def _first_model_input(run):
+    """The first tensor a module receives while ``run()`` trains: the outermost call of the
+    first step is the model's forward (the crops as normalised on the device)."""
+    seen = []
+
+    def first_input(module, args):
+        if not seen:
+            seen.append(args[0].detach().clone())
+
+    handle = torch.nn.modules.module.register_module_forward_pre_hook(first_input)
+    try:
+        run()
+    finally:
+        handle.remove()
+    return seen[0]
+
+
+def _assert_normalised_with(x, mean, std):
+    """Undoing ``(pixels / 255 - mean) / std`` gives whole pixel values in 0..255 only for the
+    statistics that were applied."""
+    pixels = (x * torch.tensor(std).view(3, 1, 1) + torch.tensor(mean).view(3, 1, 1)) * 255
+    torch.testing.assert_close(pixels, pixels.round(), rtol=0, atol=2e-3)
+    assert pixels.min() > -0.01 and pixels.max() < 255.01 and pixels.std() > 1
+
+
+SAT493M = ((0.430, 0.411, 0.296), (0.213, 0.156, 0.143))  # DINOv3 SAT's published statistics
+IMAGENET = ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225))
+
+
+def test_a_sat_backbone_trains_on_sat_statistics_without_naming_them(claravid_root, tmp_path):
+    """No data.augment.mean/std in the config: a dinov3_*_sat backbone's crops reach it
+    normalised with SAT-493M's statistics (not ImageNet's), and the checkpoint records them."""
+    out = tmp_path / "run"
+    cfg = load_config("demo", tiny_v3(claravid_root, out, "train.steps=1", "val.every=0",
+                                      backbone="dinov3_vitl16_sat"))  # fmt: skip
+    x = _first_model_input(lambda: train(cfg))
+    assert x.dtype == torch.float32 and x.shape[1:] == (3, 32, 32)
+    _assert_normalised_with(x, *SAT493M)
+    with pytest.raises(AssertionError):  # the check tells the two apart
+        _assert_normalised_with(x, *IMAGENET)
+    augment = read_checkpoint(out / "last.pt")["config"]["data"]["augment"]
+    assert (tuple(augment["mean"]), tuple(augment["std"])) == SAT493M
+
+
+def test_statistics_named_against_a_sat_backbone_warn_once_and_are_used(
+    claravid_root, tmp_path, capsys
+):
+    """Named explicitly, other statistics are the ones applied (an experiment may want them),
+    with one warning naming both."""
+    stats = [f"data.augment.mean={list(IMAGENET[0])}", f"data.augment.std={list(IMAGENET[1])}"]
+    args = tiny_v3(claravid_root, tmp_path / "run", "train.steps=1", "val.every=0", *stats,
+                   backbone="dinov3_vitl16_sat")  # fmt: skip
+    x = _first_model_input(lambda: main(["--config", "demo", *args]))
+    _assert_normalised_with(x, *IMAGENET)
+    err = capsys.readouterr().err
+    warnings = [line for line in err.splitlines()
+                if line.startswith("claravid-train: warning: data.augment.mean")]  # fmt: skip
+    assert len(warnings) == 1, err
+    assert "(0.485, 0.456, 0.406)" in warnings[0] and "dinov3_vitl16_sat" in warnings[0]
+    assert "mean (0.43, 0.411, 0.296), std (0.213, 0.156, 0.143)" in warnings[0]
 
 
 @pytest.mark.slow
