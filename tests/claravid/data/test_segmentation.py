@@ -127,7 +127,9 @@ def test_dataloader_with_two_workers_and_augmentations(claravid_root):
     loader = DataLoader(ds, batch_size=4, num_workers=2, shuffle=True)
     seen = 0
     for batch in loader:
-        assert batch["image"].shape[1:] == (3, 32, 40) and batch["image"].dtype == torch.float32
+        assert (
+            batch["image"].shape[1:] == (3, 32, 40) and batch["image"].dtype == torch.uint8
+        )  # the exact pixels
         assert batch["mask"].dtype == torch.int64
         assert set(batch["mask"].unique().tolist()) <= set(range(8)) | {255}
         seen += len(batch["path"])
