@@ -21,7 +21,7 @@ from claravid.eval.export_cli import main as export_main
 from claravid.eval.inference.windows import WindowConfig, predict_labels
 from claravid.eval.predict import main as predict_main
 from claravid.io.modalities import read_dynamic_mask as read_label  # any 8-bit grey PNG
-from claravid.models.onnx_metadata import read_metadata
+from claravid.models.onnx_metadata import build_metadata, read_metadata
 from claravid.train import load_config, train
 from claravid.train.config import to_plain
 from tests.train.conftest import tiny, tiny_v3
@@ -196,6 +196,48 @@ def test_the_sat_model_exports_dynamic_fp16_and_int8_checked_by_onnx_runtime(
     ]
     assert predict_main(argv) == 2
     assert "patch size 16: use 624x624 or 640x640" in capsys.readouterr().err
+
+
+def test_statistics_a_config_named_are_the_ones_evaluation_reads(claravid_root, tmp_path):
+    """A SAT model trained on ImageNet's statistics by choice (the config named them; training
+    warned): claravid-eval normalises with the recorded numbers, not the backbone's."""
+    stats = [f"data.augment.mean={IMAGENET[0]}", f"data.augment.std={IMAGENET[1]}"]
+    cfg = to_plain(load_config("demo", tiny_v3(claravid_root, tmp_path / "run", *stats,
+                                               backbone="dinov3_vitl16_sat")))  # fmt: skip
+    torch.manual_seed(0)
+    kwargs = cfg["model"]["backbone_kwargs"]
+    model = models.build_model("dinov3_vitl16_sat", 8, backbone_kwargs=kwargs, layers=[0, 1, 2, 3],
+                               features=8, out_channels=[8, 8, 8, 8])  # fmt: skip
+    ckpt = models.save_checkpoint(model, tmp_path / "imagenet.pt", config=cfg)
+    split = tmp_path / "split.txt"
+    split.write_text(FRAMES[0] + "\n")
+    found = {}
+
+    def run():
+        found["report"], _ = _eval(
+            tmp_path / "rep", "--checkpoint", str(ckpt), "--split", str(split)
+        )
+        return 0
+
+    windows = _inputs_while(run)
+    assert all(_whole_pixels(w, *IMAGENET) for w in windows)
+    assert not _whole_pixels(windows[0], *SAT493M)
+    settings = found["report"]["source"]["settings"]
+    assert settings["normalisation"] == {"mean": IMAGENET[0], "std": IMAGENET[1]}
+    assert settings["from"]["normalisation"] == "checkpoint"
+
+
+def test_metadata_of_a_config_without_statistics_records_the_backbone_s():
+    """A plain checkpoint's export (no training config) records the statistics of the backbone
+    it names, SAT-493M's for a _sat model; a config's own numbers win."""
+    sat = build_metadata({"backbone": "dinov3_vitl16_sat"}, patch_size=16, num_classes=8)
+    assert (sat["normalisation"]["mean"], sat["normalisation"]["std"]) == SAT493M
+    config = {"data": {"augment": {"mean": IMAGENET[0], "std": IMAGENET[1]}}}
+    named = build_metadata({"backbone": "dinov3_vitl16_sat"}, patch_size=16, num_classes=8,
+                           config=config)  # fmt: skip
+    assert (named["normalisation"]["mean"], named["normalisation"]["std"]) == IMAGENET
+    web = build_metadata({"backbone": "dinov3_vitl16"}, patch_size=16, num_classes=8)
+    assert (web["normalisation"]["mean"], web["normalisation"]["std"]) == IMAGENET
 
 
 def _old_checkpoint(claravid_root, folder):

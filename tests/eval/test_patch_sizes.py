@@ -26,9 +26,10 @@ FIX_630 = "not a multiple of the model's patch size 16: use 624x624 or 640x640"
 
 @pytest.fixture(scope="module")
 def plain_v3(tmp_path_factory):
-    """A tiny DINOv3 segmenter saved without a training config: it records no window."""
+    """A tiny DINOv3 SAT segmenter saved without a training config: it records no window and
+    no statistics."""
     torch.manual_seed(0)
-    model = models.build_model("dinov3_vits16", 8, **TINY).eval()
+    model = models.build_model("dinov3_vitl16_sat", 8, **TINY).eval()
     return models.save_checkpoint(model, tmp_path_factory.mktemp("v3") / "plain.pt")
 
 
@@ -73,7 +74,7 @@ def test_the_python_api_refuses_it_with_the_same_message(plain_v3, claravid_root
         evaluate_model(model, dataset, 8, WindowConfig(size=630))
 
 
-def test_no_recorded_window_means_the_model_s_natural_size(
+def test_no_recorded_window_or_statistics_mean_the_model_s_own(
     plain_v3, claravid_root, split, tmp_path, capsys
 ):
     data = ["--data", str(claravid_root), "--palette", "uavid", "--split", str(split)]
@@ -83,6 +84,9 @@ def test_no_recorded_window_means_the_model_s_natural_size(
     settings = json.loads((tmp_path / "rep" / "report.json").read_text())["source"]["settings"]
     assert settings["window"] == [640, 640] and settings["from"]["window"] == "default"
     assert settings["stride"] == [426, 426]  # two thirds of 640
+    # Nor statistics: the model's own, SAT-493M's (the published numbers), not ImageNet's.
+    sat = {"mean": [0.430, 0.411, 0.296], "std": [0.213, 0.156, 0.143]}
+    assert settings["normalisation"] == sat and settings["from"]["normalisation"] == "default"
     image = str(claravid_root / "001_rural_1" / "left_rgb" / "45deg_low_h" / "000000.jpg")
     pred = tmp_path / "pred"
     assert predict_main(["--checkpoint", str(plain_v3), image, "--palette", "uavid",
