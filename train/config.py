@@ -129,9 +129,7 @@ class TrainConfig:
 @dataclass
 class ValConfig:
     every: int = 1000  # steps between validations (and at the end); 0: at the end only
-    window: int | None = (
-        None  # sliding window size (a patch multiple); null: 630 for /14, 640 for /16
-    )
+    window: int | None = None  # a patch multiple; null: the model's (630 for /14, 640 for /16)
     stride: int | None = None  # null: two thirds of the window
     scale: float = 0.5  # resize before windowing (the paper reports at half resolution)
     batch_size: int = 4  # windows per forward pass
