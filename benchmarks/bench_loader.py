@@ -16,7 +16,10 @@ measured in the same run:
    normalised on the model's device) and, for reference, the former path: a full decode of the
    RGB and of the labels, then the crop.
 4. Evaluation sample (``claravid-eval``'s: the whole frame as uint8 and its labels from the
-   cache), time per sample. Target ≤ 1.5× the baseline's time per frame.
+   cache), time per sample. Target ≤ 1.5× the baseline's time per frame. Also the documented
+   one, ``ClaraVidSegmentation(..., transforms=eval_transforms())`` (the exact uint8 frame and
+   a uint8 mask), same target, and for reference what it cost before: a float32 frame
+   normalised on the CPU and an int64 mask (``eval_transforms(normalize=True)``, int64 mask).
 5. DataLoader over ``claravid-train``'s crops, 1 and 2 worker processes. Target ≥ 1.8× on 2
    cores. Beside it, what this machine's 2 cores give at all: the same crops made in 2
    processes at once (no DataLoader) against 1 (a shared VM's second core may give less than
@@ -44,7 +47,7 @@ import torch.multiprocessing as mp
 from torch.utils.data import DataLoader
 
 from claravid.data.segmentation import ClaraVidSegmentation
-from claravid.data.transforms import augment_config, train_transforms
+from claravid.data.transforms import augment_config, eval_transforms, train_transforms
 from claravid.io import jpeg_region
 from claravid.synth import synthesize
 from claravid.train.data import CropDataset, collate_crops
@@ -142,6 +145,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=6, help="4032×3024 frames to generate")
     parser.add_argument("--samples", type=int, default=24, help="samples timed per variant")
+    parser.add_argument(
+        "--eval-only", action="store_true", help="the baseline and the evaluation samples only"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
@@ -175,56 +181,89 @@ def main() -> None:
               f"kB/frame, {summary.bytes_total / 1e6:.1f} MB in all")  # fmt: skip
 
         n = args.samples
-        indices = [i % len(train) for i in range(n)]
-        first = per_item(train.__getitem__, indices[: len(train)])  # each entry read once
-        warm = per_item(train.__getitem__, indices)
-        whole = ClaraVidSegmentation(root, split="all", palette="uavid", label_cache=cache)
-        crops = CropDataset(whole, augment_config(None))
-        assert crops.by_window == (jpeg_region.decoder() == jpeg_region.REGION_DECODE)
-        uint8 = per_item(crops.__getitem__, crop_items(crops, n))
-        former = per_item(FormerPath(whole, transforms).__getitem__, indices[: len(frames)])
-        print("3. training sample (uavid, default augmentations):")
-        for name, seconds in (("first epoch (cache prepared)", first), ("label cache warm", warm),
-                              ("claravid-train's crop (uint8)", uint8),
-                              ("former path (whole frames)", former)):  # fmt: skip
-            print(
-                f"   {name:<30} {seconds * 1e3:6.1f} ms  {1 / seconds:6.2f} samples/s  "
-                f"× {decode / seconds:.2f} the baseline rate (target ≥ 2)"
-            )
+        if not args.eval_only:
+            training_samples(args, root, cache, train, transforms, decode)
+        evaluation_samples(root, cache, rgb, decode)
+        if not args.eval_only:
+            scaling(root, cache, n, train)
 
-        from claravid.eval.inference.data import open_data
 
-        os.environ["CLARAVID_CACHE"] = str(cache.parent / "eval-cache")
-        data = open_data(root, split="all", palette="uavid")
-        data.dataset[0]  # the cache entry of this palette's key
-        for i in range(len(data)):
-            data.read_mask(i)
-        evaluation = per_item(data.dataset.__getitem__, range(len(data)), repeats=2)
-        print(f"4. evaluation sample (uint8 frame + labels): {evaluation * 1e3:6.1f} ms, "
-              f"× {evaluation / decode:.2f} the baseline time (target ≤ 1.5)")  # fmt: skip
-        half = per_item(lambda p: cv2.imread(p, cv2.IMREAD_REDUCED_COLOR_2), rgb, repeats=2)
+def training_samples(args, root, cache, train, transforms, decode) -> None:
+    """3. A training sample, first epoch and warm, ``claravid-train``'s crop, the former path."""
+    n = args.samples
+    frames = train.frames
+    indices = [i % len(train) for i in range(n)]
+    first = per_item(train.__getitem__, indices[: len(train)])  # each entry read once
+    warm = per_item(train.__getitem__, indices)
+    whole = ClaraVidSegmentation(root, split="all", palette="uavid", label_cache=cache)
+    crops = CropDataset(whole, augment_config(None))
+    assert crops.by_window == (jpeg_region.decoder() == jpeg_region.REGION_DECODE)
+    uint8 = per_item(crops.__getitem__, crop_items(crops, n))
+    former = per_item(FormerPath(whole, transforms).__getitem__, indices[: len(frames)])
+    print("3. training sample (uavid, default augmentations):")
+    for name, seconds in (("first epoch (cache prepared)", first), ("label cache warm", warm),
+                          ("claravid-train's crop (uint8)", uint8),
+                          ("former path (whole frames)", former)):  # fmt: skip
         print(
-            f"   for --scale 0.5: the decoder's own 2× scaling {half * 1e3:6.1f} ms, "
-            f"× {half / decode:.2f} the full decode (not offered: see docs/evaluation.md)"
+            f"   {name:<30} {seconds * 1e3:6.1f} ms  {1 / seconds:6.2f} samples/s  "
+            f"× {decode / seconds:.2f} the baseline rate (target ≥ 2)"
         )
 
-        loader_n = max(4 * n, 96)  # long enough that start-up and the last batches do not count
-        one = loader_rate(crops, 1, loader_n)
-        two = loader_rate(crops, 2, loader_n)
-        ceiling = process_rate(crops, 2, loader_n // 2) / process_rate(crops, 1, loader_n // 2)
-        print(
-            f"5. DataLoader of claravid-train's crops: 1 worker {one:.2f}/s, 2 workers "
-            f"{two:.2f}/s: × {two / one:.2f} (target ≥ 1.8 on 2 cores; {os.cpu_count()} cores "
-            f"here, where 2 processes making crops without a DataLoader give × {ceiling:.2f})"
-        )
 
-        flops = step_flops()
-        gpu = H100_BF16_DENSE * MFU / flops
-        print(
-            f"6. a 16-core node: {16 / warm:.0f} samples/s (16 × the one-core rate); one H100 "
-            f"consumes ~{gpu:.0f} crops/s (estimate: {flops / 1e12:.2f} TFLOP per crop and "
-            f"step, {MFU:.0%} of {H100_BF16_DENSE / 1e12:.0f} TFLOP/s bf16; no GPU here)"
-        )
+def evaluation_samples(root, cache, rgb, decode) -> None:
+    """4. What an evaluation sample costs: claravid-eval's and the documented dataset's."""
+    from claravid.eval.inference.data import open_data
+
+    os.environ["CLARAVID_CACHE"] = str(cache.parent / "eval-cache")
+    data = open_data(root, split="all", palette="uavid")
+    data.dataset[0]  # the cache entry of this palette's key
+    for i in range(len(data)):
+        data.read_mask(i)
+    evaluation = per_item(data.dataset.__getitem__, range(len(data)), repeats=2)
+    print(f"4. evaluation sample (uint8 frame + labels): {evaluation * 1e3:6.1f} ms, "
+          f"× {evaluation / decode:.2f} the baseline time (target ≤ 1.5)")  # fmt: skip
+    documented = ClaraVidSegmentation(root, split="all", palette="uavid", label_cache=cache,
+                                      transforms=eval_transforms())  # fmt: skip
+    former_eval = ClaraVidSegmentation(root, split="all", palette="uavid", label_cache=cache,
+                                       transforms=eval_transforms(normalize=True),
+                                       mask_dtype=torch.int64)  # fmt: skip
+    sample = documented[0]
+    assert sample["image"].dtype == torch.uint8 and sample["mask"].dtype == torch.uint8
+    for name, ds in (("eval_transforms() (uint8 frame, uint8 mask)", documented),
+                     ("former: float32 frame, int64 mask", former_eval)):  # fmt: skip
+        seconds = per_item(ds.__getitem__, range(len(ds)), repeats=2)
+        print(f"   ClaraVidSegmentation + {name:<45} {seconds * 1e3:6.1f} ms, "
+              f"× {seconds / decode:.2f} the baseline time (target ≤ 1.5)")  # fmt: skip
+    half = per_item(lambda p: cv2.imread(p, cv2.IMREAD_REDUCED_COLOR_2), rgb, repeats=2)
+    print(
+        f"   for --scale 0.5: the decoder's own 2× scaling {half * 1e3:6.1f} ms, "
+        f"× {half / decode:.2f} the full decode (not offered: see docs/evaluation.md)"
+    )
+
+
+def scaling(root, cache, n, train) -> None:
+    """5. The DataLoader over 1 and 2 workers; 6. a 16-core node against one H100."""
+    whole = ClaraVidSegmentation(root, split="all", palette="uavid", label_cache=cache)
+    crops = CropDataset(whole, augment_config(None))
+    indices = [i % len(train) for i in range(n)]
+    warm = per_item(train.__getitem__, indices)
+    loader_n = max(4 * n, 96)  # long enough that start-up and the last batches do not count
+    one = loader_rate(crops, 1, loader_n)
+    two = loader_rate(crops, 2, loader_n)
+    ceiling = process_rate(crops, 2, loader_n // 2) / process_rate(crops, 1, loader_n // 2)
+    print(
+        f"5. DataLoader of claravid-train's crops: 1 worker {one:.2f}/s, 2 workers "
+        f"{two:.2f}/s: × {two / one:.2f} (target ≥ 1.8 on 2 cores; {os.cpu_count()} cores "
+        f"here, where 2 processes making crops without a DataLoader give × {ceiling:.2f})"
+    )
+
+    flops = step_flops()
+    gpu = H100_BF16_DENSE * MFU / flops
+    print(
+        f"6. a 16-core node: {16 / warm:.0f} samples/s (16 × the one-core rate); one H100 "
+        f"consumes ~{gpu:.0f} crops/s (estimate: {flops / 1e12:.2f} TFLOP per crop and "
+        f"step, {MFU:.0%} of {H100_BF16_DENSE / 1e12:.0f} TFLOP/s bf16; no GPU here)"
+    )
 
 
 if __name__ == "__main__":

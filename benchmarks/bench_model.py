@@ -24,6 +24,18 @@ validation frames.
 
 CPU: dinov2_vits14 + DPT head at 630x630, batch 1, PyTorch eager fp32 vs onnxruntime (fixed-size
 export), in the same run; target ratio ort/eager speed >= 1.
+
+Backbones (``--backbones``): DINOv3-L/16 + DPT at 640x640 against DINOv2-L/14 + DPT at 630x630
+(each model's natural size, the crops and windows of the paper configs: 1,600 tokens against
+2,025), batch 1, random init, in one run: PyTorch eager fp32 forward time (medians of
+alternated runs; target DINOv3 <= 0.8x DINOv2's time) and peak memory (each forward in a fresh
+forked process: its peak resident set, and the rise above the built model). Then onnxruntime
+(fixed-size fp32 exports, checked) of both; exporting two ViT-L takes longer than a short run
+here, so ``--ort-depth`` (default 6 of 24 blocks, taps 1, 2, 4, 5) builds both with fewer
+blocks of the same width (the per-block costs compare alike); ``--ort-depth 24`` exports the
+full models. ``--backbone dinov3_vits16 --precisions`` runs the precisions part on a DINOv3
+segmenter at its natural size, and adds which operators of the int8 file stay float and where
+ONNX Runtime spends its time (its profiler, per operator type).
 GPU: dinov2_vitl14 + head at 630x630, training step (frozen backbone forward + head forward and
 backward + AdamW) in fp32 and bf16 autocast, torch.compile off/on; images/s and achieved TFLOP/s
 counting the backbone as ~1.63 TFLOP per image (2 FLOP per multiply-add).
@@ -45,7 +57,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from claravid.models import OnnxSegmenter, build_model, export_onnx
+from claravid.eval.inference.windows import natural_size
+from claravid.models import OnnxSegmenter, backbone_spec, build_model, export_onnx
 from claravid.models.export import ExportSettings
 
 BACKBONE_TFLOP_630 = 1.63  # ViT-L/14, 2026 tokens, forward
@@ -170,20 +183,23 @@ def _alternate(runners: dict[str, Any], x: np.ndarray, reps: int):
     return outs, times
 
 
-def bench_precisions(size: int, reps: int, num_classes: int = NUM_CLASSES) -> None:
+def bench_precisions(
+    size: int, reps: int, num_classes: int = NUM_CLASSES, backbone: str = "dinov2_vits14"
+) -> None:
     """The files ``claravid-export`` writes at each precision, run as ``claravid-eval --onnx``
-    runs them: speed ratio against fp32 and argmax agreement with PyTorch."""
+    runs them: speed ratio against fp32 and argmax agreement with PyTorch; then what stays
+    float in the int8 file and where ONNX Runtime spends its time."""
     from claravid.models.checkpoint import save_checkpoint
     from claravid.models.export import smooth_images
     from claravid.models.onnx_metadata import normalisation_from_config
 
     threads = torch.get_num_threads()
     print(
-        f"== precisions: dinov2_vits14 + DPT ({num_classes} classes, random init), "
+        f"== precisions: {backbone} + DPT ({num_classes} classes, random init), "
         f"{size}x{size}, batch 1, {threads} threads, load average {os.getloadavg()[0]:.2f}"
     )
     torch.manual_seed(0)
-    model = build_model("dinov2_vits14", num_classes=num_classes).eval()
+    model = build_model(backbone, num_classes=num_classes).eval()
     x = smooth_images((1, 3, size, size), normalisation_from_config(None), seed=1)
     with torch.inference_mode():
         expected = model(torch.from_numpy(x)).numpy()
@@ -195,6 +211,7 @@ def bench_precisions(size: int, reps: int, num_classes: int = NUM_CLASSES) -> No
             checkpoint, folder, (size, size), calibration, CALIBRATION_IMAGES
         )
         outs, times = _alternate(_runners(files, threads), x, reps)
+        int8_report(files["ORT int8 dynamic"], x, threads)
     base, base_best = statistics.median(times["ORT fp32"]), min(times["ORT fp32"])
     for name, values in times.items():
         t, best = statistics.median(values), min(values)
@@ -238,6 +255,155 @@ def bench_demo(checkpoint: Path, data: Path, frames: int) -> None:
         print(f"{name:30s} argmax agreement with PyTorch {100 * statistics.mean(values):6.2f} %")
 
 
+#: The pair compared by ``--backbones``, each at its natural size.
+PAIR = ("dinov2_vitl14", "dinov3_vitl16")
+
+
+def _segmenter(name: str, depth: int | None = None):
+    """A random-init segmenter of ``name`` (19 classes); ``depth`` blocks instead of the
+    backbone's, tapping 4 of them evenly as the full model does."""
+    torch.manual_seed(0)
+    if depth is None:
+        return build_model(name, num_classes=NUM_CLASSES).eval()
+    taps = [round(depth * k / 4) - 1 for k in (1, 2, 3, 4)]
+    return build_model(name, num_classes=NUM_CLASSES, backbone_kwargs={"depth": depth},
+                       layers=taps).eval()  # fmt: skip
+
+
+def _rss_kib() -> int:
+    """This process's resident set now, KiB (Linux)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    return 0
+
+
+def _peak_child(name: str, size: int, out) -> None:
+    import resource
+
+    model = _segmenter(name)
+    x = torch.zeros(1, 3, size, size)
+    built = _rss_kib()
+    with torch.inference_mode():
+        model(x)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    out.put((peak, peak - built))
+
+
+def _peak_memory(name: str, size: int) -> tuple[float, float]:
+    """(peak resident GiB, rise above the built model GiB) of one eager forward, measured in a
+    fresh forked process so that nothing else counts."""
+    import multiprocessing as mp
+
+    context = mp.get_context("fork")
+    out = context.Queue()
+    job = context.Process(target=_peak_child, args=(name, size, out))
+    job.start()
+    peak, rise = out.get()
+    job.join()
+    return peak / 2**20, rise / 2**20
+
+
+def bench_backbones(reps: int, ort_depth: int | None) -> None:
+    """DINOv3-L/16 at 640² against DINOv2-L/14 at 630²: eager time and memory, then ORT."""
+    threads = torch.get_num_threads()
+    sizes = {name: natural_size(backbone_spec(name).patch_size) for name in PAIR}
+    tokens = {n: (sizes[n] // backbone_spec(n).patch_size) ** 2 for n in PAIR}
+    which = ", ".join(f"{n} + DPT at {sizes[n]}² ({tokens[n]} tokens)" for n in PAIR)
+    print(f"== backbones: {which}; batch 1, {threads} threads, "
+          f"load average {os.getloadavg()[0]:.2f}")  # fmt: skip
+    base = PAIR[0]
+    for name in PAIR:
+        peak, rise = _peak_memory(name, sizes[name])
+        print(f"{name:16s} eager fp32 peak memory {peak:5.2f} GiB resident, "
+              f"{rise:5.2f} GiB above the built model")  # fmt: skip
+    nets = {n: _segmenter(n) for n in PAIR}
+    inputs = {n: torch.randn(1, 3, sizes[n], sizes[n]) for n in PAIR}
+    times: dict[str, list[float]] = {n: [] for n in PAIR}
+    with torch.inference_mode():
+        for n in PAIR:
+            nets[n](inputs[n])  # warm-up
+        for _ in range(reps):
+            for n in PAIR:
+                times[n].append(_time(lambda n=n: nets[n](inputs[n]), warmup=0, reps=1))
+    nets.clear()  # free 2 x 1.2 GB before the exports
+    for n in PAIR:
+        t = statistics.median(times[n])
+        ratio = t / statistics.median(times[base])
+        print(f"{n:16s} eager fp32 {t * 1000:8.0f} ms/image (median of {reps}, best "
+              f"{min(times[n]) * 1000:.0f})  {ratio:.2f}x {base}'s time")  # fmt: skip
+    print(f"target: {PAIR[1]} <= 0.8x {base}'s time")
+    depth = ort_depth if ort_depth and ort_depth < 24 else None
+    what = "full depth" if depth is None else f"depth {depth} of 24 (same width, heads, head)"
+    print(f"-- onnxruntime, fixed-size fp32 exports, {what}")
+    runners, eager = {}, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in PAIR:
+            model = _segmenter(n, depth)
+            path = Path(tmp) / f"{n}.onnx"
+            start = time.perf_counter()
+            export_onnx(model, path, ExportSettings(height=sizes[n], width=sizes[n]))
+            print(f"{n:16s} export + check {time.perf_counter() - start:6.1f} s")
+            runners[n] = OnnxSegmenter(path, providers=["CPUExecutionProvider"], threads=threads)
+            eager[n] = model
+        ort: dict[str, list[float]] = {n: [] for n in PAIR}
+        torch_t: dict[str, list[float]] = {n: [] for n in PAIR}
+        xs = {n: inputs[n].numpy() for n in PAIR}
+        with torch.inference_mode():
+            for n in PAIR:
+                runners[n](xs[n])
+            for _ in range(reps):
+                for n in PAIR:
+                    ort[n].append(_time(lambda n=n: runners[n](xs[n]), warmup=0, reps=1))
+                    torch_t[n].append(_time(lambda n=n: eager[n](inputs[n]), warmup=0, reps=1))
+    for n in PAIR:
+        o, e = statistics.median(ort[n]), statistics.median(torch_t[n])
+        ratio = o / statistics.median(ort[base])
+        print(f"{n:16s} ORT fp32 {o * 1000:8.0f} ms/image, eager {e * 1000:8.0f} ms "
+              f"(medians of {reps})  ORT {ratio:.2f}x {base}'s ORT time")  # fmt: skip
+
+
+def int8_report(path: Path, x: np.ndarray, threads: int) -> None:
+    """Which operators of an int8 file are integer and which stay float, and where ONNX Runtime
+    spends its time (its profiler, summed per operator type over a few runs)."""
+    import json
+
+    import onnx
+    import onnxruntime as ort
+
+    graph = onnx.load(str(path), load_external_data=False).graph
+    counts: dict[str, int] = {}
+    for node in graph.node:
+        counts[node.op_type] = counts.get(node.op_type, 0) + 1
+    integer = {"MatMulInteger", "DynamicQuantizeLinear", "DynamicQuantizeMatMul", "QLinearConv",
+               "QLinearMatMul", "QuantizeLinear", "DequantizeLinear", "ConvInteger",
+               "MatMulIntegerToFloat"}  # fmt: skip
+    shown = sorted(counts.items(), key=lambda kv: -kv[1])
+    print(
+        "   int8 graph, quantised ops: " + ", ".join(f"{k} {v}" for k, v in shown if k in integer)
+    )
+    print("   int8 graph, float ops:     " + ", ".join(
+        f"{k} {v}" for k, v in shown if k not in integer and v > 0)[:400])  # fmt: skip
+    options = ort.SessionOptions()
+    options.enable_profiling = True
+    options.intra_op_num_threads = threads
+    with tempfile.TemporaryDirectory() as tmp:
+        options.profile_file_prefix = str(Path(tmp) / "profile")
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        name = session.get_inputs()[0].name
+        for _ in range(3):
+            session.run(None, {name: x})
+        trace = json.loads(Path(session.end_profiling()).read_text())
+    spent: dict[str, float] = {}
+    for event in trace:
+        op = (event.get("args") or {}).get("op_name")
+        if event.get("cat") == "Node" and op and event.get("name", "").endswith("_kernel_time"):
+            spent[op] = spent.get(op, 0.0) + event["dur"]
+    total = sum(spent.values()) or 1.0
+    top = sorted(spent.items(), key=lambda kv: -kv[1])[:8]
+    print("   int8 time per op type: " + ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in top))
+
+
 def bench_gpu(batch: int, size: int, reps: int) -> None:
     if not torch.cuda.is_available():
         print("== GPU: skipped (CUDA not available)")
@@ -278,7 +444,14 @@ def bench_gpu(batch: int, size: int, reps: int) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--size", type=int, default=630)
+    parser.add_argument("--size", type=int, help="input side (default: the model's natural size)")
+    parser.add_argument("--backbone", default="dinov2_vits14", help="of --precisions")
+    parser.add_argument(
+        "--backbones", action="store_true", help="DINOv3-L/16 at 640 vs DINOv2-L/14 at 630"
+    )
+    parser.add_argument(
+        "--ort-depth", type=int, default=6, help="--backbones: blocks of the ORT models (24: all)"
+    )
     parser.add_argument("--reps", type=int, default=5, help="timed repetitions (CPU)")
     parser.add_argument(
         "--precision-reps", type=int, default=10, help="timed repetitions of each precision"
@@ -292,14 +465,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--demo-data", type=Path, default=Path("runs/demo/data"))
     parser.add_argument("--demo-frames", type=int, default=8)
     args = parser.parse_args(argv)
+    size = args.size or natural_size(backbone_spec(args.backbone).patch_size)
     if not args.skip_cpu:
-        bench_cpu(args.size, args.reps)
+        bench_cpu(args.size or 630, args.reps)
+    if args.backbones:
+        bench_backbones(args.reps, args.ort_depth)
     if args.precisions:
-        bench_precisions(args.size, args.precision_reps)
+        bench_precisions(size, args.precision_reps, backbone=args.backbone)
     if args.demo is not None:
         bench_demo(args.demo, args.demo_data, args.demo_frames)
     if not args.skip_gpu:
-        bench_gpu(args.batch, args.size, args.gpu_reps)
+        bench_gpu(args.batch, args.size or 630, args.gpu_reps)
     return 0
 
 

@@ -91,7 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_argument("--direction", help="ClaraVid directions h,v (default: the checkpoint's)")
     infer = p.add_argument_group("inference")
     infer.add_argument("--window", type=window_size, metavar="WxH",
-                       help="window, width x height or N for N x N (default 630)")  # fmt: skip
+                       help="window, width x height or N for N x N (default: the model's, "
+                       "else its natural size: 630 for patches of 14, 640 for 16)")  # fmt: skip
     infer.add_argument("--stride", type=window_size, metavar="WxH",
                        help="window step, WxH or N (default 2/3 of the window)")  # fmt: skip
     infer.add_argument("--scale", type=float, help="resize images first (default 1; paper 0.5)")

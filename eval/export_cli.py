@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from claravid.eval.inference.windows import natural_size, patch_fix
 from claravid.infra.cli import (
     EXIT_FAILED,
     UsageError,
@@ -37,7 +38,6 @@ from claravid.infra.cli import (
     run_cli,
 )
 from claravid.models.export import (
-    DEFAULT_SIZE,
     ExportCheckError,
     ExportSettings,
     Provenance,
@@ -125,7 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--output", "-o", required=True, help="output .onnx file")
     parser.add_argument("--size", type=parse_size, metavar="WxH",
                         help="input size, width x height or N for N x N, patch multiples "
-                        f"(default {DEFAULT_SIZE})")  # fmt: skip
+                        "(default: the model's natural size, 630 for patches of 14, 640 for "
+                        "16)")  # fmt: skip
     parser.add_argument("--height", type=positive_int,
                         help="input height (older spelling; --size WxH sets both)")  # fmt: skip
     parser.add_argument("--width", type=positive_int,
@@ -168,14 +169,28 @@ def _exported(path: str | os.PathLike) -> bool:
     return any(p.key == KEY or p.key.startswith(PREFIX) for p in proto.metadata_props)
 
 
-def input_size(args: argparse.Namespace) -> tuple[int, int]:
+def input_size(args: argparse.Namespace, patch_size: int) -> tuple[int, int]:
     """``(width, height)`` from ``--size WxH``, or from the older ``--height``/``--width``
-    (either one alone leaves the other at the default)."""
+    (either one alone leaves the other at the default, the model's natural size: 630 for
+    patches of 14, 640 for patches of 16).
+
+    Raises:
+        UsageError: both spellings, or a size that is not a multiple of ``patch_size`` (naming
+            the two nearest that are).
+    """
     if args.size is not None:
         if args.height is not None or args.width is not None:
             raise UsageError("give --size WxH or --height/--width, not both")
-        return args.size
-    return (args.width or DEFAULT_SIZE, args.height or DEFAULT_SIZE)
+        width, height = args.size
+    else:
+        natural = natural_size(patch_size)
+        width, height = args.width or natural, args.height or natural
+    if width % patch_size or height % patch_size:  # said in --size terms, not as a tensor shape
+        raise UsageError(
+            f"input size {width}x{height} (WxH) is not a multiple of the model's patch size "
+            f"{patch_size}: {patch_fix(height, width, patch_size, '--size ')}"
+        )
+    return width, height
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -189,7 +204,8 @@ def _run(args: argparse.Namespace) -> int:
         what="the checkpoint",
     )
     checkpoint = Path(given)
-    width, height = input_size(args)
+    if args.size is not None and (args.height is not None or args.width is not None):
+        raise UsageError("give --size WxH or --height/--width, not both")
     output = check_output_file(args.output, what="--output")
     if output.suffix.lower() != ".onnx":
         # A typo here (the checkpoint's own name, an image) would replace a file of another kind.
@@ -206,13 +222,7 @@ def _run(args: argparse.Namespace) -> int:
         raise UsageError(f"--output {output} is the checkpoint itself; choose another file")
     ckpt = read_checkpoint(checkpoint)
     model = model_from_checkpoint(ckpt, checkpoint)
-    patch = model.patch_size
-    if width % patch or height % patch:  # said in --size terms, not as a tensor shape
-        fit = [-(-v // patch) * patch for v in (width, height)]
-        raise UsageError(
-            f"input size {width}x{height} (WxH) is not a multiple of the model's patch size "
-            f"{patch}: use --size {fit[0]}x{fit[1]}"
-        )
+    width, height = input_size(args, model.patch_size)
     config = ckpt.get("config") if isinstance(ckpt.get("config"), dict) else None
     step = ckpt.get("step") if isinstance(ckpt.get("step"), int) else None
     del ckpt
@@ -223,7 +233,8 @@ def _run(args: argparse.Namespace) -> int:
         palette = palette_info(name)
     calibration = None
     if args.calibration is not None:
-        normalisation = normalisation_from_config(config)
+        # The statistics the file will record: the config's, else the backbone's.
+        normalisation = normalisation_from_config(config, (model.mean, model.std))
         size = (height, width)
         calibration = calibration_batches(
             args.calibration, args.calibration_images or 64, size, normalisation

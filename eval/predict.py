@@ -152,7 +152,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", "-o", type=Path, required=True, help="output folder")
     p.add_argument("--palette", help="palette for the colours (default: the checkpoint's)")
     p.add_argument("--window", type=window_size, metavar="WxH",
-                   help="window, width x height or N (default: the model's, or 630)")  # fmt: skip
+                   help="window, width x height or N (default: the model's, else its "
+                   "natural size: 630 for patches of 14, 640 for 16)")  # fmt: skip
     p.add_argument("--stride", type=window_size, metavar="WxH",
                    help="window step, WxH or N (default: the model's, or 2/3 window)")  # fmt: skip
     p.add_argument("--scale", type=float, help="resize images first (default: the model's, or 1)")

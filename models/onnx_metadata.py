@@ -98,14 +98,26 @@ def window_from_config(config: Any) -> dict[str, Any]:
     return out
 
 
-def normalisation_from_config(config: Any) -> dict[str, Any]:
-    """Mean and std of the config's ``data.augment`` (ImageNet's when it does not set them)."""
+def backbone_statistics(model_args: Any) -> tuple[Any, Any] | None:
+    """``(mean, std)`` of the backbone ``model_args`` names (its weights' statistics), or None
+    for an unknown or missing name."""
+    name = model_args.get("backbone") if isinstance(model_args, Mapping) else None
+    spec = backbones.BACKBONES.get(name) if isinstance(name, str) else None
+    return None if spec is None else (spec.mean, spec.std)
+
+
+def normalisation_from_config(
+    config: Any, default: tuple[Any, Any] | None = None
+) -> dict[str, Any]:
+    """Mean and std of the config's ``data.augment``; where it does not set them, ``default``
+    (``(mean, std)``: the backbone's, `backbone_statistics`), else ImageNet's."""
     stats = {}
-    for name, default in (("mean", IMAGENET_MEAN), ("std", IMAGENET_STD)):
+    mean, std = default if default is not None else (IMAGENET_MEAN, IMAGENET_STD)
+    for name, default_value in (("mean", mean), ("std", std)):
         value = config_get(config, "data", "augment", name)
         ok = isinstance(value, list | tuple) and len(value) == 3
         ok = ok and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-        stats[name] = [float(v) for v in (value if ok else default)]
+        stats[name] = [float(v) for v in (value if ok else default_value)]
     return {
         **stats,
         "channels": "RGB",
@@ -141,7 +153,8 @@ def build_metadata(
         num_classes: K, the logits' channels.
         input_size: (H, W) of a fixed-size export; None when H and W are dynamic.
         precision: ``fp32``, ``fp16`` or ``int8``.
-        config: The checkpoint's resolved training config (windows, normalisation, hash).
+        config: The checkpoint's resolved training config (windows, normalisation, hash); a
+            config without ``data.augment.mean/std`` records the backbone's statistics.
         step: The training step the checkpoint was written at.
         palette: ``{"name", "names", "colors", "ignore_index"}`` (plain lists), or None.
     """
@@ -162,7 +175,8 @@ def build_metadata(
         "input_size": list(input_size) if input_size is not None else None,
         "model_args": dict(model_args),
         "palette": _plain_palette(palette) if palette is not None else None,
-        "normalisation": normalisation_from_config(config),
+        # The model owns its statistics: a config that records none gets the backbone's.
+        "normalisation": normalisation_from_config(config, backbone_statistics(model_args)),
         "window": window_from_config(config),
         "training": training,
     }

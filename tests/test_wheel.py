@@ -45,6 +45,9 @@ from claravid.train.config import load_config
 cfg = load_config("demo", ["train.steps=3"])  # a named experiment config, from the wheel
 assert cfg.model.freeze_backbone is False and cfg.train.steps == 3, cfg
 assert load_config("claravid_dpt_vitl14").model.backbone == "dinov2_vitl14"
+sat = load_config("claravid_dpt_dinov3_vitl16_sat", ["model.weights=/w.pth"])  # DINOv3, shipped
+assert tuple(sat.data.augment.mean) == (0.430, 0.411, 0.296) and sat.val.window == 640, sat
+assert load_config("claravid_dpt_dinov3_vitl16", ["model.weights=/w.pth"]).val.window == 640
 print("OK", ",".join(names), ",".join(shipped_names()))
 """
 
@@ -74,6 +77,8 @@ def test_wheel_installed_outside_checkout_loads_palettes_and_a_sample(tmp_path):
     assert "claravid/configs/palettes/uavid.yaml" in names
     assert "claravid/configs/augment.yaml" in names
     assert "claravid/configs/demo.yaml" in names
+    assert "claravid/configs/claravid_dpt_dinov3_vitl16.yaml" in names
+    assert "claravid/configs/claravid_dpt_dinov3_vitl16_sat.yaml" in names
 
     target = tmp_path / "site"
     install = subprocess.run(

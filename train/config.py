@@ -8,6 +8,14 @@ Merged by OmegaConf structured configs (as DINOv2 does), so there is no hand-wri
 ``CONFIG`` is a YAML path or the name of a config shipped with the package (``configs/`` in the
 checkout, ``claravid.configs`` in a wheel). An unknown key is an error that names the closest
 valid keys; a value of the wrong type or out of range is an error naming the key.
+
+What the config leaves to the model is filled in from the backbone's description
+(`claravid.models.backbones`) when it is resolved (:func:`resolve_backbone`), so the resolved
+config that every checkpoint keeps records the real numbers: ``data.augment.mean/std`` (the
+statistics of the backbone's pre-training: ImageNet's, or SAT-493M's for a ``_sat`` backbone)
+and ``val.window`` (the model's natural size: 630 for patches of 14, 640 for 16). Crops and
+windows that are not multiples of the backbone's patch size are refused there, naming the two
+nearest sizes that are, before any data is read.
 """
 
 from __future__ import annotations
@@ -37,6 +45,10 @@ LEGACY_AMP = {"true": "auto", "false": "off"}
 
 class ConfigError(ValueError):
     """A config file, key or value the user has to fix (the message says how)."""
+
+
+class StatisticsWarning(UserWarning):
+    """The config normalises with statistics other than those the backbone was trained with."""
 
 
 @dataclass
@@ -117,7 +129,7 @@ class TrainConfig:
 @dataclass
 class ValConfig:
     every: int = 1000  # steps between validations (and at the end); 0: at the end only
-    window: int = 630  # sliding window size (multiple of the patch size)
+    window: int | None = None  # a patch multiple; null: the model's (630 for /14, 640 for /16)
     stride: int | None = None  # null: two thirds of the window
     scale: float = 0.5  # resize before windowing (the paper reports at half resolution)
     batch_size: int = 4  # windows per forward pass
@@ -265,6 +277,7 @@ def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] | str =
     _one_item_lists(cfg, given)
     cfg = _merge(cfg, given, "command line")
     check_config(cfg)
+    resolve_backbone(cfg)
     return cfg
 
 
@@ -372,7 +385,7 @@ def check_config(cfg: DictConfig) -> None:
         "cpu, cuda, cuda:N or null",
     )
     _require(v.every >= 0, "val.every", v.every, ">= 0 (0: at the end only)")
-    _require(v.window >= 1, "val.window", v.window, ">= 1")
+    _require(v.window is None or v.window >= 1, "val.window", v.window, ">= 1 or null")
     _require(v.stride is None or v.stride >= 1, "val.stride", v.stride, ">= 1 or null")
     _require(v.bins >= 1, "val.bins", v.bins, ">= 1")
     _require(math.isfinite(v.scale) and 0 < v.scale <= 8, "val.scale", v.scale, "in (0, 8]")
@@ -383,6 +396,88 @@ def check_config(cfg: DictConfig) -> None:
     _require(
         a.crop_height >= 1 and a.crop_width >= 1, "data.augment.crop_height", a.crop_height, ">= 1"
     )
+
+
+def resolve_backbone(cfg: DictConfig) -> None:
+    """Fill in, in place, what the config leaves to the backbone, and check what depends on it.
+
+    - ``data.augment.mean``/``std`` left null: the backbone's statistics;
+    - ``val.window`` left null: the model's natural size (`natural_size`);
+    - ``data.augment.crop_height``/``crop_width`` and ``val.window`` must be multiples of the
+      backbone's patch size (its ``model.backbone_kwargs.patch_size`` when overridden);
+    - ``model.weights``: licence-gated weights (DINOv3) cannot be ``official`` and must be
+      given as a path.
+
+    Raises:
+        ConfigError: an unknown backbone, a size off the patch grid (naming the two nearest
+            sizes on it), weights that cannot be had.
+    """
+    from claravid.eval.inference.windows import natural_size, nearest_multiples
+    from claravid.models.backbones import BACKBONE_NAMES, BACKBONES
+
+    m, a, v = cfg.model, cfg.data.augment, cfg.val
+    spec = BACKBONES.get(m.backbone)
+    _require(spec is not None, "model.backbone", m.backbone, f"one of {', '.join(BACKBONE_NAMES)}")
+    _check_weights(cfg, spec)
+    patch = int(m.backbone_kwargs.get("patch_size", spec.patch_size))
+    if a.mean is None:
+        a.mean = tuple(spec.mean)
+    if a.std is None:
+        a.std = tuple(spec.std)
+    if v.window is None:
+        v.window = natural_size(patch)
+    sizes = {"data.augment.crop_height": a.crop_height, "data.augment.crop_width": a.crop_width,
+             "val.window": v.window}  # fmt: skip
+    for key, value in sizes.items():
+        if value % patch:
+            small, large = nearest_multiples(value, patch)
+            raise ConfigError(
+                f"{key}={value} is not a multiple of the patch size {patch} of {m.backbone}: "
+                f"use {small} or {large}"
+            )
+
+
+def _check_weights(cfg: DictConfig, spec: Any) -> None:
+    """Licence-gated weights (no download URL) must be given as a file: one line saying so."""
+    m = cfg.model
+    missing = OmegaConf.is_missing(m, "weights")
+    if spec.weights.url is not None or not (missing or m.weights == "official"):
+        return
+    from claravid.models.backbones import DINOV3_REQUEST_URL
+
+    # A shipped config's `weights: ???` leaves the default ("official") in place when merged.
+    raise ConfigError(
+        f"model.weights: the {spec.family_name} weights of {spec.name} are licence-gated, with "
+        f"no official download; request them at {DINOV3_REQUEST_URL} and pass "
+        f"model.weights=/path/to/{spec.weights.file}"
+    )
+
+
+def statistics_warning(cfg: DictConfig) -> str | None:
+    """What to warn about when ``data.augment.mean/std`` differ from the statistics the
+    backbone was pre-trained with (only a config that names other ones can: null takes the
+    backbone's); None when they agree."""
+    from claravid.models.backbones import BACKBONES, IMAGENET_MEAN
+
+    spec = BACKBONES.get(cfg.model.backbone)
+    a = cfg.data.augment
+    if spec is None or a.mean is None or a.std is None:
+        return None
+    mean, std = tuple(float(x) for x in a.mean), tuple(float(x) for x in a.std)
+    pairs = zip(mean + std, spec.mean + spec.std, strict=True)
+    if all(math.isclose(x, y, abs_tol=1e-9) for x, y in pairs):
+        return None
+    source = "ImageNet" if spec.mean == IMAGENET_MEAN else spec.weights.dataset
+    return (
+        f"data.augment.mean {_triple(mean)} and std {_triple(std)} are not the statistics "
+        f"{spec.name} was pre-trained with ({source}: mean {_triple(spec.mean)}, std "
+        f"{_triple(spec.std)}), so its features are off their training distribution; leave "
+        "data.augment.mean/std unset to use the backbone's"
+    )
+
+
+def _triple(values: Any) -> str:
+    return "(" + ", ".join(f"{float(v):g}" for v in values) + ")"
 
 
 def derive_steps(cfg: DictConfig, num_frames: int) -> int:

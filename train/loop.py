@@ -26,6 +26,7 @@ import math
 import random
 import shlex
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -99,9 +100,12 @@ class EndToEnd(nn.Module):
     def __init__(self, model: models.Segmenter) -> None:
         super().__init__()
         self.model = model.requires_grad_(True)
-        # DINOv2's mask token serves masked pre-training only: no gradient ever reaches it
-        # (and DDP refuses parameters that never get one).
+        # The mask token (both families) and DINOv3's local_cls_norm (SAT ViT-L, 7B) serve
+        # pre-training only: no gradient ever reaches them (and DDP refuses parameters that
+        # never get one).
         model.backbone.mask_token.requires_grad_(False)
+        if getattr(model.backbone, "local_cls_norm", None) is not None:
+            model.backbone.local_cls_norm.requires_grad_(False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         m = self.model
@@ -164,7 +168,8 @@ class Run:
 
     @property
     def normalisation(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """The crops' ``(mean, std)``, applied on the device (``data.augment``'s)."""
+        """The crops' ``(mean, std)``, applied on the device: ``data.augment``'s, which the
+        resolved config holds (the backbone's unless the config names others)."""
         augment = self.cfg.data.augment
         return tuple(augment.mean), tuple(augment.std)
 
@@ -217,8 +222,11 @@ def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
 
     Returns a :class:`RunResult` instead when ``out_dir`` holds a finished run (nothing to do).
     """
+    C.resolve_backbone(cfg)  # idempotent: a config not from load_config gets it too
     info, say = _start_process(cfg, say)
     device, main = info.device, info.is_main
+    if main and (message := C.statistics_warning(cfg)) is not None:
+        warnings.warn(message, C.StatisticsWarning, stacklevel=2)  # once: rank 0, at start
     frames_per_step = check_batch(cfg, info.world_size)
     train_set = _training_data(cfg)
     cfg.train.steps = C.derive_steps(cfg, len(train_set))  # resolved: stored in config.yaml

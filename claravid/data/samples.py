@@ -1,10 +1,11 @@
 """The sample dict that every dataset hands out, and the type of the transforms over it.
 
 A sample is ``{"image": uint8 [3,H,W], "mask": int64 [H,W], "path": str, "key": str, ...}``
-(``mask`` absent for unlabelled images; uint8 in datasets made with ``mask_dtype=torch.uint8``,
-as evaluation makes them). A transform takes and returns the whole dict (see
-``claravid.data.transforms``); datasets cast ``mask`` to int64 after it, so transforms may hand
-back uint8 masks (albumentations warps those exactly). :func:`normalise` makes a model's input
+(``mask`` absent for unlabelled images; uint8 with ``eval_transforms`` and in datasets made
+with ``mask_dtype=torch.uint8``, as evaluation makes them). A transform takes and returns the
+whole dict (see ``claravid.data.transforms``); datasets cast ``mask`` to the dtype they or the
+transforms ask for after it (int64 by default), so transforms may hand back uint8 masks
+(albumentations warps those exactly). :func:`normalise` makes a model's input
 of uint8 images where the model runs (training crops and evaluation frames travel as uint8).
 """
 
@@ -27,13 +28,16 @@ def image_tensor(rgb: np.ndarray) -> torch.Tensor:
 
 
 def finish_sample(
-    sample: Sample, transforms: Transform | None, mask_dtype: torch.dtype = torch.int64
+    sample: Sample, transforms: Transform | None, mask_dtype: torch.dtype | None = None
 ) -> Sample:
-    """Apply the transforms, then give the mask (if any) ``mask_dtype``: int64 for a loss;
-    evaluation keeps uint8 until the device (a 12-Mpixel int64 mask is 96 MB, and making it
-    costs more than reading the labels)."""
+    """Apply the transforms, then give the mask (if any) ``mask_dtype``; None: the dtype the
+    transforms ask for (their ``mask_dtype``: uint8 for ``eval_transforms``), else int64, for
+    a loss. Evaluation keeps uint8 until the device (a 12-Mpixel int64 mask is 96 MB, and
+    making it costs more than reading the labels)."""
     if transforms is not None:
         sample = transforms(sample)
+    if mask_dtype is None:
+        mask_dtype = getattr(transforms, "mask_dtype", None) or torch.int64
     if "mask" in sample:
         sample["mask"] = torch.as_tensor(sample["mask"]).to(mask_dtype)
     return sample

@@ -7,7 +7,7 @@
 
     ds = ClaraVidSegmentation("/data/claravid", split="train", palette="uavid",
                               transforms=train_transforms())
-    sample = ds[0]  # {"image": float [3,630,630], "mask": int64 [630,630], "path": ..., ...}
+    sample = ds[0]  # {"image": uint8 [3,630,630], "mask": int64 [630,630], "path": ..., ...}
 
 Only the modalities it needs are read: the RGB, the panoptic PNG's class channel, and the
 dynamic mask when the palette tells moving from static objects. With training transforms (a
@@ -57,8 +57,9 @@ from claravid.io.layout import MISSIONS, frame_file
 class ClaraVidSegmentation(Dataset):
     """Semantic segmentation samples of a ClaraVid selection and split.
 
-    A sample is a dict: ``image`` (uint8 [3,H,W] RGB, the exact pixels, when there are no
-    transforms), ``mask`` (int64 [H,W] palette train ids, 255 ignore), ``path`` (the RGB
+    A sample is a dict: ``image`` (uint8 [3,H,W] RGB, the exact pixels, also after the
+    default transforms), ``mask`` (int64 [H,W] palette train ids, 255 ignore; uint8 with
+    ``eval_transforms()``), ``path`` (the RGB
     file), ``mission``, ``viewpoint`` and ``key`` (``<mission folder>/<viewpoint>/<stem>``).
     Transforms take and return the whole dict (see ``claravid.data.transforms``).
 
@@ -80,8 +81,9 @@ class ClaraVidSegmentation(Dataset):
             read. Later reads never decode the panoptic RGB PNG.
         skip_incomplete: leave out frames missing a file of a modality it reads (RGB,
             panoptic, dynamic mask), counted in one warning, instead of raising.
-        mask_dtype: the masks' dtype: int64 (default, what a loss takes) or uint8 (255
-            ignore; evaluation keeps masks small until the device).
+        mask_dtype: the masks' dtype: int64 (what a loss takes) or uint8 (255 ignore;
+            evaluation keeps masks small until the device); None (default): uint8 with
+            ``eval_transforms()``, else int64.
     """
 
     def __init__(
@@ -97,7 +99,7 @@ class ClaraVidSegmentation(Dataset):
         split_config: SplitConfig | dict[str, Any] | None = None,
         label_cache: bool | str | Path = False,
         skip_incomplete: bool = False,
-        mask_dtype: torch.dtype = torch.int64,
+        mask_dtype: torch.dtype | None = None,
     ) -> None:
         self.root = Path(root)
         self.palette = load_palette(palette)

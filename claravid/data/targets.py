@@ -94,8 +94,9 @@ class FolderSegmentation(Dataset):
             ``uavid``, a YAML path or a ``Palette``): single-channel masks hold its ids,
             colour masks its colours. Required with ``masks``.
         transforms: called on each sample dict (see ``claravid.data.transforms``).
-        mask_dtype: the masks' dtype: int64 (default, what a loss takes) or uint8 (255
-            ignore; evaluation keeps masks small until the device).
+        mask_dtype: the masks' dtype: int64 (what a loss takes) or uint8 (255 ignore;
+            evaluation keeps masks small until the device); None (default): uint8 with
+            ``eval_transforms()``, else int64.
 
     Raises:
         DatasetNotFoundError: a folder is missing or holds no image.
@@ -109,7 +110,7 @@ class FolderSegmentation(Dataset):
         masks: str | Path | None = None,
         palette: str | Path | Palette | None = None,
         transforms: Transform | None = None,
-        mask_dtype: torch.dtype = torch.int64,
+        mask_dtype: torch.dtype | None = None,
     ) -> None:
         self.root = Path(images).expanduser()
         self.mask_root = Path(masks).expanduser() if masks is not None else None
@@ -171,8 +172,9 @@ class UAVidSegmentation(Dataset):
         palette: the palette the label files are written in: UAVid's colour-coded labels
             in ``uavid`` (the default), or label files converted to ids of another palette.
         transforms: called on each sample dict (see ``claravid.data.transforms``).
-        mask_dtype: the masks' dtype: int64 (default, what a loss takes) or uint8 (255
-            ignore; evaluation keeps masks small until the device).
+        mask_dtype: the masks' dtype: int64 (what a loss takes) or uint8 (255 ignore;
+            evaluation keeps masks small until the device); None (default): uint8 with
+            ``eval_transforms()``, else int64.
     """
 
     def __init__(
@@ -181,7 +183,7 @@ class UAVidSegmentation(Dataset):
         split: str = "train",
         palette: str | Path | Palette = "uavid",
         transforms: Transform | None = None,
-        mask_dtype: torch.dtype = torch.int64,
+        mask_dtype: torch.dtype | None = None,
     ) -> None:
         if split not in UAVID_SPLITS:
             raise ValueError(f"unknown UAVid split {split!r}; use one of {', '.join(UAVID_SPLITS)}")

@@ -2,20 +2,25 @@
 
 Training: a random crop at native resolution first (padded at a random position with the
 ignore index when the image is smaller), then colour jitter, brightness/contrast, rotation,
-optical or grid distortion and a horizontal flip, then normalisation. Cropping first is what
-makes this cheap: augmenting a 630×630 crop takes a few ms, the full 4032×3024 frame hundreds.
+optical or grid distortion and a horizontal flip. Cropping first is what makes this cheap:
+augmenting a 630×630 crop takes a few ms, the full 4032×3024 frame hundreds.
 The crop window can be drawn before anything is decoded (:meth:`SegmentationTransform.draw_window`
 from the frame's size): a dataset that reads regions (``ClaraVidSegmentation``) then decodes
 only the window and hands it over with ``sample["crop"] = (x, y, width, height)``; a dataset
 that cannot gets its full frame cut here, from the same random draws, so both give the same
-sample. Evaluation: normalisation only, no crop. Masks are warped with nearest interpolation and
+sample. Evaluation: the whole frame, untouched. Masks are warped with nearest interpolation and
 filled with the ignore index (albumentations 2.x ``fill_mask``; the 1.x names are ignored).
 
 A transform takes and returns the whole sample dict. It receives ``image`` as uint8 [3,H,W]
-and ``mask`` as uint8 [H,W] train ids; it returns ``image`` as float32 [3,h,w] (uint8 when
-made with ``normalize=False``: ``claravid.data.samples.normalise`` then runs where the model
-does, so a crop travels to it at a quarter of the bytes). The dataset casts the mask to its
-``mask_dtype`` afterwards.
+and ``mask`` as uint8 [H,W] train ids, and returns the image as uint8 [3,h,w], the exact
+pixels: the segmenter normalises them itself, on its device, with its backbone's statistics
+(``claravid.models.Segmenter``; training and evaluation do it with
+``claravid.data.samples.normalise``), so a crop travels there at a quarter of float32's bytes
+and a frame is never normalised with another model's numbers. ``normalize=True`` ends the
+pipeline with the normalisation instead (float32 images, for models of your own): with the
+config's ``mean``/``std``, ImageNet's when it sets none. The dataset casts the mask to its
+``mask_dtype`` afterwards; evaluation transforms ask for uint8 (``mask_dtype``), training ones
+leave it to the dataset (int64, what a loss takes).
 """
 
 from __future__ import annotations
@@ -45,7 +50,9 @@ IMAGENET_STD = (0.229, 0.224, 0.225)
 class AugmentConfig:
     """Every knob of the pipelines; YAML files override any subset (see ``configs/``).
 
-    Probabilities are per sample; a probability of 0 removes that augmentation.
+    Probabilities are per sample; a probability of 0 removes that augmentation. ``mean`` and
+    ``std`` (RGB, pixels in [0, 1]) are used only with ``normalize=True`` and by
+    ``claravid-train``; None there means the backbone's own statistics.
     """
 
     crop_height: int = 630
@@ -64,8 +71,10 @@ class AugmentConfig:
     distortion_p: float = 0.2  # one of optical / grid distortion
     optical_distort_limit: float = 0.05
     grid_distort_limit: float = 0.2
-    mean: tuple[float, float, float] = IMAGENET_MEAN
-    std: tuple[float, float, float] = IMAGENET_STD
+    # None: the backbone's statistics (claravid-train fills them in from the model's backbone;
+    # ImageNet's for normalize=True without a model).
+    mean: tuple[float, float, float] | None = None
+    std: tuple[float, float, float] | None = None
     ignore_index: int = 255
 
     def __post_init__(self) -> None:
@@ -171,9 +180,14 @@ class SegmentationTransform:
         ops: the augmentations after the crop.
         cfg: the config (normalisation, ignore index, crop size).
         crop: ``(height, width)`` of the random crop; None: no crop (evaluation).
-        normalize: end with the normalisation (float32 images); False: uint8 images, for
-            ``claravid.data.samples.normalise`` on the model's device (the random stream is the
-            same: the normalisation draws nothing).
+        normalize: end with the normalisation (float32 images, with ``cfg.mean``/``std``, else
+            ImageNet's); False (default): uint8 images, normalised where the model runs (the
+            random stream is the same: the normalisation draws nothing).
+        mask_dtype: the mask dtype the dataset should give samples (None: the dataset's own,
+            int64 by default).
+
+    Attributes:
+        mask_dtype: as given; ``claravid.data.samples.finish_sample`` reads it.
     """
 
     def __init__(
@@ -181,12 +195,18 @@ class SegmentationTransform:
         ops: list[A.BasicTransform],
         cfg: AugmentConfig,
         crop: tuple[int, int] | None = None,
-        normalize: bool = True,
+        normalize: bool = False,
+        mask_dtype: torch.dtype | None = None,
     ) -> None:
         self.cfg = cfg
         self.crop = crop
+        self.mask_dtype = mask_dtype
         if normalize:
-            ops = [*ops, A.Normalize(mean=cfg.mean, std=cfg.std, max_pixel_value=255.0)]
+            mean = cfg.mean if cfg.mean is not None else IMAGENET_MEAN
+            std = cfg.std if cfg.std is not None else IMAGENET_STD
+            ops = [*ops, A.Normalize(mean=mean, std=std, max_pixel_value=255.0)]
+        # Nothing to do (evaluation, uint8): samples pass through untouched, not copied.
+        self.identity = crop is None and not ops
         self.pipeline = A.Compose(ops)
 
     def draw_window(self, width: int, height: int) -> CropWindow:
@@ -239,13 +259,17 @@ class SegmentationTransform:
         mask = sample.get("mask")
         if mask is not None:
             mask = np.asarray(mask)
-            if mask.dtype != np.uint8:
-                mask = mask.astype(np.uint8)  # albumentations warps uint8 masks exactly
             if mask.shape != image.shape[:2]:
                 raise ValueError(
                     f"image {image.shape[1]}×{image.shape[0]} and mask "
                     f"{mask.shape[1]}×{mask.shape[0]} of {sample.get('path', 'a sample')} differ"
                 )
+            if self.identity:
+                return self._untouched(sample, image)
+            if mask.dtype != np.uint8:
+                mask = mask.astype(np.uint8)  # albumentations warps uint8 masks exactly
+        elif self.identity:
+            return self._untouched(sample, image)
         if self.crop is not None:
             cut = "crop" not in sample  # a dataset that read the window alone says where
             image, mask, window = self._cut_and_pad(image, mask, cut)
@@ -257,6 +281,14 @@ class SegmentationTransform:
             out = self.pipeline(image=image, mask=mask)
             sample["mask"] = torch.from_numpy(np.ascontiguousarray(out["mask"]))
         sample["image"] = torch.from_numpy(np.ascontiguousarray(out["image"].transpose(2, 0, 1)))
+        return sample
+
+    @staticmethod
+    def _untouched(sample: dict[str, Any], image: np.ndarray) -> dict[str, Any]:
+        """The sample as it came, its image a uint8 [3,H,W] tensor (a view, not a copy: a
+        12-Mpixel frame is not worth copying to change nothing)."""
+        if not isinstance(sample["image"], torch.Tensor):
+            sample["image"] = torch.from_numpy(image).permute(2, 0, 1)
         return sample
 
     def __repr__(self) -> str:
@@ -273,18 +305,21 @@ def _to_hwc(image: Any) -> np.ndarray:
     return image
 
 
-def train_transforms(config: Any = None, normalize: bool = True) -> SegmentationTransform:
-    """Random crop first, then photometric and geometric augmentations, then normalise.
+def train_transforms(config: Any = None, normalize: bool = False) -> SegmentationTransform:
+    """Random crop first, then photometric and geometric augmentations: uint8 crops, which the
+    segmenter normalises with its own statistics on its device.
 
-    With ``normalize=False`` the crops stay uint8, for ``claravid.data.samples.normalise`` on the
-    model's device.
+    With ``normalize=True`` the pipeline ends with the normalisation (float32 crops, with the
+    config's ``mean``/``std``, else ImageNet's), for models that do not normalise themselves.
     """
     cfg = config if isinstance(config, AugmentConfig) else augment_config(config)
     crop = (cfg.crop_height, cfg.crop_width)
     return SegmentationTransform(_train_ops(cfg), cfg, crop=crop, normalize=normalize)
 
 
-def eval_transforms(config: Any = None) -> SegmentationTransform:
-    """Normalisation only: the full frame, no crop."""
+def eval_transforms(config: Any = None, normalize: bool = False) -> SegmentationTransform:
+    """The full frame, no crop: the exact uint8 pixels and a uint8 mask (a 12-Mpixel frame's
+    int64 mask is 96 MB; the segmenter and the metrics take uint8). ``normalize=True``: a
+    float32 image normalised with the config's ``mean``/``std``, else ImageNet's."""
     cfg = config if isinstance(config, AugmentConfig) else augment_config(config)
-    return SegmentationTransform([], cfg)
+    return SegmentationTransform([], cfg, normalize=normalize, mask_dtype=torch.uint8)

@@ -56,10 +56,11 @@ def evaluate_model(
 
     Args:
         model: a module already on ``device`` (in eval mode) or any callable (ONNX Runtime).
-        dataset: samples with a normalised ``image`` [3,H,W], ``mask`` [H,W] and ``path``
-            (e.g. ``ClaraVidSegmentation(..., transforms=eval_transforms())``).
+        dataset: samples with a uint8 (or normalised float) ``image`` [3,H,W], ``mask`` [H,W]
+            and ``path`` (e.g. ``ClaraVidSegmentation(..., transforms=eval_transforms())``).
         num_classes: K, the palette's classes.
-        config: windows, stride, scale, batch size, precision.
+        config: windows, stride, scale, batch size, precision, normalisation (unset: the
+            model's natural window and own statistics, `WindowConfig.for_model`).
         device: where images go and confusions are counted.
         indices: evaluate only these dataset indices (a rank's shard).
         num_workers: DataLoader workers decoding the next images while the model runs.
@@ -71,10 +72,8 @@ def evaluate_model(
     Returns:
         One `ImageScore` per image, in dataset order.
     """
-    config = config or WindowConfig()
-    patch_size = getattr(model, "patch_size", None)
-    if patch_size:
-        config.check_patch(int(patch_size))
+    # The window and statistics the config leaves unset are the model's; checked once here.
+    config = (config or WindowConfig()).for_model(model)
     device = torch.device(device)
     subset = Subset(dataset, list(indices)) if indices is not None else dataset
     loader = DataLoader(subset, batch_size=None, num_workers=num_workers)

@@ -21,15 +21,21 @@ from typing import Any
 
 import torch
 
-from claravid.eval.inference.windows import Model, WindowConfig
+from claravid.eval.inference.windows import (
+    PAPER_WINDOW,
+    Model,
+    WindowConfig,
+    model_statistics,
+    natural_size,
+)
 from claravid.infra.cli import UsageError
 from claravid.models.onnx_metadata import (
+    backbone_statistics,
     config_get,
     normalisation_from_config,
     window_from_config,
 )
 
-DEFAULT_WINDOW = (630, 630)
 DEFAULT_SCALE = 1.0
 DEFAULT_BATCH = 4
 
@@ -78,8 +84,10 @@ def checkpoint_defaults(checkpoint: Mapping[str, Any]) -> dict[str, Any]:
     the validation dataset (``data.val_dataset``, ``data.val_root`` or ``data.root``,
     ``data.val_split``), the palette, the ClaraVid selection and split settings (so ``--split
     val`` is the very split training held out), and the validation windows (``val.window``,
-    ``val.stride``, ``val.scale``, ``val.batch_size``). Anything missing or of the wrong type
-    is left out, so the command line's values or the defaults apply.
+    ``val.stride``, ``val.scale``, ``val.batch_size``) and the input normalisation
+    (``data.augment.mean/std``). Anything missing or of the wrong type is left out, so the
+    command line's values or the defaults (the model's natural window, its own statistics)
+    apply.
     """
     config = checkpoint.get("config")
 
@@ -113,8 +121,11 @@ def checkpoint_defaults(checkpoint: Mapping[str, Any]) -> dict[str, Any]:
         if name in window:
             out[name] = window[name]
     augment = read("augment")
-    if isinstance(augment, Mapping) and ("mean" in augment or "std" in augment):
-        out["normalisation"] = normalisation_from_config(config)
+    if isinstance(augment, Mapping) and any(augment.get(k) is not None for k in ("mean", "std")):
+        # What training normalised with; a key it left unset is the backbone's (never ImageNet's
+        # for a SAT backbone).
+        stats = backbone_statistics(checkpoint.get("model_args"))
+        out["normalisation"] = normalisation_from_config(config, stats)
     return out
 
 
@@ -190,7 +201,10 @@ def resolve_settings(
 ) -> RunSettings:
     """Window, stride, scale, batch size, palette and normalisation: flag, else the model
     file's record, else the default. A ``--stride`` recorded for another window is dropped
-    when ``--window`` is given (the default stride follows the window).
+    when ``--window`` is given (the default stride follows the window). The default window is
+    the model's natural size (630 for patches of 14, 640 for 16: `natural_size`); the default
+    normalisation is the model's own (a checkpoint's backbone statistics; ImageNet's only for
+    an ONNX file that records none).
 
     Raises:
         UsageError: a window other than a fixed-size ONNX file's input size; an ONNX file
@@ -218,7 +232,8 @@ def resolve_settings(
         origins[name] = "default"
         return None
 
-    size = pick("window", _pair(window), fixed or _pair(recorded.get("window")), DEFAULT_WINDOW)
+    natural = natural_size(source.patch_size) if source.patch_size else PAPER_WINDOW
+    size = pick("window", _pair(window), fixed or _pair(recorded.get("window")), (natural,) * 2)
     if fixed is not None and tuple(size) != tuple(fixed):
         raise UsageError(
             f"the ONNX model takes {fixed[1]}x{fixed[0]} (WxH) inputs only: use --window "
@@ -229,7 +244,11 @@ def resolve_settings(
     step = pick("stride", _pair(stride), record_stride, None)
     name = pick("palette", palette, recorded.get("palette"), None)
     info = recorded.get("palette_info") if palette is None else None
-    default_norm = normalisation_from_config(None)
+    default_norm = normalisation_from_config(None)  # ImageNet's: a foreign ONNX file
+    mean, std = model_statistics(source.model)
+    if mean is not None:  # the model's own: a checkpoint's backbone (the model owns them)
+        default_norm = {**default_norm, "mean": [float(v) for v in mean],
+                        "std": [float(v) for v in std]}  # fmt: skip
     normalisation = pick("normalisation", None, recorded.get("normalisation"), default_norm)
     config = WindowConfig(
         size=size,
@@ -241,8 +260,19 @@ def resolve_settings(
         std=tuple(normalisation["std"]),
     )
     if source.patch_size:
-        config.check_patch(source.patch_size)
+        try:
+            config.check_patch(source.patch_size)
+        except ValueError as exc:
+            raise UsageError(f"{exc} ({_where(origins['window'], kind)})") from None
     return RunSettings(config, name, info, normalisation, origins)
+
+
+def _where(origin: str, kind: str) -> str:
+    """Where a window came from, as the error about it says."""
+    return {
+        "flag": "--window",
+        "default": "the default window",
+    }.get(origin, f"the window the {kind} records; pass --window to choose another")
 
 
 def load_source(

@@ -1,12 +1,14 @@
 """Sliding-window inference: full-size logits from a model that sees fixed-size windows.
 
-The image travels as uint8 [3,H,W] (what the datasets hand out without transforms) and is
-normalised where the model runs, with the config's ``mean``/``std``: a 12-Mpixel frame is 36 MB
-on its way to the device, not 145 MB of float32 made on the CPU. An image already normalised
-(float [3,H,W], e.g. from ``eval_transforms``) is taken as it is. It is optionally resized by
-``scale``, cut into windows of
-``window`` pixels (630×630 by default, the paper's crop) every ``stride`` pixels, the last window
-of a row or column flush with the border; windows go through the model in batches, their logits
+The image travels as uint8 [3,H,W] (what the datasets hand out, with or without
+``eval_transforms``) and is normalised where the model runs, with the config's ``mean``/``std``
+or, when it sets none, the model's own (``model.mean``/``model.std`` of a segmenter, the
+``normalisation`` an ONNX file records): a 12-Mpixel frame is 36 MB on its way to the device,
+not 145 MB of float32 made on the CPU. An image already normalised (float [3,H,W]) is taken as
+it is. It is optionally resized by ``scale``, cut into windows of ``window`` pixels (by default
+the model's natural size, :func:`natural_size`: 630×630 for patches of 14, the paper's window,
+640×640 for patches of 16) every ``stride`` pixels, the last window of a row or column flush
+with the border; windows go through the model in batches, their logits
 are summed into a full-size buffer and divided by how many windows covered each pixel. An image
 smaller than a window is padded at the bottom/right with zeros (the mean colour after
 normalisation) and the padding is cut off the logits. With ``scale != 1`` the logits are resized
@@ -23,6 +25,7 @@ Any model works: a ``torch.nn.Module`` or a callable returning numpy
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -34,9 +37,43 @@ import torch.nn.functional as F
 
 from claravid.data.samples import normalise as normalise_image
 from claravid.infra.precision import PRECISIONS, autocast, autocast_dtype
-from claravid.models.onnx_metadata import IMAGENET_MEAN, IMAGENET_STD
 
 Model = Callable[[torch.Tensor], Any]
+
+#: The paper's window and training crop (ClaraVid supplementary §10.3): 630 = 45 patches of 14.
+PAPER_WINDOW = 630
+
+
+def natural_size(patch_size: int) -> int:
+    """A model's natural window (and training crop): the smallest multiple of its patch size
+    that covers the paper's 630 pixels: 630 (45 × 14) for DINOv2, 640 (40 × 16) for DINOv3."""
+    return math.ceil(PAPER_WINDOW / patch_size) * patch_size
+
+
+def nearest_multiples(size: int, patch_size: int) -> tuple[int, int]:
+    """The two multiples of ``patch_size`` nearest to ``size``, below and above it (the two
+    smallest when ``size`` is below one patch); ``(size, size)`` when it is one already."""
+    p = patch_size
+    if size % p == 0:
+        return size, size
+    below = size // p * p
+    return (below, below + p) if below >= p else (p, 2 * p)
+
+
+def nearest_sizes(
+    height: int, width: int, patch_size: int
+) -> tuple[tuple[int, int], tuple[int, int]]:
+    """The two (height, width) nearest to the given one that the patch grid divides: each side
+    rounded down (the smaller) and up (the larger); a side that fits stays as it is."""
+    (h0, h1), (w0, w1) = nearest_multiples(height, patch_size), nearest_multiples(width, patch_size)
+    return (h0, w0), (h1, w1)
+
+
+def patch_fix(height: int, width: int, patch_size: int, prefix: str = "") -> str:
+    """``use 624x624 or 640x640``: the two nearest valid sizes, width x height (as every size
+    flag takes them), each after ``prefix`` (e.g. ``--size ``)."""
+    small, large = nearest_sizes(height, width, patch_size)
+    return f"use {prefix}{small[1]}x{small[0]} or {prefix}{large[1]}x{large[0]}"
 
 
 @dataclass(frozen=True)
@@ -44,23 +81,26 @@ class WindowConfig:
     """How an image is cut into windows.
 
     Attributes:
-        size: window height and width (multiples of the model's patch size).
+        size: window height and width (multiples of the model's patch size); None: the model's
+            natural size (:func:`natural_size`; :data:`PAPER_WINDOW` for a model that states no
+            patch size), filled in by :meth:`for_model`.
         stride: step between windows; default two thirds of the window (overlap 1/3).
         scale: resize factor applied to the image first (the paper reports at 0.5).
         batch_size: windows per forward pass.
         precision: ``auto``, ``fp32``, ``bf16`` or ``fp16`` (:mod:`claravid.infra.precision`). The
             former boolean ``amp`` reads as ``True`` → ``auto``, ``False`` → ``fp32``.
         mean, std: the model's input normalisation of uint8 images (per channel, RGB, on the
-            0–1 scale); a float image is taken as normalised already.
+            0–1 scale); None: the model's own statistics (:meth:`for_model`). A float image is
+            taken as normalised already.
     """
 
-    size: tuple[int, int] = (630, 630)
+    size: tuple[int, int] | None = None
     stride: tuple[int, int] | None = None
     scale: float = 1.0
     batch_size: int = 4
     precision: str = "auto"
-    mean: tuple[float, float, float] = IMAGENET_MEAN
-    std: tuple[float, float, float] = IMAGENET_STD
+    mean: tuple[float, float, float] | None = None
+    std: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.precision, bool):  # the former `amp: bool` in this position
@@ -69,35 +109,83 @@ class WindowConfig:
             raise ValueError(
                 f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}"
             )
-        size = _pair(self.size, "window size")
+        size = _pair(self.size, "window size") if self.size is not None else None
         stride = _pair(self.stride, "stride") if self.stride is not None else None
         object.__setattr__(self, "size", size)
-        object.__setattr__(self, "stride", stride or tuple(max(1, s * 2 // 3) for s in size))
+        if size is not None:
+            stride = stride or tuple(max(1, s * 2 // 3) for s in size)
+        object.__setattr__(self, "stride", stride)
         if not (math.isfinite(self.scale) and 0 < self.scale <= 8):
             raise ValueError(f"scale must be in (0, 8], got {self.scale}")
         if self.batch_size < 1:
             raise ValueError(f"batch size must be at least 1, got {self.batch_size}")
+        if (self.mean is None) != (self.std is None):
+            raise ValueError("give mean and std together, or neither (the model's own)")
         for name in ("mean", "std"):
+            if getattr(self, name) is None:
+                continue
             values = tuple(float(v) for v in getattr(self, name))
             if len(values) != 3 or not all(math.isfinite(v) for v in values):
                 raise ValueError(f"{name} must be 3 finite numbers (R, G, B), got {values}")
             object.__setattr__(self, name, values)
-        if min(self.std) <= 0:
+        if self.std is not None and min(self.std) <= 0:
             raise ValueError(f"std must be positive, got {self.std}")
-        if any(s > w for s, w in zip(self.stride, self.size, strict=True)):  # type: ignore[arg-type]
+        if size is not None and any(s > w for s, w in zip(self.stride, size, strict=True)):  # type: ignore[arg-type]
             raise ValueError(
-                f"stride {self.stride} larger than the window {self.size} would skip pixels"
+                f"stride {self.stride} larger than the window {size} would skip pixels"
             )
 
     def check_patch(self, patch_size: int) -> None:
-        """Raise when the window is not a multiple of the model's patch size."""
-        if any(s % patch_size for s in self.size):
-            fit = tuple(max(patch_size, s // patch_size * patch_size) for s in self.size)
+        """Raise when the window is not a multiple of the model's patch size, naming the two
+        nearest sizes that are."""
+        if self.size is not None and any(s % patch_size for s in self.size):
             # Width x height, as --window takes it (size is height, width).
             raise ValueError(
                 f"window {self.size[1]}x{self.size[0]} (WxH) is not a multiple of the model's "
-                f"patch size {patch_size}: use {fit[1]}x{fit[0]}"
+                f"patch size {patch_size}: {patch_fix(*self.size, patch_size)}"
             )
+
+    def for_model(self, model: Any) -> WindowConfig:
+        """This config with what it leaves to the model filled in from it: the window (the
+        model's natural size, from its ``patch_size``) and the statistics (``model.mean`` and
+        ``model.std``, or an ONNX file's recorded ``normalisation``); checked against the
+        model's patch size.
+
+        Raises:
+            ValueError: the window is not a multiple of the model's patch size.
+        """
+        patch = getattr(model, "patch_size", None)
+        size, stride = self.size, self.stride
+        if size is None:
+            side = natural_size(int(patch)) if patch else PAPER_WINDOW
+            size = (side, side)
+        mean, std = self.mean, self.std
+        if mean is None:
+            mean, std = model_statistics(model)
+        config = dataclasses.replace(self, size=size, stride=stride, mean=mean, std=std)
+        if patch:
+            config.check_patch(int(patch))
+        return config
+
+
+def model_statistics(model: Any) -> tuple[Any, Any]:
+    """``(mean, std)`` a model states for its input: a segmenter's ``mean``/``std`` (its
+    backbone's), an ONNX runner's recorded ``normalisation``; ``(None, None)`` otherwise."""
+    mean, std = getattr(model, "mean", None), getattr(model, "std", None)
+    if _triple(mean) and _triple(std):
+        return tuple(mean), tuple(std)
+    recorded = getattr(model, "normalisation", None)
+    if (
+        isinstance(recorded, dict)
+        and _triple(recorded.get("mean"))
+        and _triple(recorded.get("std"))
+    ):
+        return tuple(recorded["mean"]), tuple(recorded["std"])
+    return None, None
+
+
+def _triple(value: Any) -> bool:
+    return isinstance(value, list | tuple) and len(value) == 3
 
 
 def _pair(value: Any, what: str) -> tuple[int, int]:
@@ -120,7 +208,16 @@ def window_starts(length: int, window: int, stride: int) -> list[int]:
 def normalise(image: torch.Tensor, config: WindowConfig) -> torch.Tensor:
     """A uint8 image [3,H,W] as the model's float32 input, on the image's device; a float image
     is returned as it is when normalised already (``claravid.data.samples.normalise`` refuses one
-    whose values lie outside the normalised range, such as 0..255 floats)."""
+    whose values lie outside the normalised range, such as 0..255 floats).
+
+    Raises:
+        ValueError: a uint8 image and no statistics (neither the config's nor the model's).
+    """
+    if not image.is_floating_point() and config.mean is None:
+        raise ValueError(
+            "uint8 images need the model's mean and std, and neither the window config nor "
+            "the model states them: pass WindowConfig(mean=..., std=...)"
+        )
     return normalise_image(image, config.mean, config.std)
 
 
@@ -141,11 +238,12 @@ def sliding_window_logits(
 
     Args:
         model: maps [B,3,h,w] float to [B,K,h,w] logits (tensor or numpy).
-        image: uint8 (normalised here, with ``config.mean``/``std``) or already normalised
-            float, on the device the model runs on.
-        config: window size, stride, scale, batch size, precision, normalisation.
+        image: uint8 (normalised here, with ``config.mean``/``std``, else the model's own) or
+            already normalised float, on the device the model runs on.
+        config: window size, stride, scale, batch size, precision, normalisation (what it
+            leaves unset comes from the model: `WindowConfig.for_model`).
     """
-    config = config or WindowConfig()
+    config = (config or WindowConfig()).for_model(model)
     if (
         image.ndim != 3
         or image.shape[0] != 3

@@ -145,10 +145,11 @@ def test_cli_errors(tmp_path, capsys):
     assert "none.pt not found" in capsys.readouterr().err
     ckpt = save_checkpoint(_model("dinov2_vits14"), tmp_path / "m.pt")
     assert main([str(ckpt), "-o", str(tmp_path / "x.onnx"), "--height", "30"]) == 2
-    # Said as a --size value, width x height: 30 rounds up to 42.
+    # Said as --size values, width x height, the two nearest: 30 rounds to 28 or 42; the
+    # default width is the model's natural 630 (45 x 14).
     err = capsys.readouterr().err
     assert "input size 630x30 (WxH) is not a multiple of the model's patch size 14" in err
-    assert "use --size 630x42" in err
+    assert "use --size 630x28 or --size 630x42" in err
     with pytest.raises(FileNotFoundError, match="claravid-export"):
         OnnxSegmenter(tmp_path / "x.onnx")
 
@@ -194,7 +195,8 @@ def test_cli_checkpoint_flag_and_size(tmp_path, capsys):
         (["--checkpoint", str(ckpt), "-o", x, "--size", "28", "--width", "28"],
          "give --size WxH or --height/--width, not both"),
         (["--checkpoint", str(ckpt), "-o", x, "--size", "28x20"],
-         "input size 28x20 (WxH) is not a multiple of the model's patch size 14: use --size 28x28"),
+         "input size 28x20 (WxH) is not a multiple of the model's patch size 14: use --size 28x14 "
+         "or --size 28x28"),
     ]:  # fmt: skip
         assert main(argv) == 2
         _one_error_line(capsys, match)

@@ -38,6 +38,13 @@ def tiny(root, out, *extra):
     return [*TINY, f"data.root={root}", f"out_dir={out}", *extra]
 
 
+def tiny_v3(root, out, *extra, backbone="dinov3_vits16"):
+    """``tiny`` with a tiny random-init DINOv3 backbone (the same widths and depth): patches of
+    16, so 32² crops and windows (two patches a side; 28 is not a multiple of 16)."""
+    sizes = ["data.augment.crop_height=32", "data.augment.crop_width=32", "val.window=32"]
+    return tiny(root, out, f"model.backbone={backbone}", *sizes, *extra)
+
+
 @pytest.fixture(scope="session")
 def uavid_root(tmp_path_factory):
     """uavid_{train,val}/seq1 with 3 frames of 64×48 each, colour labels in blocks."""

@@ -31,9 +31,10 @@ def test_bad_val_window_fails_before_the_first_step_and_binds_nothing(
 ):
     out = tmp_path / "run"
     args = ["--config", "demo", *tiny(claravid_root, out, "train.steps=2", "val.every=0")]
-    # 30 is no multiple of the tiny model's patch size 14: refused before any step.
+    # 30 is no multiple of the tiny model's patch size 14: refused before any step, with the
+    # two nearest multiples (2 and 3 patches).
     assert main([*args, "val.window=30"]) == 2
-    _one_line(capsys, "val.window=30", "28x28")
+    _one_line(capsys, "val.window=30", "use 28 or 42")
     assert not (out / "last.pt").exists()
     for bad in ("val.stride=0", "train.device=tpu", "train.device=cuda:99"):
         assert main([*args, bad]) == 2, bad

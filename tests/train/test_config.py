@@ -1,17 +1,22 @@
 """Config: defaults + YAML + overrides, unknown keys with suggestions, bad values, shipped names."""
 
+import re
 from pathlib import Path
 
 import pytest
 from omegaconf import OmegaConf
 
 from claravid.infra.resources import shipped_file
+from claravid.train.cli import main as train_main
 from claravid.train.config import (
     ConfigError,
     changed_keys,
     derive_steps,
     find_config,
+    from_plain,
     load_config,
+    statistics_warning,
+    to_plain,
     valid_keys,
 )
 
@@ -138,3 +143,139 @@ def test_split_settings_are_checked_by_name(tmp_path):
         )
     )
     assert list(load_config(path).data.split.test_missions) == ["urban_high_1"]
+
+
+# Statistics and sizes follow the backbone (issue 26). The expected numbers are the published
+# ones, typed here: ImageNet's and SAT-493M's (the DINOv3 satellite models' normalisation).
+IMAGENET = ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225))
+SAT493M = ((0.430, 0.411, 0.296), (0.213, 0.156, 0.143))
+
+
+def _bare(tmp_path, backbone, *extra):
+    """A config file that sets no statistics and no window (448 = 32 x 14 = 28 x 16 crops)."""
+    path = tmp_path / "bare.yaml"
+    path.write_text(
+        "out_dir: runs/x\ndata:\n  root: /data\n  augment: {crop_height: 448, crop_width: 448}\n"
+        "model: {weights: null}\n"
+    )
+    return load_config(path, [f"model.backbone={backbone}", *extra])
+
+
+@pytest.mark.parametrize(
+    ("backbone", "stats", "window"),
+    [
+        ("dinov2_vitl14", IMAGENET, 630),  # 45 patches of 14: the paper's window
+        ("dinov3_vitl16", IMAGENET, 640),  # 40 patches of 16: the nearest that covers 630
+        ("dinov3_vitl16_sat", SAT493M, 640),
+        ("dinov3_vit7b16_sat", SAT493M, 640),
+        ("dinov3_vits16", IMAGENET, 640),
+    ],
+)
+def test_unset_statistics_and_window_are_the_backbone_s(tmp_path, backbone, stats, window):
+    cfg = _bare(tmp_path, backbone)
+    assert tuple(cfg.data.augment.mean) == stats[0] and tuple(cfg.data.augment.std) == stats[1]
+    assert cfg.val.window == window
+    # What checkpoints record: the resolved numbers, not null.
+    plain = to_plain(cfg)
+    assert (
+        list(plain["data"]["augment"]["mean"]) == list(stats[0])
+        and plain["val"]["window"] == window
+    )
+
+
+def test_statistics_and_window_given_are_kept(tmp_path):
+    cfg = _bare(tmp_path, "dinov3_vitl16_sat", "data.augment.mean=[0.5,0.5,0.5]",
+                "data.augment.std=[0.25,0.25,0.25]", "val.window=320")  # fmt: skip
+    assert tuple(cfg.data.augment.mean) == (0.5,) * 3 and tuple(cfg.data.augment.std) == (0.25,) * 3
+    assert cfg.val.window == 320
+    warning = statistics_warning(cfg)
+    assert "dinov3_vitl16_sat" in warning and "(0.5, 0.5, 0.5)" in warning
+    assert "SAT-493M: mean (0.43, 0.411, 0.296), std (0.213, 0.156, 0.143)" in warning
+    # The backbone's own numbers, named explicitly, are no reason to warn.
+    same = _bare(tmp_path, "dinov3_vitl16_sat", "data.augment.mean=[0.430,0.411,0.296]",
+                 "data.augment.std=[0.213,0.156,0.143]")  # fmt: skip
+    assert statistics_warning(same) is None
+    assert statistics_warning(_bare(tmp_path, "dinov2_vitl14")) is None
+    imagenet = _bare(tmp_path, "dinov3_vitl16_sat", "data.augment.mean=[0.485,0.456,0.406]",
+                     "data.augment.std=[0.229,0.224,0.225]")  # fmt: skip
+    assert "(0.485, 0.456, 0.406)" in statistics_warning(imagenet)
+
+
+@pytest.mark.parametrize(
+    ("backbone", "override", "message"),
+    [
+        ("dinov2_vitl14", "data.augment.crop_height=640",
+         "data.augment.crop_height=640 is not a multiple of the patch size 14 of dinov2_vitl14: "
+         "use 630 or 644"),
+        ("dinov3_vitl16", "data.augment.crop_width=630",
+         "data.augment.crop_width=630 is not a multiple of the patch size 16 of dinov3_vitl16: "
+         "use 624 or 640"),
+        ("dinov3_vitl16_sat", "val.window=630",
+         "val.window=630 is not a multiple of the patch size 16 of dinov3_vitl16_sat: "
+         "use 624 or 640"),
+        ("dinov2_vits14", "val.window=10",  # below one patch: the two smallest
+         "val.window=10 is not a multiple of the patch size 14 of dinov2_vits14: use 14 or 28"),
+    ],
+)  # fmt: skip
+def test_sizes_off_the_patch_grid_name_the_two_nearest(tmp_path, capsys, backbone, override,
+                                                       message):  # fmt: skip
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        _bare(tmp_path, backbone, override)
+    # The command line says it in one line, exit 2, before reading any data (there is none).
+    argv = ["--config", str(tmp_path / "bare.yaml"), f"model.backbone={backbone}", override]
+    assert train_main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == f"claravid-train: error: {message}"
+
+
+def test_a_patch_size_overridden_for_a_tiny_model_is_the_one_checked(tmp_path):
+    # 448 is a multiple of 14 and 16 but not of 10: 440 or 450.
+    message = (
+        "crop_height=448 is not a multiple of the patch size 10 of dinov3_vits16: use 440 or 450"
+    )
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        _bare(tmp_path, "dinov3_vits16", "model.backbone_kwargs.patch_size=10", "val.window=450")
+
+
+@pytest.mark.parametrize(
+    ("name", "file"),
+    [
+        ("claravid_dpt_dinov3_vitl16", "dinov3_vitl16_pretrain_lvd1689m-8aa4cbdd.pth"),
+        ("claravid_dpt_dinov3_vitl16_sat", "dinov3_vitl16_pretrain_sat493m-eadcf0ff.pth"),
+    ],
+)
+def test_dinov3_configs_need_the_weights_file_one_line(tmp_path, capsys, name, file):
+    hint = f"pass model.weights=/path/to/{file}"
+    for extra in ([], ["model.weights=official"]):
+        with pytest.raises(ConfigError, match="licence-gated"):
+            load_config(name, extra)
+        assert train_main(["--config", name, *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("claravid-train: error: model.weights: ") and err.endswith(hint)
+        assert len(err.splitlines()) == 1 and "dinov3-downloads" in err
+    cfg = load_config(name, [f"model.weights={tmp_path / file}"])
+    # The paper's protocol at 640: crops and windows of 40 x 40 patches of 16.
+    assert (cfg.data.augment.crop_height, cfg.data.augment.crop_width, cfg.val.window) == (
+        640, 640, 640)  # fmt: skip
+    stats = SAT493M if name.endswith("_sat") else IMAGENET
+    assert (tuple(cfg.data.augment.mean), tuple(cfg.data.augment.std)) == stats
+    assert cfg.model.freeze_backbone and cfg.model.backbone == name.removeprefix("claravid_dpt_")
+    # The same protocol as the DINOv2-L/14 config, but for the backbone, its weights and sizes.
+    base = load_config("claravid_dpt_vitl14")
+    differ = changed_keys(base, cfg)
+    expected = ["data.augment.crop_height", "data.augment.crop_width", "model.backbone",
+                "model.weights", "val.window"]  # fmt: skip
+    if name.endswith("_sat"):
+        expected += ["data.augment.mean", "data.augment.std"]
+    assert differ == sorted(expected)
+
+
+def test_a_config_recorded_before_the_backbone_defaults_resumes(tmp_path):
+    """A run's config.yaml and checkpoints of the previous version recorded ImageNet's mean
+    and std and the window as numbers: they read back, and equal today's resolved config."""
+    new = load_config("demo", ["data.root=/d", "out_dir=/o"])
+    old = to_plain(new)
+    old["data"]["augment"]["mean"] = [0.485, 0.456, 0.406]  # what the old default wrote
+    old["data"]["augment"]["std"] = [0.229, 0.224, 0.225]
+    old["val"]["window"] = 224
+    assert changed_keys(from_plain(old), new) == []

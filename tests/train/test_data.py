@@ -66,7 +66,7 @@ def test_crops_normalised_on_the_device_are_the_normalising_pipeline_s(claravid_
     )
     base = ClaraVidSegmentation(claravid_root, split="all", palette="uavid")
     crop = CropDataset(base, augment)[(1, 77)]
-    reference = train_transforms(augment)  # ends with albumentations' Normalize
+    reference = train_transforms(augment, normalize=True)  # ends with albumentations' Normalize
     reference.pipeline.set_random_seed(77)
     expected = reference(base[1])
     got = normalise(crop["image"], augment.mean, augment.std)[0]

@@ -14,7 +14,7 @@ from claravid.models.checkpoint import read_checkpoint
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.checkpoint import save_training_checkpoint
 from claravid.train.cli import main
-from tests.train.conftest import miou_by_hand, tiny
+from tests.train.conftest import miou_by_hand, tiny, tiny_v3
 
 
 def rows(out):
@@ -193,8 +193,10 @@ SHIPPED = [n for n in shipped_names() if n != "augment"]
 @pytest.mark.slow
 @pytest.mark.parametrize("name", SHIPPED)
 def test_every_shipped_config_trains_two_steps(name, claravid_root, uavid_root, tmp_path):
-    cfg = load_config(name)
+    shipped = cfg = load_config(name, ["model.weights=null"])  # DINOv3's need a weights file
     extra = []
+    if models.backbone_spec(cfg.model.backbone).patch_size == 16:  # crops and windows of 32
+        extra += ["data.augment.crop_height=32", "data.augment.crop_width=32", "val.window=32"]
     if cfg.data.dataset == "uavid":
         extra += [f"data.root={uavid_root}", "data.val_split=val"]
     if cfg.data.val_dataset == "uavid":
@@ -206,7 +208,7 @@ def test_every_shipped_config_trains_two_steps(name, claravid_root, uavid_root, 
     assert result.step == 2 and result.best_step == 2  # the final validation, at step 2
     assert result.best_miou == pytest.approx(miou_by_hand(tmp_path / "run" / "last.pt", cfg))
     assert read_checkpoint(tmp_path / "run" / "last.pt")["config"]["model"]["backbone"] == (
-        load_config(name).model.backbone
+        shipped.model.backbone
     )
 
 
@@ -253,6 +255,68 @@ def test_the_model_sees_crops_normalised_with_the_config_s_mean_and_std(claravid
     assert pixels.min() > -0.01 and pixels.max() < 255.01 and pixels.std() > 1  # not one flat value
 
 
+def _first_model_input(run):
+    """The first tensor a module receives while ``run()`` trains: the outermost call of the
+    first step is the model's forward (the crops as normalised on the device)."""
+    seen = []
+
+    def first_input(module, args):
+        if not seen:
+            seen.append(args[0].detach().clone())
+
+    handle = torch.nn.modules.module.register_module_forward_pre_hook(first_input)
+    try:
+        run()
+    finally:
+        handle.remove()
+    return seen[0]
+
+
+def _assert_normalised_with(x, mean, std):
+    """Undoing ``(pixels / 255 - mean) / std`` gives whole pixel values in 0..255 only for the
+    statistics that were applied."""
+    pixels = (x * torch.tensor(std).view(3, 1, 1) + torch.tensor(mean).view(3, 1, 1)) * 255
+    torch.testing.assert_close(pixels, pixels.round(), rtol=0, atol=2e-3)
+    assert pixels.min() > -0.01 and pixels.max() < 255.01 and pixels.std() > 1
+
+
+SAT493M = ((0.430, 0.411, 0.296), (0.213, 0.156, 0.143))  # DINOv3 SAT's published statistics
+IMAGENET = ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225))
+
+
+def test_a_sat_backbone_trains_on_sat_statistics_without_naming_them(claravid_root, tmp_path):
+    """No data.augment.mean/std in the config: a dinov3_*_sat backbone's crops reach it
+    normalised with SAT-493M's statistics (not ImageNet's), and the checkpoint records them."""
+    out = tmp_path / "run"
+    cfg = load_config("demo", tiny_v3(claravid_root, out, "train.steps=1", "val.every=0",
+                                      backbone="dinov3_vitl16_sat"))  # fmt: skip
+    x = _first_model_input(lambda: train(cfg))
+    assert x.dtype == torch.float32 and x.shape[1:] == (3, 32, 32)
+    _assert_normalised_with(x, *SAT493M)
+    with pytest.raises(AssertionError):  # the check tells the two apart
+        _assert_normalised_with(x, *IMAGENET)
+    augment = read_checkpoint(out / "last.pt")["config"]["data"]["augment"]
+    assert (tuple(augment["mean"]), tuple(augment["std"])) == SAT493M
+
+
+def test_statistics_named_against_a_sat_backbone_warn_once_and_are_used(
+    claravid_root, tmp_path, capsys
+):
+    """Named explicitly, other statistics are the ones applied (an experiment may want them),
+    with one warning naming both."""
+    stats = [f"data.augment.mean={list(IMAGENET[0])}", f"data.augment.std={list(IMAGENET[1])}"]
+    args = tiny_v3(claravid_root, tmp_path / "run", "train.steps=1", "val.every=0", *stats,
+                   backbone="dinov3_vitl16_sat")  # fmt: skip
+    x = _first_model_input(lambda: main(["--config", "demo", *args]))
+    _assert_normalised_with(x, *IMAGENET)
+    err = capsys.readouterr().err
+    warnings = [line for line in err.splitlines()
+                if line.startswith("claravid-train: warning: data.augment.mean")]  # fmt: skip
+    assert len(warnings) == 1, err
+    assert "(0.485, 0.456, 0.406)" in warnings[0] and "dinov3_vitl16_sat" in warnings[0]
+    assert "mean (0.43, 0.411, 0.296), std (0.213, 0.156, 0.143)" in warnings[0]
+
+
 @pytest.mark.slow
 def test_loader_workers_draw_the_same_batches(claravid_root, tmp_path):
     """Crops are seeded by position, not by worker: 2 workers train the very same weights."""
@@ -273,3 +337,23 @@ def test_complexity_balanced_sampler_trains(claravid_root, tmp_path):
     bad = tiny(claravid_root, tmp_path / "b", *extra, "data.sampler_bins=1000")
     with pytest.raises(ValueError, match="more than the 25 training frames"):  # 150 m blocks
         train(load_config("demo", bad))
+
+
+@pytest.mark.parametrize("backbone", ["dinov2_vits14_reg", "dinov3_vitl16_sat", "dinov3_vits16"])
+def test_end_to_end_training_leaves_no_parameter_without_a_gradient(backbone):
+    """``model.freeze_backbone: false``: every trainable parameter gets a gradient (DDP refuses
+    one that never does): the pre-training-only mask token and DINOv3 SAT's local_cls_norm are
+    frozen."""
+    from claravid.train.loop import EndToEnd
+
+    torch.manual_seed(0)
+    kwargs = {"embed_dim": 32, "depth": 4, "num_heads": 2}
+    model = models.build_model(backbone, 3, backbone_kwargs=kwargs, layers=[0, 1, 2, 3],
+                               features=8, out_channels=[8, 8, 8, 8])  # fmt: skip
+    wrapped = EndToEnd(model).train()
+    patch = model.patch_size
+    wrapped(torch.randn(1, 3, 2 * patch, 3 * patch)).sum().backward()
+    missing = [n for n, p in model.named_parameters() if p.requires_grad and p.grad is None]
+    assert missing == []
+    assert any(n.startswith("backbone.blocks") and p.grad is not None
+               for n, p in model.named_parameters())  # fmt: skip

@@ -15,7 +15,7 @@ import torch
 from claravid.models.checkpoint import read_checkpoint
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.logs import read_metrics
-from tests.train.conftest import tiny
+from tests.train.conftest import tiny, tiny_v3
 
 STEPS = 40
 EXTRA = (f"train.steps={STEPS}", "train.checkpoint_every=3", "val.every=10", "train.log_every=1",
@@ -99,18 +99,27 @@ FAST = ("train.steps=8", "train.checkpoint_every=4", "val.every=0", "train.log_e
         "train.lr=3e-3")  # fmt: skip
 
 
-@pytest.mark.parametrize("amp", ["off", "bf16"])
-def test_resume_after_a_stop_is_bit_for_bit(claravid_root, tmp_path, monkeypatch, amp):
+@pytest.mark.parametrize(
+    ("amp", "backbone"),
+    [("off", "dinov2_vits14"), ("bf16", "dinov2_vits14"), ("off", "dinov3_vitl16_sat")],
+)
+def test_resume_after_a_stop_is_bit_for_bit(claravid_root, tmp_path, monkeypatch, amp, backbone):
     """The fast check of the default run (the SIGKILL test above is slow): a run stopped at
     step 5 (an injected inf loss; last.pt holds step 4) and resumed ends where the
-    uninterrupted run ends, in float32 and in bf16 autocast on the CPU alike."""
+    uninterrupted run ends, in float32 and in bf16 autocast on the CPU alike, with a DINOv2 or
+    a DINOv3 backbone (RoPE, storage tokens, the SAT model's unused local_cls_norm)."""
     import claravid.train.loop as loop
 
+    def overrides(out):
+        if backbone.startswith("dinov3"):
+            return tiny_v3(claravid_root, out, *FAST, f"train.amp={amp}", backbone=backbone)
+        return tiny(claravid_root, out, *FAST, f"train.amp={amp}")
+
     reference = tmp_path / "reference"
-    train(load_config("demo", tiny(claravid_root, reference, *FAST, f"train.amp={amp}")))
+    train(load_config("demo", overrides(reference)))
 
     out = tmp_path / "stopped"
-    cfg = load_config("demo", tiny(claravid_root, out, *FAST, f"train.amp={amp}"))
+    cfg = load_config("demo", overrides(out))
     real, calls = loop.F.cross_entropy, []
 
     def poisoned(*args, **kwargs):  # torch's loss, made infinite at the 5th step
@@ -123,8 +132,7 @@ def test_resume_after_a_stop_is_bit_for_bit(claravid_root, tmp_path, monkeypatch
         with pytest.raises(TrainingDiverged, match="at step 5"):
             train(cfg)
     assert read_checkpoint(out / "last.pt")["step"] == 4
-    result = train(load_config("demo", tiny(claravid_root, out, *FAST, f"train.amp={amp}")),
-                   resume=True)  # fmt: skip
+    result = train(load_config("demo", overrides(out)), resume=True)
     assert result.step == 8
     assert_same_state(read_checkpoint(out / "last.pt"), read_checkpoint(reference / "last.pt"))
     assert training_rows(out) == training_rows(reference)

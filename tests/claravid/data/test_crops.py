@@ -17,9 +17,9 @@ from claravid.io import jpeg_region, modalities
 from claravid.synth import synthesize
 from claravid.train.data import CropDataset
 
-#: Every augmentation off and normalisation to value / 255: a crop is the stored pixels / 255.
+#: Every augmentation off: a crop is the stored pixels.
 PLAIN = {"hflip_p": 0.0, "color_jitter_p": 0.0, "lighting_p": 0.0, "rotate_p": 0.0,
-         "distortion_p": 0.0, "mean": (0.0, 0.0, 0.0), "std": (1.0, 1.0, 1.0)}  # fmt: skip
+         "distortion_p": 0.0}  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -31,8 +31,9 @@ def odd_root(tmp_path_factory):
 
 
 def _pixels(sample):
-    """The stored uint8 values back from a PLAIN-normalised image."""
-    return (sample["image"] * 255).round().to(torch.uint8).permute(1, 2, 0).numpy()
+    """The crop's pixels, H×W×3: the transforms hand them out as stored (uint8)."""
+    assert sample["image"].dtype == torch.uint8
+    return sample["image"].permute(1, 2, 0).numpy()
 
 
 @pytest.mark.parametrize("cache", [False, True])

@@ -128,7 +128,10 @@ def test_dataloader_with_two_workers_and_augmentations(claravid_root):
     cfg = {"crop_height": 32, "crop_width": 40, "hflip_p": 0.5, "mean": mean.tolist(),
            "std": std.tolist(), **off}  # fmt: skip
     ds = ClaraVidSegmentation(
-        claravid_root, split="all", palette="uavid", transforms=train_transforms(cfg)
+        claravid_root,
+        split="all",
+        palette="uavid",
+        transforms=train_transforms(cfg, normalize=True),
     )
     whole = ClaraVidSegmentation(claravid_root, split="all", palette="uavid")
     masks = {str(f.paths["rgb"]): whole.read_mask(i) for i, f in enumerate(whole.frames)}

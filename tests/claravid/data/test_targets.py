@@ -187,7 +187,7 @@ def test_images_only_and_with_transforms(folder):
     augmented = FolderSegmentation(
         images, masks, "udd6", transforms=train_transforms({"crop_height": 8, "crop_width": 8})
     )[0]
-    assert augmented["image"].shape == (3, 8, 8) and augmented["image"].dtype == torch.float32
+    assert augmented["image"].shape == (3, 8, 8) and augmented["image"].dtype == torch.uint8
     assert augmented["mask"].shape == (8, 8) and augmented["mask"].dtype == torch.int64
 
 

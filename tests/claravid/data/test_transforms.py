@@ -44,15 +44,16 @@ def test_geometric_augmentations_move_image_and_mask_together():
     unlevel = {level: class_id for class_id, level in LEVELS.items()}
     transform = train_transforms(
         {"crop_height": 64, "crop_width": 96, "rotate_p": 1.0, "distortion_p": 1.0,
-         "color_jitter_p": 0.0, "lighting_p": 0.0, "mean": [0, 0, 0], "std": [1, 1, 1]}
+         "color_jitter_p": 0.0, "lighting_p": 0.0}
     )  # fmt: skip
     checked = 0
     for seed in range(10):
         transform.pipeline.set_random_seed(seed)
         pair = {"image": torch.from_numpy(image).permute(2, 0, 1), "mask": torch.from_numpy(ids)}
         out = transform(pair)
-        assert out["image"].shape == (3, 64, 96) and out["image"].dtype == torch.float32
-        grey = (out["image"].numpy() * 255).round().astype(np.int64)
+        # uint8 by default: the segmenter normalises with its own statistics on its device
+        assert out["image"].shape == (3, 64, 96) and out["image"].dtype == torch.uint8
+        grey = out["image"].numpy().astype(np.int64)
         assert (grey == grey[0]).all()  # the three channels warp alike
         grey = grey[0]
         flat = np.ones_like(grey, bool)
@@ -79,12 +80,13 @@ def test_small_image_is_padded_with_ignore():
 
 def test_without_augmentation_the_crop_is_an_exact_window():
     off = dict.fromkeys(["hflip_p", "color_jitter_p", "lighting_p", "rotate_p", "distortion_p"], 0)
-    cfg = {"crop_height": 50, "crop_width": 60, "mean": [0, 0, 0], "std": [1, 1, 1], **off}
+    cfg = {"crop_height": 50, "crop_width": 60, **off}
     s = sample(120, 150, seed=5)
     image = s["image"].permute(1, 2, 0).numpy().copy()
     mask = s["mask"].numpy().copy()
     out = train_transforms(cfg)(s)
-    crop = (out["image"].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+    assert out["image"].dtype == torch.uint8  # the exact pixels, not a float round trip
+    crop = out["image"].permute(1, 2, 0).numpy()
     # Locate the window by its mask and check the pixels match exactly.
     found = False
     for y in range(120 - 50 + 1):
@@ -95,14 +97,48 @@ def test_without_augmentation_the_crop_is_an_exact_window():
     assert found
 
 
-def test_eval_keeps_full_frame_and_normalises():
+def test_eval_hands_out_the_exact_uint8_frame_and_a_uint8_mask():
+    """The evaluation sample is the frame as decoded (uint8, not copied: the segmenter
+    normalises it with its own statistics) and a uint8 mask (a 12-Mpixel int64 one is 96 MB)."""
+    from claravid.data.samples import finish_sample
+
     s = sample(40, 50)
-    raw = s["image"].float()
-    out = eval_transforms()(s)
-    assert out["image"].shape == (3, 40, 50)
-    mean = torch.tensor([0.485, 0.456, 0.406])[:, None, None]
-    std = torch.tensor([0.229, 0.224, 0.225])[:, None, None]
-    torch.testing.assert_close(out["image"], (raw / 255 - mean) / std, atol=1e-5, rtol=0)
+    image, mask = s["image"], s["mask"]
+    transform = eval_transforms()
+    out = finish_sample(transform(s), transform)
+    assert out["image"].dtype == torch.uint8 and out["image"].shape == (3, 40, 50)
+    assert out["image"].data_ptr() == image.data_ptr()  # the same pixels, untouched
+    assert out["mask"].dtype == torch.uint8 and torch.equal(out["mask"], mask)
+    # A dataset's explicit mask_dtype wins over the transforms' wish; training transforms
+    # leave the dtype to the dataset: int64, for a loss.
+    assert finish_sample(sample(40, 50), transform, torch.int64)["mask"].dtype == torch.int64
+    crop = train_transforms({"crop_height": 14, "crop_width": 14})
+    assert finish_sample(sample(40, 50), crop)["mask"].dtype == torch.int64
+    # A numpy [3,H,W] image comes back as a tensor view of the same pixels.
+    raw = sample(40, 50)["image"].numpy()
+    out = eval_transforms()({"image": raw})
+    assert out["image"].dtype == torch.uint8 and np.array_equal(out["image"].numpy(), raw)
+
+
+def test_normalize_true_uses_the_config_s_statistics_else_imagenet_s():
+    """The explicit option for models that do not normalise themselves. Pixel 0, 51, 255 per
+    channel: with ImageNet's statistics (0 - 0.485) / 0.229 = -2.117904, (0.2 - 0.456) / 0.224
+    = -1.142857, (1 - 0.406) / 0.225 = 2.64; with mean (0, 0.1, 0.5), std (1, 0.5, 0.25):
+    0, 0.2, 2."""
+    pixels = torch.tensor([0, 51, 255], dtype=torch.uint8).view(3, 1, 1).expand(3, 2, 4)
+    for transforms in (eval_transforms, train_transforms):
+        extra = {"crop_height": 2, "crop_width": 4} if transforms is train_transforms else {}
+        off = dict.fromkeys(
+            ["hflip_p", "color_jitter_p", "lighting_p", "rotate_p", "distortion_p"], 0
+        )
+        out = transforms({**extra, **off}, normalize=True)({"image": pixels.clone()})
+        expected = torch.tensor([-2.117904, -1.142857, 2.64]).view(3, 1, 1).expand(3, 2, 4)
+        assert out["image"].dtype == torch.float32
+        torch.testing.assert_close(out["image"], expected, atol=1e-5, rtol=0)
+        cfg = {**extra, **off, "mean": [0.0, 0.1, 0.5], "std": [1.0, 0.5, 0.25]}
+        out = transforms(cfg, normalize=True)({"image": pixels.clone()})
+        expected = torch.tensor([0.0, 0.2, 2.0]).view(3, 1, 1).expand(3, 2, 4)
+        torch.testing.assert_close(out["image"], expected, atol=1e-5, rtol=0)
 
 
 def test_config_from_yaml_and_unknown_key(tmp_path):
@@ -166,7 +202,7 @@ def test_image_and_mask_stay_aligned_under_every_geometric_augmentation():
     cfg = {"crop_height": 96, "crop_width": 128, "mean": [0, 0, 0], "std": [1, 1, 1],
            "color_jitter_p": 0, "lighting_p": 0, "rotate_p": 1.0, "distortion_p": 1.0,
            "hflip_p": 1.0}  # fmt: skip
-    transform = train_transforms(cfg)
+    transform = train_transforms(cfg, normalize=True)  # float images, to decode the codes
     agreements = []
     for seed in range(8):
         transform.pipeline.set_random_seed(seed)

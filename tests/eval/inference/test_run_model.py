@@ -10,8 +10,9 @@ from claravid.eval.inference.windows import WindowConfig
 
 
 def test_per_image_confusions_match_a_direct_count(claravid_root):
+    # normalize=True: float frames, for a model of one's own that does not normalise itself.
     dataset = ClaraVidSegmentation(
-        claravid_root, split="all", palette="uavid", transforms=eval_transforms()
+        claravid_root, split="all", palette="uavid", transforms=eval_transforms(normalize=True)
     )
     weight = torch.randn(8, 3, generator=torch.Generator().manual_seed(0))
 

@@ -6,8 +6,11 @@ import numpy as np
 import pytest
 import torch
 
+from claravid import models
 from claravid.eval.inference.windows import (
     WindowConfig,
+    natural_size,
+    nearest_multiples,
     predict_labels,
     sliding_window_logits,
     window_starts,
@@ -173,13 +176,72 @@ def test_bad_window_settings(kwargs, message):
         WindowConfig(**kwargs)
 
 
-def test_window_not_a_patch_multiple_names_the_fix():
-    with pytest.raises(ValueError, match="use 630x630"):
+def test_window_not_a_patch_multiple_names_the_two_nearest():
+    # 640 = 45.7 x 14: 630 or 644; 630 = 39.4 x 16: 624 or 640.
+    with pytest.raises(ValueError, match="use 630x630 or 644x644"):
         WindowConfig(size=(640, 640)).check_patch(14)
-    # Said as --window takes it, width x height: size is (height 30, width 56).
-    message = "window 56x30 (WxH) is not a multiple of the model's patch size 14: use 56x28"
+    with pytest.raises(ValueError, match="patch size 16: use 624x624 or 640x640"):
+        WindowConfig(size=630).check_patch(16)
+    # Said as --window takes it, width x height: size is (height 30, width 56); 56 fits.
+    message = (
+        "window 56x30 (WxH) is not a multiple of the model's patch size 14: use 56x28 or 56x42"
+    )
     with pytest.raises(ValueError, match=re.escape(message)):
         WindowConfig(size=(30, 56)).check_patch(14)
+    WindowConfig(size=(32, 48)).check_patch(16)  # multiples: nothing to say
+
+
+def test_natural_size_and_nearest_multiples_by_hand():
+    assert natural_size(14) == 630  # 45 x 14, the paper's window
+    assert natural_size(16) == 640  # 40 x 16: the smallest multiple of 16 covering 630
+    assert natural_size(8) == 632  # 79 x 8
+    assert nearest_multiples(640, 14) == (630, 644)
+    assert nearest_multiples(630, 16) == (624, 640)
+    assert nearest_multiples(630, 14) == (630, 630)
+    assert nearest_multiples(10, 14) == (14, 28)  # below one patch: the two smallest
+
+
+TINY_HEAD = {"layers": [0, 1, 2, 3], "features": 8, "out_channels": [8, 8, 8, 8]}
+
+
+def _tiny(backbone):
+    torch.manual_seed(0)
+    kwargs = {"embed_dim": 32, "depth": 4, "num_heads": 2}
+    return models.build_model(backbone, 8, backbone_kwargs=kwargs, **TINY_HEAD).eval()
+
+
+@pytest.mark.parametrize(
+    ("backbone", "side", "mean", "std"),
+    [
+        ("dinov2_vits14", 630, (0.485, 0.456, 0.406), (0.229, 0.224, 0.225)),
+        ("dinov3_vits16", 640, (0.485, 0.456, 0.406), (0.229, 0.224, 0.225)),
+        ("dinov3_vitl16_sat", 640, (0.430, 0.411, 0.296), (0.213, 0.156, 0.143)),
+    ],
+)
+def test_what_the_config_leaves_unset_is_the_model_s(backbone, side, mean, std):
+    """No window: the model's natural size (not a hard 630); no statistics: its own."""
+    model = _tiny(backbone)
+    config = WindowConfig(scale=0.5).for_model(model)
+    assert config.size == (side, side) and config.stride == (side * 2 // 3,) * 2
+    assert (config.mean, config.std) == (mean, std) and config.scale == 0.5
+    # 112 x 224: multiples of 14 and of 16, one window for either family
+    given = WindowConfig(size=(112, 224), mean=(0.5,) * 3, std=(0.25,) * 3).for_model(model)
+    assert given.size == (112, 224) and given.mean == (0.5,) * 3  # what is set stays
+    # A uint8 image through the windows equals the model fed its own normalisation by hand.
+    image = torch.from_numpy(np.random.default_rng(0).integers(0, 256, (3, 112, 224), np.uint8))
+    got = sliding_window_logits(model, image, WindowConfig(size=(112, 224)))
+    x = (image.float() / 255 - torch.tensor(mean).view(3, 1, 1)) / torch.tensor(std).view(3, 1, 1)
+    with torch.no_grad():
+        expected = model(x[None])[0]
+    torch.testing.assert_close(got, expected, rtol=0, atol=1e-5)
+
+
+def test_a_model_without_statistics_needs_them_for_uint8_images():
+    image = torch.zeros(3, 28, 28, dtype=torch.uint8)
+    with pytest.raises(ValueError, match=r"pass WindowConfig\(mean=..., std=...\)"):
+        sliding_window_logits(lambda x: x, image, WindowConfig(size=28))
+    floats = sliding_window_logits(lambda x: x, image.float(), WindowConfig(size=28))
+    assert floats.shape == (3, 28, 28)  # normalised already: no statistics needed
 
 
 def test_bad_image():
@@ -201,22 +263,24 @@ def test_uint8_frames_are_normalised_on_the_device_as_eval_transforms_did(scale)
     mean, std = (0.3, 0.5, 0.7), (0.2, 0.25, 0.3)
     model = torch.nn.Conv2d(3, 5, 3, padding=1).eval()
     config = WindowConfig(size=28, scale=scale, mean=mean, std=std)
-    old = eval_transforms(augment_config({"mean": list(mean), "std": list(std)}))
+    old = eval_transforms(augment_config({"mean": list(mean), "std": list(std)}), normalize=True)
     normalised = old({"image": torch.from_numpy(rgb)})["image"]
     expected = sliding_window_logits(model, normalised, config)
     got = sliding_window_logits(model, torch.from_numpy(rgb), config)
     torch.testing.assert_close(got, expected, rtol=0, atol=1e-5)
     imagenet = sliding_window_logits(
-        model, torch.from_numpy(rgb), WindowConfig(size=28, scale=scale)
+        model,
+        torch.from_numpy(rgb),
+        WindowConfig(size=28, scale=scale, mean=(0.485, 0.456, 0.406), std=(0.229, 0.224, 0.225)),
     )
     assert (imagenet - expected).abs().max() > 0.1  # the mean/std of the config matter
 
 
 def test_bad_normalisation():
     with pytest.raises(ValueError, match="std must be positive"):
-        WindowConfig(std=(0.2, 0.0, 0.3))
+        WindowConfig(mean=(0.5, 0.5, 0.5), std=(0.2, 0.0, 0.3))
     with pytest.raises(ValueError, match="mean must be 3 finite numbers"):
-        WindowConfig(mean=(0.5, 0.5))
+        WindowConfig(mean=(0.5, 0.5), std=(1, 1, 1))
 
 
 def _reference_at_scale(model, image, scale):
