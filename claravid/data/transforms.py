@@ -98,10 +98,15 @@ class AugmentConfig:
             value = getattr(self, name)
             if not 0 <= value <= 1:
                 raise ValueError(f"{name}={value}: a probability, must be between 0 and 1")
-        if len(self.mean) != 3 or len(self.std) != 3 or any(s == 0 for s in self.std):
+        # None: the backbone's statistics (filled in by claravid-train), checked there.
+        mean = None if self.mean is None else list(self.mean)
+        std = None if self.std is None else list(self.std)
+        if (mean is not None and len(mean) != 3) or (
+            std is not None and (len(std) != 3 or any(s == 0 for s in std))
+        ):
             raise ValueError(
-                f"mean={list(self.mean)}, std={list(self.std)}: three values each (R, G, B), "
-                "std non-zero"
+                f"mean={mean}, std={std}: three values each (R, G, B), std non-zero, "
+                "or null for the backbone's statistics"
             )
         if not 0 <= self.ignore_index <= 255:
             raise ValueError(f"ignore_index={self.ignore_index}: masks are uint8, 0..255")

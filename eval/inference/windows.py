@@ -213,11 +213,13 @@ def normalise(image: torch.Tensor, config: WindowConfig) -> torch.Tensor:
     Raises:
         ValueError: a uint8 image and no statistics (neither the config's nor the model's).
     """
-    if not image.is_floating_point() and config.mean is None:
-        raise ValueError(
-            "uint8 images need the model's mean and std, and neither the window config nor "
-            "the model states them: pass WindowConfig(mean=..., std=...)"
-        )
+    if config.mean is None:
+        if not image.is_floating_point():
+            raise ValueError(
+                "uint8 images need the model's mean and std, and neither the window config nor "
+                "the model states them: pass WindowConfig(mean=..., std=...)"
+            )
+        return image  # no statistics to check its range against: taken as normalised
     return normalise_image(image, config.mean, config.std)
 
 
