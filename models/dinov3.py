@@ -24,7 +24,7 @@ from torch import nn
 
 from claravid.models.inputs import check_image_batch, check_image_size, input_stats
 from claravid.models.layers import LayerScale, Mlp, PatchEmbed, swiglu_hidden
-from claravid.models.rope import RopePositionEmbedding, rope_halves, rope_rotate
+from claravid.models.rope import RopePositionEmbedding, rope_apply
 from claravid.models.tracing import is_exporting
 
 
@@ -50,30 +50,31 @@ class MaskedBiasLinear(nn.Linear):
 class SelfAttention(nn.Module):
     """Multi-head self-attention with RoPE on the patch tokens' queries and keys, and SDPA.
 
-    ``forward`` takes the RoPE halves of all tokens (`rope_halves`), whose leading rows leave the
-    prefix tokens (CLS and storage) unrotated.
-
     Args:
         dim: Token width.
         num_heads: Heads; ``dim / num_heads`` must be a multiple of 4 (RoPE).
         qkv_bias: A (key-masked) bias on the q/k/v projection.
+        num_prefix_tokens: Leading tokens without a position (CLS and storage tokens).
     """
 
-    def __init__(self, dim: int, num_heads: int, qkv_bias: bool) -> None:
+    def __init__(self, dim: int, num_heads: int, qkv_bias: bool, num_prefix_tokens: int) -> None:
         super().__init__()
         if dim % num_heads:
             raise ValueError(f"embed_dim {dim} is not divisible by num_heads {num_heads}")
         self.num_heads = num_heads
+        self.num_prefix_tokens = num_prefix_tokens
         self.qkv = MaskedBiasLinear(dim, bias=qkv_bias)
         self.proj = nn.Linear(dim, dim)
 
     def forward(self, x: torch.Tensor, rope: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
         b, n, c = x.shape
         qkv = self.qkv(x).reshape(b, n, 3, self.num_heads, c // self.num_heads)
-        qkv = qkv.permute(2, 0, 3, 1, 4)  # [3, B, heads, N, head_dim]
-        # q and k rotated in one pass; the prefix rows of the halves leave CLS/storage as is.
-        q, k = rope_rotate(qkv[:2], *rope).unbind(0)
-        x = F.scaled_dot_product_attention(q, k, qkv[2])
+        q, k, v = qkv.permute(2, 0, 3, 1, 4).unbind(0)  # each [B, heads, N, head_dim]
+        sin, cos = rope
+        p = self.num_prefix_tokens  # a Python int: the split stays static while exporting
+        q = torch.cat((q[:, :, :p], rope_apply(q[:, :, p:], sin, cos)), dim=2)
+        k = torch.cat((k[:, :, :p], rope_apply(k[:, :, p:], sin, cos)), dim=2)
+        x = F.scaled_dot_product_attention(q, k, v)
         return self.proj(x.transpose(1, 2).reshape(b, n, c))
 
 
@@ -178,7 +179,7 @@ class DinoV3VisionTransformer(nn.Module):
         self.blocks = nn.ModuleList(
             Block(
                 embed_dim,
-                SelfAttention(embed_dim, num_heads, qkv_bias),
+                SelfAttention(embed_dim, num_heads, qkv_bias, 1 + num_storage_tokens),
                 feed_forward(embed_dim, hidden),
                 norm_eps,
             )
@@ -243,10 +244,8 @@ class DinoV3VisionTransformer(nn.Module):
         return torch.cat([*(t.to(tokens.dtype) for t in prefix), tokens], dim=1)
 
     def _rope(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The halves of the RoPE sin and cos over all tokens (`rope_halves`), once a forward."""
         h, w = x.shape[-2:]
-        sin, cos = self.rope_embed(h // self.patch_size, w // self.patch_size)
-        return rope_halves(sin, cos, self.num_prefix_tokens)
+        return self.rope_embed(h // self.patch_size, w // self.patch_size)
 
     def get_intermediate_layers(
         self,

@@ -75,35 +75,6 @@ def rope_apply(x: torch.Tensor, sin: torch.Tensor, cos: torch.Tensor) -> torch.T
     return (x32 * cos + rotate_half(x32) * sin).to(x.dtype)
 
 
-def rope_halves(
-    sin: torch.Tensor, cos: torch.Tensor, num_prefix_tokens: int
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """sin, cos [N, d] -> their first halves [P + N, d/2] for `rope_rotate`.
-
-    The two halves of the tiled angles are equal, so half of each suffices. P leading rows of
-    sin 0 and cos 1 leave the prefix tokens (CLS, storage) exactly as they are, so attention
-    rotates all tokens at once instead of slicing the patches out and concatenating them back.
-    """
-    half = sin.shape[-1] // 2
-    sin, cos = sin[:, :half], cos[:, :half]
-    if num_prefix_tokens:
-        sin = torch.cat((sin.new_zeros(num_prefix_tokens, half), sin))
-        cos = torch.cat((cos.new_ones(num_prefix_tokens, half), cos))
-    return sin, cos
-
-
-def rope_rotate(x: torch.Tensor, sin_half: torch.Tensor, cos_half: torch.Tensor) -> torch.Tensor:
-    """`rope_apply` with the halves of `rope_halves`: the same numbers, bit for bit.
-
-    With ``x = [a, b]``, ``x·cos + rotate_half(x)·sin`` is ``[a·c − b·s, b·c + a·s]``; written
-    so, one concatenation replaces rotate_half's negation and concatenation (RoPE's elementwise
-    work was about a sixth of the backbone's time on a CPU).
-    """
-    a, b = x.float().chunk(2, dim=-1)
-    out = torch.cat((a * cos_half - b * sin_half, b * cos_half + a * sin_half), dim=-1)
-    return out.to(x.dtype)
-
-
 class RopePositionEmbedding(nn.Module):
     """sin and cos [h*w, head_dim] of a patch grid (float32, no learned weights).
 

@@ -5,13 +5,7 @@ import math
 import pytest
 import torch
 
-from claravid.models.rope import (
-    RopePositionEmbedding,
-    rope_apply,
-    rope_halves,
-    rope_rotate,
-    rotate_half,
-)
+from claravid.models.rope import RopePositionEmbedding, rope_apply, rotate_half
 
 
 def _angles_by_hand(rows: int, cols: int, head_dim: int) -> list[list[float]]:
@@ -94,18 +88,3 @@ def test_frozen_grid_gives_the_same_values_and_other_grids_still_work():
 def test_head_width_must_split_in_four():
     with pytest.raises(ValueError, match="divisible by 4"):
         RopePositionEmbedding(10)
-
-
-def test_rotating_all_tokens_with_the_halves_is_rope_apply_bit_for_bit():
-    # Attention rotates q and k of every token at once with `rope_halves`: the patch tokens must
-    # come out exactly as `rope_apply` makes them, and the 5 prefix tokens (CLS + 4 storage)
-    # untouched, in float32 and (computed in float32, rounded back) in bfloat16.
-    sin, cos = RopePositionEmbedding(8)(3, 4)  # a 3x4 grid, head dim 8
-    sin_half, cos_half = rope_halves(sin, cos, 5)
-    assert sin_half.shape == cos_half.shape == (5 + 12, 4)
-    for dtype in (torch.float32, torch.bfloat16):
-        x = torch.randn(2, 2, 3, 5 + 12, 8, generator=torch.Generator().manual_seed(0)).to(dtype)
-        got = rope_rotate(x, sin_half, cos_half)
-        assert got.dtype == dtype
-        assert torch.equal(got[..., :5, :], x[..., :5, :])
-        assert torch.equal(got[..., 5:, :], rope_apply(x[..., 5:, :], sin, cos))
