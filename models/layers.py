@@ -7,6 +7,9 @@ official checkpoints load without renaming.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
 import torch
 from torch import nn
 
@@ -55,3 +58,37 @@ class LayerScale(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return x * self.gamma
+
+
+def block_indices(n: int | Sequence[int], depth: int) -> list[int]:
+    """``get_intermediate_layers``' ``n``: the last ``n`` blocks if an int, else the indices."""
+    take = list(range(depth - n, depth)) if isinstance(n, int) else [int(i) for i in n]
+    bad = [i for i in take if not 0 <= i < depth]
+    if bad or not take:
+        raise ValueError(f"block indices {take} must be in [0, {depth - 1}] and non-empty")
+    return take
+
+
+def layer_outputs(
+    outputs: list[torch.Tensor],
+    norm: nn.Module | None,
+    num_prefix_tokens: int,
+    grid: tuple[int, int],
+    reshape: bool,
+    return_class_token: bool,
+) -> tuple[Any, ...]:
+    """Block outputs [B, T, D] as ``get_intermediate_layers`` returns them (both ViT families):
+    through ``norm`` when given, prefix tokens (CLS, registers) dropped from the patch tokens,
+    [B, D, h, w] when ``reshape``, (patches, CLS) pairs when ``return_class_token``."""
+    if norm is not None:
+        outputs = [norm(o) for o in outputs]
+    cls = [o[:, 0] for o in outputs]
+    patches = [o[:, num_prefix_tokens:] for o in outputs]
+    if reshape:
+        gh, gw = grid
+        patches = [
+            p.reshape(p.shape[0], gh, gw, -1).permute(0, 3, 1, 2).contiguous() for p in patches
+        ]
+    if return_class_token:
+        return tuple(zip(patches, cls, strict=True))
+    return tuple(patches)

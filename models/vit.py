@@ -18,7 +18,14 @@ import torch.nn.functional as F
 from torch import nn
 
 from claravid.models.inputs import check_image_batch, check_image_size, input_stats
-from claravid.models.layers import LayerScale, Mlp, PatchEmbed, swiglu_hidden
+from claravid.models.layers import (
+    LayerScale,
+    Mlp,
+    PatchEmbed,
+    block_indices,
+    layer_outputs,
+    swiglu_hidden,
+)
 from claravid.models.tracing import is_exporting, length_tensor
 
 
@@ -296,11 +303,7 @@ class DinoVisionTransformer(nn.Module):
         Returns:
             One entry per requested block, in block order; registers are dropped.
         """
-        depth = len(self.blocks)
-        take = list(range(depth - n, depth)) if isinstance(n, int) else [int(i) for i in n]
-        bad = [i for i in take if not 0 <= i < depth]
-        if bad or not take:
-            raise ValueError(f"block indices {take} must be in [0, {depth - 1}] and non-empty")
+        take = block_indices(n, len(self.blocks))
         self.check_input(x)
         h, w = x.shape[-2:]
         tokens = self.prepare_tokens(x)
@@ -309,18 +312,15 @@ class DinoVisionTransformer(nn.Module):
             tokens = blk(tokens)
             if i in take:
                 outputs.append(tokens)
-        if norm:
-            outputs = [self.norm(o) for o in outputs]
-        cls = [o[:, 0] for o in outputs]
-        patches = [o[:, 1 + self.num_register_tokens :] for o in outputs]
-        if reshape:
-            gh, gw = h // self.patch_size, w // self.patch_size
-            patches = [
-                p.reshape(p.shape[0], gh, gw, -1).permute(0, 3, 1, 2).contiguous() for p in patches
-            ]
-        if return_class_token:
-            return tuple(zip(patches, cls, strict=True))
-        return tuple(patches)
+        grid = (h // self.patch_size, w // self.patch_size)
+        return layer_outputs(
+            outputs,
+            self.norm if norm else None,
+            1 + self.num_register_tokens,
+            grid,
+            reshape,
+            return_class_token,
+        )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Normalised CLS token [B, D] (the official ``forward`` without a head)."""
