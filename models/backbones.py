@@ -158,6 +158,7 @@ def _dinov3(
     sat: bool = False,
     qkv_bias: bool = True,
     local_cls_norm: bool = False,
+    rope_dtype: str = "bf16",
 ) -> BackboneSpec:
     """A DINOv3 description: ViT/16 with 4 storage tokens, RoPE, LayerNorm eps 1e-5."""
     embed_dim, depth, num_heads = dims
@@ -177,6 +178,9 @@ def _dinov3(
                 "patch_size": 16,
                 "num_storage_tokens": 4,
                 "rope_base": 100.0,
+                # The distilled models were trained with bfloat16 RoPE, and their released
+                # files hold the periods rounded to bfloat16; the 7B models used float32.
+                "rope_dtype": rope_dtype,
                 "norm_eps": 1e-5,
                 # The SAT-493M ViT-L and both 7B files also hold this pre-training-only norm;
                 # the module keeps it (unused) so those files load strictly.
@@ -264,6 +268,7 @@ _SPECS = [
         "dinov3_vit7b16_pretrain_lvd1689m-a955f4ea.pth",
         qkv_bias=False,
         local_cls_norm=True,
+        rope_dtype="fp32",
     ),
     _dinov3(
         "dinov3_vit7b16_sat",
@@ -274,6 +279,7 @@ _SPECS = [
         sat=True,
         qkv_bias=False,
         local_cls_norm=True,
+        rope_dtype="fp32",
     ),
 ]
 

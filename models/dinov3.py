@@ -133,6 +133,10 @@ class DinoV3VisionTransformer(nn.Module):
         qkv_bias: Bias on the q/k/v projection (all but 7B).
         num_storage_tokens: Extra learned tokens after CLS, without position (4).
         rope_base: RoPE period base (100).
+        rope_dtype: The dtype RoPE was trained in, ``"bf16"`` (the distilled models: their
+            files hold periods rounded to bfloat16) or ``"fp32"`` (7B). It sets the periods of
+            a model built without weights and of files that carry none (Hugging Face, timm);
+            an official file's own periods replace them.
         norm_eps: LayerNorm epsilon (1e-5).
         local_cls_norm: Hold the pre-training-only ``local_cls_norm`` LayerNorm (never applied)
             that the SAT-493M ViT-L and the 7B files contain, so they load strictly.
@@ -153,6 +157,7 @@ class DinoV3VisionTransformer(nn.Module):
         qkv_bias: bool = True,
         num_storage_tokens: int = 4,
         rope_base: float = 100.0,
+        rope_dtype: str = "fp32",
         norm_eps: float = 1e-5,
         local_cls_norm: bool = False,
     ) -> None:
@@ -175,7 +180,7 @@ class DinoV3VisionTransformer(nn.Module):
             self.storage_tokens = nn.Parameter(torch.zeros(1, num_storage_tokens, embed_dim))
         else:
             self.storage_tokens = None
-        self.rope_embed = RopePositionEmbedding(embed_dim // num_heads, rope_base)
+        self.rope_embed = RopePositionEmbedding(embed_dim // num_heads, rope_base, rope_dtype)
         if ffn == "mlp":
             hidden = int(embed_dim * ffn_ratio)
         elif ffn == "swiglu":

@@ -7,9 +7,9 @@ An official ``.pth`` has our keys already. A Hugging Face ``DINOv3ViTModel``
 - its separate ``q_proj``/``k_proj``/``v_proj`` are concatenated into ``qkv`` (rows q, k, v),
   with a zero key bias where the file has none (the official models mask it out anyway);
 - ``embeddings.mask_token`` [1, 1, D] becomes ``mask_token`` [1, D];
-- what transformers does not store is taken from the model: ``rope_embed.periods`` (recomputed
-  from the RoPE base), ``bias_mask`` (1 for q, 0 for k, 1 for v) and the unused
-  ``local_cls_norm``.
+- what transformers does not store is taken from the model: ``rope_embed.periods`` (those the
+  released official file of that model holds: rounded to bfloat16 for the distilled models,
+  float32 for 7B), ``bias_mask`` (1 for q, 0 for k, 1 for v) and the unused ``local_cls_norm``.
 
 Which file for which backbone: the official file names end with a hash
 (``-eadcf0ff`` is the SAT-493M ViT-L, ``-8aa4cbdd`` the LVD-1689M ViT-L ...), and among the ViT-L
@@ -102,15 +102,19 @@ def dinov3_hf_to_official(state: dict[str, torch.Tensor]) -> dict[str, torch.Ten
 
 
 def _fill_from_model(state: dict[str, torch.Tensor], model: nn.Module) -> None:
-    """Add what a Hugging Face file lacks and the model derives: periods, bias masks, and the
-    pre-training-only ``local_cls_norm`` (never used)."""
+    """Add what a Hugging Face file lacks and the model derives: the periods the released
+    official file holds (rounded through the dtype the model was trained with), bias masks, and
+    the pre-training-only ``local_cls_norm`` (never used)."""
     own = model.state_dict()
+    rope = getattr(model, "rope_embed", None)
     for key, value in own.items():
-        derived = key == "rope_embed.periods" or key.startswith("local_cls_norm.")
+        derived = key.startswith("local_cls_norm.")
         if key.endswith(".attn.qkv.bias_mask"):
             derived = key.removesuffix("_mask") in state  # only where the file has the bias
         if derived and key not in state:
             state[key] = value.detach().clone()
+    if rope is not None and "rope_embed.periods" not in state:
+        state["rope_embed.periods"] = rope_periods(rope.head_dim, rope.base, rope.dtype)
 
 
 def check_file_name(path: Path, spec: BackboneSpec) -> None:
@@ -155,8 +159,18 @@ def check_local_cls_norm(state: dict[str, torch.Tensor], spec: BackboneSpec, sou
     )
 
 
+#: How far stored periods may lie from the formula: one bfloat16 step (8 significant bits), so
+#: the released files (periods rounded to bfloat16) and state dicts saved in float16 or bfloat16
+#: pass, while periods of another base (or of minimum/maximum periods) do not.
+PERIODS_RTOL = 2.0**-7
+
+
 def check_periods(state: dict[str, torch.Tensor], model: nn.Module, source: str) -> None:
-    """Refuse ``rope_embed.periods`` that differ from the ones the model recomputes."""
+    """Refuse ``rope_embed.periods`` of another RoPE base than the model's.
+
+    Values within a bfloat16 rounding (`PERIODS_RTOL`) of ``base ** (2k / (d/2))`` pass: the
+    loaded values are then the ones the model uses, as in the official code.
+    """
     periods = state.get("rope_embed.periods")
     rope = getattr(model, "rope_embed", None)
     if periods is None or rope is None:
@@ -164,12 +178,20 @@ def check_periods(state: dict[str, torch.Tensor], model: nn.Module, source: str)
     expected = rope_periods(rope.head_dim, rope.base)
     if periods.shape != expected.shape:
         return  # the strict load reports the shape
-    if not torch.allclose(periods.float(), expected, rtol=1e-5, atol=0):
-        raise WeightsError(
-            f"{source}: rope_embed.periods {periods.float()[:4].tolist()}... differ from "
-            f"base {rope.base:g} ** (2k / {rope.head_dim // 2}) = {expected[:4].tolist()}...: "
-            "the file was trained with other RoPE settings than the official DINOv3 models"
-        )
+    got = periods.float()
+    if bool(((got - expected).abs() <= PERIODS_RTOL * expected).all()):
+        return
+    fit = ""
+    if len(got) > 1 and bool(got[-1] > 0):
+        # periods[k] = base ** (4k / d): the last one tells the base.
+        base = float(got[-1]) ** (rope.head_dim / (4 * (len(got) - 1)))
+        fit = f" (they fit base {base:.4g})"
+    raise WeightsError(
+        f"{source}: rope_embed.periods {got[:4].tolist()}... differ from base {rope.base:g} "
+        f"** (2k / {rope.head_dim // 2}) = {expected[:4].tolist()}... by more than bfloat16 "
+        f"rounding{fit}: the file was trained with other RoPE settings than the official "
+        "DINOv3 models; pass an official DINOv3 file"
+    )
 
 
 def dinov3_state(

@@ -4,6 +4,10 @@
   buffers the official files hold set by hand (``bias_mask`` 1/0/1, ``rope_embed.periods``
   ``100 ** (2k / (d/2))``) and LayerScale gammas drawn in [0.5, 1.5] (the official 1e-5 init
   would make every block nearly the identity, and a wrong block would go unnoticed).
+- `released_v3_state`: the same, made as Meta's released files were: the official model built
+  with its RoPE dtype set to bfloat16 (the distilled models' training setting) stores periods
+  computed in bfloat16, as a bfloat16 tensor; 7B keeps float32. The distilled ViT-B, L and H+
+  also have an all-zero qkv bias.
 - `to_hugging_face`: the same tensors under transformers' ``DINOv3ViTModel`` names, by a plain
   rename written out here (q/k/v split by rows; no key bias; mask token [1, 1, D]; no periods,
   bias masks or ``local_cls_norm``).
@@ -40,6 +44,28 @@ def random_official_v3_state(model: torch.nn.Module, seed: int = 0) -> dict[str,
         else:
             scale = 0.2 if len(shape) > 1 else 0.05
             state[key] = scale * torch.randn(shape, generator=g)
+    return state
+
+
+#: The backbones whose released files have an all-zero qkv bias (the distilled B, L and H+).
+ZERO_QKV_BIAS = ("dinov3_vitb16", "dinov3_vitl16", "dinov3_vitl16_sat", "dinov3_vith16plus")
+
+
+def official_periods(quarter: int, dtype: torch.dtype, base: float = 100.0) -> torch.Tensor:
+    """``rope_embed.periods`` as the official ``RopePositionEmbedding`` initialises them with
+    ``dtype``: the whole formula evaluated in that dtype, stored in it."""
+    return base ** (2 * torch.arange(quarter, dtype=dtype) / (2 * quarter))
+
+
+def released_v3_state(model: torch.nn.Module, name: str, seed: int = 0) -> dict[str, torch.Tensor]:
+    """A released-style official state of backbone ``name`` (bfloat16 periods, but 7B)."""
+    state = random_official_v3_state(model, seed)
+    dtype = torch.float32 if name.startswith("dinov3_vit7b16") else torch.bfloat16
+    state["rope_embed.periods"] = official_periods(state["rope_embed.periods"].shape[0], dtype)
+    if name in ZERO_QKV_BIAS:
+        for key in state:
+            if key.endswith("attn.qkv.bias"):
+                state[key] = torch.zeros_like(state[key])
     return state
 
 

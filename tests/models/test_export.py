@@ -13,6 +13,7 @@ from claravid.models import (
     save_checkpoint,
 )
 from claravid.models.export import ExportSettings, check_export
+from tests.models.official_v3 import random_official_v3_state
 
 TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
 HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
@@ -106,10 +107,19 @@ def test_dynamic_export_other_sizes(tmp_path):
 @pytest.mark.slow
 def test_dinov3_fixed_and_dynamic_export(tmp_path):
     """RoPE exports both ways: stored sin/cos at a fixed size, computed from the symbolic grid
-    when H and W are dynamic (ONNX Runtime then agrees at sizes other than the example's)."""
+    when H and W are dynamic (ONNX Runtime then agrees at sizes other than the example's).
+    Both use the periods the model holds (a loaded file's), not the formula's."""
     torch.manual_seed(0)
     tiny = {"embed_dim": 32, "depth": 4, "num_heads": 2}
     model = build_model("dinov3_vits16", num_classes=3, backbone_kwargs=tiny, **HEAD).eval()
+    # Weights of official scale (a random init's attention is nearly uniform, and RoPE would
+    # hardly show in the logits), then periods no formula gives.
+    model.backbone.load_state_dict(random_official_v3_state(model.backbone, seed=1))
+    probe = np.random.default_rng(0).standard_normal((1, 3, 48, 80)).astype(np.float32)
+    before = _torch_logits(model, probe)
+    with torch.no_grad():
+        model.backbone.rope_embed.periods.mul_(1.5)
+    assert np.abs(_torch_logits(model, probe) - before).max() > 1e-3  # 40x the checks below
     fixed = export_onnx(model, tmp_path / "f.onnx", ExportSettings(height=48, width=80))
     assert fixed["max_abs_diff"] < 1e-4
     assert model.backbone.rope_embed._frozen is None  # export leaves the model as it was

@@ -63,8 +63,9 @@ def test_float32_under_autocast_and_in_a_bfloat16_model():
         under = rope(3, 5)
     assert all(t.dtype == torch.float32 for t in under)
     torch.testing.assert_close(under, want, atol=0, rtol=0)
-    rope.to(torch.bfloat16)  # the periods buffer is rounded; the angles must not be
-    assert rope.periods.dtype == torch.bfloat16
+    rope.to(torch.bfloat16)  # a cast keeps the periods float32 (not rounded to 8 bits)
+    assert rope.periods.dtype == torch.float32
+    assert rope.periods[1].item() == pytest.approx(100.0**0.25, abs=1e-6)  # bfloat16: 3.15625
     cast = rope(3, 5)
     assert all(t.dtype == torch.float32 for t in cast)
     torch.testing.assert_close(cast, want, atol=0, rtol=0)
