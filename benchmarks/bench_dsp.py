@@ -133,7 +133,7 @@ def main() -> None:
             "--workers",
             "1",
             "--no-cache",
-            "--quiet",
+            "--no-progress",
             "--output",
             str(Path(tmp) / "out.json"),
         ]

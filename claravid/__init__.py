@@ -8,12 +8,9 @@ we provide as a drop-in; do not install both in one environment.
 from __future__ import annotations
 
 import importlib
-import sys
 from typing import Any
 
-from claravid._moved import MovedModuleFinder
-
-__version__ = "0.1.0"
+__version__ = "0.2.0.dev0"
 
 # Public name -> module that defines it, imported on first access (PEP 562).
 _LAZY = {
@@ -28,9 +25,6 @@ _LAZY = {
 }
 
 __all__ = sorted(_LAZY)
-
-if not any(isinstance(f, MovedModuleFinder) for f in sys.meta_path):
-    sys.meta_path.append(MovedModuleFinder())
 
 
 def __getattr__(name: str) -> Any:

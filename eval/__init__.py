@@ -58,7 +58,6 @@ _LAZY: dict[str, tuple[str, str]] = {
     "mean_iou": ("claravid.eval.analysis.metrics", "mean_iou"),
     "pixel_accuracy": ("claravid.eval.analysis.metrics", "pixel_accuracy"),
     "confusion_scores": ("claravid.eval.analysis.metrics", "confusion_scores"),
-    "scores": ("claravid.eval.analysis.metrics", "confusion_scores"),  # its former name
     "Bin": ("claravid.eval.analysis.bins", "Bin"),
     "bin_names": ("claravid.eval.analysis.bins", "bin_names"),
     "fixed_bins": ("claravid.eval.analysis.bins", "fixed_bins"),

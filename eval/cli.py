@@ -104,7 +104,6 @@ def build_parser() -> argparse.ArgumentParser:
         "--precision",
         help="PyTorch model: fp32 or bf16 autocast (default: fp32 on CPU, bf16/fp16 on CUDA)",
     )
-    infer.add_argument("--no-amp", action="store_true", help="deprecated: --precision fp32")
     infer.add_argument(
         "--provider", metavar=_choices(PROVIDERS), help="ONNX Runtime provider (--onnx)"
     )
@@ -167,7 +166,7 @@ def _check_args(args: argparse.Namespace) -> str:
     _refuse_idle_options(args, source)
     from claravid.infra.precision import flag_precision
 
-    args.precision = flag_precision(args.precision, args.no_amp, pytorch=source == "checkpoint")
+    args.precision = flag_precision(args.precision, pytorch=source == "checkpoint")
     # The settings check themselves as they are made, with the messages the Python API gives
     # (one validation for both): a mistake stops here, before any work.
     args.settings = {"data": _data_choice(args), "inference": _inference(args),
@@ -185,7 +184,6 @@ _MODEL_ONLY = (
     "batch_size",
     "device",
     "precision",
-    "no_amp",
     "save_predictions",
 )
 _DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing", *SELECTION)
@@ -197,7 +195,7 @@ IDLE = {
     "scores": (*_MODEL_ONLY, "allow_missing", "tiles", "hardest", "provider", "masks", "palette"),
     "checkpoint": ("provider",),
     # Label maps are read, not predicted: no precision (an ONNX file is refused it below).
-    "predictions": ("provider", "precision", "no_amp"),
+    "predictions": ("provider", "precision"),
 }  # fmt: skip
 
 

@@ -3,9 +3,6 @@
     claravid-export --checkpoint runs/exp/best.pt --output model.onnx --size 630x630
     claravid-export --checkpoint runs/exp/best.pt --output model-int8.onnx --precision int8
 
-(``claravid-export CHECKPOINT ...`` and ``--height H --width W``, the older spellings, still
-work.)
-
 The export itself lives in ``models/``, which never imports the data layer; but the file it
 writes should carry the palette's class names and colours (not only its name) and, for static
 int8 quantisation, be calibrated on real images. Both need the data layer, so the console
@@ -31,7 +28,6 @@ from claravid.infra.cli import (
     add_debug_flag,
     add_progress_flag,
     check_output_file,
-    given_once,
     parse_size,
     positive_float,
     positive_int,
@@ -119,18 +115,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--min-agreement (nothing written); 2 a bad argument, an unreadable checkpoint or an "
         "unusable --output.",
     )
-    parser.add_argument("checkpoint_file", nargs="?", metavar="CHECKPOINT",
-                        help="the same as --checkpoint")  # fmt: skip
-    parser.add_argument("--checkpoint", help="checkpoint written by models.save_checkpoint")
+    parser.add_argument("--checkpoint", required=True,
+                        help="checkpoint written by models.save_checkpoint")  # fmt: skip
     parser.add_argument("--output", "-o", required=True, help="output .onnx file")
     parser.add_argument("--size", type=parse_size, metavar="WxH",
                         help="input size, width x height or N for N x N, patch multiples "
                         "(default: the model's natural size, 630 for patches of 14, 640 for "
                         "16)")  # fmt: skip
-    parser.add_argument("--height", type=positive_int,
-                        help="input height (older spelling; --size WxH sets both)")  # fmt: skip
-    parser.add_argument("--width", type=positive_int,
-                        help="input width (older spelling; --size WxH sets both)")  # fmt: skip
     parser.add_argument("--dynamic", action="store_true", help="dynamic height and width")
     parser.add_argument("--precision", choices=PRECISIONS, default="fp32",
                         help="fp32 (default), fp16 (GPUs) or int8 (CPUs)")  # fmt: skip
@@ -169,22 +160,18 @@ def _exported(path: str | os.PathLike) -> bool:
     return any(p.key == KEY or p.key.startswith(PREFIX) for p in proto.metadata_props)
 
 
-def input_size(args: argparse.Namespace, patch_size: int) -> tuple[int, int]:
-    """``(width, height)`` from ``--size WxH``, or from the older ``--height``/``--width``
-    (either one alone leaves the other at the default, the model's natural size: 630 for
-    patches of 14, 640 for patches of 16).
+def input_size(size: tuple[int, int] | None, patch_size: int) -> tuple[int, int]:
+    """``(width, height)`` from ``--size WxH``; unset, the model's natural size (630 for patches
+    of 14, 640 for patches of 16).
 
     Raises:
-        UsageError: both spellings, or a size that is not a multiple of ``patch_size`` (naming
-            the two nearest that are).
+        UsageError: a size that is not a multiple of ``patch_size`` (naming the two nearest that
+            are).
     """
-    if args.size is not None:
-        if args.height is not None or args.width is not None:
-            raise UsageError("give --size WxH or --height/--width, not both")
-        width, height = args.size
+    if size is not None:
+        width, height = size
     else:
-        natural = natural_size(patch_size)
-        width, height = args.width or natural, args.height or natural
+        width = height = natural_size(patch_size)
     if width % patch_size or height % patch_size:  # said in --size terms, not as a tensor shape
         raise UsageError(
             f"input size {width}x{height} (WxH) is not a multiple of the model's patch size "
@@ -196,16 +183,7 @@ def input_size(args: argparse.Namespace, patch_size: int) -> tuple[int, int]:
 def _run(args: argparse.Namespace) -> int:
     from claravid.models.checkpoint import model_from_checkpoint, read_checkpoint
 
-    given = given_once(
-        args.checkpoint,
-        args.checkpoint_file,
-        flag="--checkpoint",
-        metavar="CHECKPOINT",
-        what="the checkpoint",
-    )
-    checkpoint = Path(given)
-    if args.size is not None and (args.height is not None or args.width is not None):
-        raise UsageError("give --size WxH or --height/--width, not both")
+    checkpoint = Path(args.checkpoint)
     output = check_output_file(args.output, what="--output")
     if output.suffix.lower() != ".onnx":
         # A typo here (the checkpoint's own name, an image) would replace a file of another kind.
@@ -222,7 +200,7 @@ def _run(args: argparse.Namespace) -> int:
         raise UsageError(f"--output {output} is the checkpoint itself; choose another file")
     ckpt = read_checkpoint(checkpoint)
     model = model_from_checkpoint(ckpt, checkpoint)
-    width, height = input_size(args, model.patch_size)
+    width, height = input_size(args.size, model.patch_size)
     config = ckpt.get("config") if isinstance(ckpt.get("config"), dict) else None
     step = ckpt.get("step") if isinstance(ckpt.get("step"), int) else None
     del ckpt

@@ -8,9 +8,6 @@ example batch is 2 because a batch of 1 lets the exporter freeze that dimension.
     claravid-export --checkpoint runs/exp/best.pt --output model.onnx --size 630x630
     claravid-export --checkpoint runs/exp/best.pt --output model-int8.onnx --precision int8
 
-(``claravid-export CHECKPOINT ...`` and ``--height H --width W``, the older spellings, still
-work.)
-
 The file carries what it takes to run the model as evaluated (`claravid.models.onnx_metadata`).
 The palette's colours come from the data layer, which ``models/`` never imports: the console
 script (``claravid.eval.export_cli``) resolves them and passes them in :class:`Provenance`.

@@ -1,8 +1,8 @@
 """``claravid-train --config CONFIG [key=value ...] [--resume]`` (``python -m claravid.train``).
 
 ``-o DIR`` is ``out_dir=DIR`` (the path as given: a ``${`` in it is no interpolation),
-``--workers N`` ``data.num_workers=N`` and ``--no-progress`` (or ``--quiet``)
-``log.progress=false``, the flags every console script shares. ``key=value`` overrides may stand
+``--workers N`` ``data.num_workers=N`` and ``--no-progress`` ``log.progress=false``, the flags
+every console script shares. ``key=value`` overrides may stand
 before or after the flags.
 
 CONFIG is a YAML file or the name of a shipped config (``demo``, ``claravid_dpt_vitl14``, ...).

@@ -38,9 +38,6 @@ SCHEDULES = ("poly", "cosine")
 DATASETS = ("claravid", "uavid")
 SAMPLERS = ("uniform", "complexity_balanced")
 AMP_MODES = ("auto", "bf16", "fp16", "off")
-#: ``train.amp`` was a boolean before it named a precision: true meant what ``auto`` means
-#: (autocast on a GPU, bf16 or fp16, float32 on a CPU), false meant float32 everywhere.
-LEGACY_AMP = {"true": "auto", "false": "off"}
 
 
 class ConfigError(ValueError):
@@ -238,9 +235,9 @@ def _merge(base: DictConfig, other: Any, source: str) -> DictConfig:
         key = getattr(exc, "full_key", None)
         msg = str(exc).splitlines()[0]
         raise ConfigError(f"bad value for {key} ({source}): {msg}") from None
-    # A boolean amp (older configs and checkpoints) arrives here as the string "True"/"False".
-    amp = str(merged.train.amp).lower()
-    merged.train.amp = LEGACY_AMP.get(amp, merged.train.amp)
+    # YAML 1.1 reads `off` (like `no` and `false`) as a boolean: the str field then holds "False".
+    if str(merged.train.amp) == "False":
+        merged.train.amp = "off"
     return merged  # type: ignore[return-value]
 
 

@@ -7,7 +7,7 @@ work starts and written atomically; nothing the tool did not write is replaced w
 ``--overwrite``.
 
 The same flag means the same thing on every command: a size is ``WxH`` (width x height) or ``N``
-for a square (`parse_size`); ``--no-progress`` (alias ``--quiet``) hides the progress bar;
+for a square (`parse_size`); ``--no-progress`` hides the progress bar;
 ``--workers N`` runs the work in N worker processes, 0 (the default) in the calling one;
 ``-o/--output`` names what the command writes; ``--checkpoint`` names a model checkpoint.
 
@@ -56,14 +56,12 @@ def add_debug_flag(parser: argparse.ArgumentParser) -> None:
 
 
 def add_progress_flag(parser: argparse.ArgumentParser, help: str = "no progress bar") -> None:
-    """``--no-progress`` (``--quiet`` the same, an older spelling kept for scripts): no bar.
+    """``--no-progress``: no progress bar.
 
     Sets ``args.no_progress``; ``claravid-train``'s flag means ``log.progress=false``;
     ``claravid-export``, which shows no bar, leaves out the check's numbers (``help`` says so).
     """
-    parser.add_argument(
-        "--no-progress", "--quiet", dest="no_progress", action="store_true", help=help
-    )
+    parser.add_argument("--no-progress", action="store_true", help=help)
 
 
 def add_workers_flag(parser: argparse.ArgumentParser, work: str) -> None:
@@ -99,26 +97,15 @@ def parse_size(text: str) -> tuple[int, int]:
 
 def window_size(text: str) -> tuple[int, int]:
     """`parse_size` for a sliding window or its stride, returned as ``(height, width)``, the
-    order of the tensors and of ``WindowConfig``.
-
-    ``--window`` of claravid-eval once read ``AxB`` as height x width: a non-square value warns
-    how it is read now, so an older script's window is never swapped unnoticed.
-    """
+    order of the tensors and of ``WindowConfig``."""
     width, height = parse_size(text)
-    if width != height:
-        warnings.warn(
-            f"window size {text} is read as width {width} x height {height} (WxH, like every "
-            "size flag; claravid 0.1 read --window and --stride as HxW)",
-            UserWarning,
-            stacklevel=2,
-        )
     return height, width
 
 
 def given_once(
     flag_value: T | None, positional_value: T | None, *, flag: str, metavar: str, what: str
 ) -> T:
-    """The value given as ``flag`` or positionally (an older spelling kept for scripts).
+    """The value given as ``flag`` or positionally (``claravid-synth OUT`` or ``-o OUT``).
 
     Raises:
         UsageError: both spellings given, or neither.

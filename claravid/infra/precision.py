@@ -10,7 +10,6 @@ the ``--precision`` flags of ``claravid-eval`` / ``claravid-predict`` all resolv
 from __future__ import annotations
 
 import contextlib
-import warnings
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -55,27 +54,21 @@ def precision_name(dtype: torch.dtype | None) -> str:
 FLAG_PRECISIONS = ("fp32", "bf16")
 
 
-def flag_precision(precision: str | None, no_amp: bool = False, *, pytorch: bool = True) -> str:
-    """``--precision`` (or the deprecated ``--no-amp``) as a `WindowConfig` precision.
+def flag_precision(precision: str | None, *, pytorch: bool = True) -> str:
+    """``--precision`` as a `WindowConfig` precision.
 
     Raises:
-        ValueError: an unknown value, a contradiction with ``--no-amp``, or any precision for a
-            model that is not PyTorch (an ONNX file runs at the precision it was exported in,
-            fp32, fp16 or int8: the flag would do nothing).
+        ValueError: an unknown value, or any precision for a model that is not PyTorch (an ONNX
+            file runs at the precision it was exported in, fp32, fp16 or int8: the flag would do
+            nothing).
     """
-    if not pytorch and (precision is not None or no_amp):
-        flag = "--precision" if precision is not None else "--no-amp"
+    if not pytorch and precision is not None:
         raise ValueError(
-            f"{flag} does nothing with --onnx: an ONNX file runs at the precision it was exported "
-            "in (claravid-export --precision); drop it"
+            "--precision does nothing with --onnx: an ONNX file runs at the precision it was "
+            "exported in (claravid-export --precision); drop it"
         )
     if precision is not None and precision not in FLAG_PRECISIONS:
         raise ValueError(f"--precision must be fp32 or bf16, got {precision!r}")
-    if no_amp:
-        if precision not in (None, "fp32"):
-            raise ValueError("--no-amp means --precision fp32: drop --no-amp or --precision")
-        warnings.warn("--no-amp is deprecated: use --precision fp32", UserWarning, stacklevel=2)
-        precision = "fp32"
     return precision or "auto"
 
 

@@ -87,8 +87,7 @@ class WindowConfig:
         stride: step between windows; default two thirds of the window (overlap 1/3).
         scale: resize factor applied to the image first (the paper reports at 0.5).
         batch_size: windows per forward pass.
-        precision: ``auto``, ``fp32``, ``bf16`` or ``fp16`` (:mod:`claravid.infra.precision`). The
-            former boolean ``amp`` reads as ``True`` → ``auto``, ``False`` → ``fp32``.
+        precision: ``auto``, ``fp32``, ``bf16`` or ``fp16`` (:mod:`claravid.infra.precision`).
         mean, std: the model's input normalisation of uint8 images (per channel, RGB, on the
             0–1 scale); None: the model's own statistics (:meth:`for_model`). A float image is
             taken as normalised already.
@@ -103,8 +102,6 @@ class WindowConfig:
     std: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
-        if isinstance(self.precision, bool):  # the former `amp: bool` in this position
-            object.__setattr__(self, "precision", "auto" if self.precision else "fp32")
         if self.precision not in PRECISIONS:
             raise ValueError(
                 f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}"

@@ -31,44 +31,34 @@ def test_models_do_not_import_the_data_layer():
     assert result.returncode == 0, result.stderr
 
 
-def test_every_former_module_path_is_the_moved_module():
-    """Code and pickles written against the flat layout keep working: the old path imports the
-    module at its new place (one module object)."""
+def test_the_short_transforms_path_is_a_module_of_its_own():
+    """``claravid.transforms`` (the README's import) is a real module: its own spec, reloadable,
+    the same functions as ``claravid.data.transforms``; the flat layout's paths are gone."""
     code = (
-        "import importlib, pickle\n"
-        "from claravid._moved import MOVED\n"
-        "for old, new in MOVED.items():\n"
-        "    assert importlib.import_module(old) is importlib.import_module(new), old\n"
-        "from claravid.segmentation import ClaraVidSegmentation\n"
-        "from claravid.data.segmentation import ClaraVidSegmentation as moved\n"
-        "assert ClaraVidSegmentation is moved\n"
-        "from claravid import transforms, jpeg_region\n"
-        "assert transforms.train_transforms is importlib.import_module('claravid.data.transforms')"
-        ".train_transforms\n"
-        "from claravid.splits import SplitConfig\n"
-        "assert type(pickle.loads(pickle.dumps(SplitConfig()))) is SplitConfig\n"
+        "import importlib\n"
+        "import claravid.transforms as short, claravid.data.transforms as data\n"
+        "assert short.__spec__.name == 'claravid.transforms', short.__spec__\n"
+        "assert data.__spec__.name == 'claravid.data.transforms', data.__spec__\n"
+        "assert short.train_transforms is data.train_transforms\n"
+        "assert set(short.__all__) <= set(dir(data))\n"
+        "assert importlib.reload(short) is short\n"
+        "for old in ('claravid.segmentation', 'claravid.cache_cli', 'claravid.labels'):\n"
+        "    try:\n"
+        "        importlib.import_module(old)\n"
+        "    except ModuleNotFoundError:\n"
+        "        continue\n"
+        "    raise AssertionError(f'{old} still imports')\n"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
 
 
-def test_the_moved_table_names_every_module_once():
-    from pathlib import Path
+def test_the_version_is_the_installed_distribution_s():
+    from importlib.metadata import version
 
     import claravid
-    from claravid._moved import MOVED
 
-    package = Path(claravid.__file__).parent
-    modules = {
-        f"claravid.{p.parent.name}.{p.stem}"
-        for layer in ("infra", "io", "data")
-        for p in (package / layer).glob("*.py")
-        # New since the layout moved, so without a former path.
-        if p.stem
-        not in {"__init__", "shards", "cache_entries", "cache_prepare", "headers", "imagefile"}
-    }
-    assert set(MOVED.values()) == modules | {"claravid.synth.demo"}
-    assert not any((package / f"{old.rsplit('.', 1)[1]}.py").exists() for old in MOVED)
+    assert claravid.__version__ == version("claravid-toolkit")
 
 
 def documented_names() -> set[str]:

@@ -144,7 +144,6 @@ def test_huge_bootstrap_is_one_line(reps, tmp_path, capsys):
         (["--merge", "A", "--workers", "2"], "--workers"),
         (["--predictions", "P", "--precision", "fp32"], "--precision"),
         (["--onnx", "m.onnx", "--precision", "fp32"], "--precision"),  # runs as exported
-        (["--onnx", "m.onnx", "--no-amp"], "--no-amp"),
     ],
 )
 def test_options_that_do_nothing_are_refused(reps, tmp_path, capsys, extra, flag):

@@ -45,7 +45,7 @@ def files(claravid_root, tmp_path_factory):
     ckpt_imagenet = models.save_checkpoint(model, folder / "imagenet.pt", config=imagenet)
     onnx_path = folder / "m.onnx"
     # A fixed-size export of the recorded window (a dynamic one costs 3x the export time).
-    assert export_main([str(ckpt), "-o", str(onnx_path), "--height", "14", "--width", "14"]) == 0
+    assert export_main(["--checkpoint", str(ckpt), "-o", str(onnx_path), "--size", "14"]) == 0
     split = folder / "split.txt"
     split.write_text("\n".join(FRAMES) + "\n")
     foreign = folder / "foreign.onnx"
@@ -175,7 +175,7 @@ def test_eval_report_gives_the_onnx_files_precision(files, claravid_root, tmp_pa
     # An ONNX file runs at the precision it was exported in; the report said "fp32" (PyTorch's
     # autocast setting on a CPU) for an int8 file.
     int8 = tmp_path / "m-int8.onnx"
-    argv = [str(files["ckpt"]), "-o", str(int8), "--height", "14", "--width", "14",
+    argv = ["--checkpoint", str(files["ckpt"]), "-o", str(int8), "--size", "14",
             "--precision", "int8", "--min-agreement", "0"]  # fmt: skip
     assert export_main(argv) == 0
     _eval.split = files["split"]
@@ -229,7 +229,8 @@ def test_predict_onnx_colours_come_from_the_file(claravid_root, tmp_path):
     config = {"data": {"root": str(claravid_root), "palette": str(yaml)}, "val": {"window": 14}}
     ckpt = models.save_checkpoint(tiny_model(), tmp_path / "m.pt", config=config)
     onnx_path = tmp_path / "m.onnx"
-    assert export_main([str(ckpt), "-o", str(onnx_path), "--size", "14", "--no-check"]) == 0
+    argv = ["--checkpoint", str(ckpt), "-o", str(onnx_path), "--size", "14", "--no-check"]
+    assert export_main(argv) == 0
     yaml.unlink()
     image = next((claravid_root / "001_rural_1").rglob("*.jpg"))
     out = tmp_path / "pred"

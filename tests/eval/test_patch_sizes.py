@@ -99,8 +99,7 @@ def test_export_sizes_default_to_the_natural_size_and_name_the_two_nearest(
     plain_v3, tmp_path, capsys
 ):
     out = str(tmp_path / "m.onnx")
-    # Only the height given: the width is the model's natural 640 (40 x 16), not 630.
-    assert export_main(["--checkpoint", str(plain_v3), "-o", out, "--height", "30"]) == 2
+    assert export_main(["--checkpoint", str(plain_v3), "-o", out, "--size", "640x30"]) == 2
     _one_line(capsys, "claravid-export", "input size 640x30 (WxH) is not a multiple of the "
               "model's patch size 16: use --size 640x16 or --size 640x32")  # fmt: skip
     assert export_main(["--checkpoint", str(plain_v3), "-o", out, "--size", "630"]) == 2

@@ -51,19 +51,13 @@ def test_eval_in_bf16_agrees_with_float32(model_files, claravid_root, tmp_path):
         assert agreement >= 0.97, (key, agreement)
 
 
-def test_eval_default_and_no_amp_are_float32_on_the_cpu(model_files, tmp_path, capsys):
+def test_eval_default_is_float32_on_the_cpu(model_files, tmp_path, capsys):
     split = tmp_path / "frames.txt"
     split.write_text(FRAMES[0] + "\n")
     argv = ["--checkpoint", str(model_files["checkpoint"]), "--split", str(split), "--window",
             "56x42", "--bins", "1", "--no-progress"]  # fmt: skip
     assert eval_main([*argv, "--output", str(tmp_path / "a")]) == 0
     source = json.loads((tmp_path / "a" / "report.json").read_text())["source"]
-    assert source["precision"] == "fp32"
-    capsys.readouterr()
-    assert eval_main([*argv, "--no-amp", "--output", str(tmp_path / "b")]) == 0
-    warning = "claravid-eval: warning: --no-amp is deprecated: use --precision fp32"
-    assert warning in capsys.readouterr().err
-    source = json.loads((tmp_path / "b" / "report.json").read_text())["source"]
     assert source["precision"] == "fp32"
 
 
@@ -72,7 +66,6 @@ def test_eval_default_and_no_amp_are_float32_on_the_cpu(model_files, tmp_path, c
     [
         (["--precision", "fp8"], "--precision must be fp32 or bf16, got 'fp8'"),
         (["--precision", "BF16"], "--precision must be fp32 or bf16, got 'BF16'"),
-        (["--precision", "bf16", "--no-amp"], "--no-amp means --precision fp32"),
     ],
 )
 def test_bad_precision_is_one_line_exit_2(model_files, tmp_path, capsys, extra, message):
@@ -81,8 +74,6 @@ def test_bad_precision_is_one_line_exit_2(model_files, tmp_path, capsys, extra, 
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and message in err, err
     assert not (tmp_path / "e").exists()
-    if "--no-amp" in extra:  # claravid-predict never had --no-amp
-        return
     image = tmp_path / "x.png"
     cv2.imwrite(str(image), np.zeros((28, 28, 3), np.uint8))
     assert predict_main([str(image), *ckpt, *extra, "-o", str(tmp_path / "p")]) == 2

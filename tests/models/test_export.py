@@ -143,7 +143,7 @@ def test_cli(tmp_path, capsys):
     model = _model("dinov2_vits14")
     ckpt = save_checkpoint(model, tmp_path / "m.pt")
     out = tmp_path / "cli.onnx"
-    assert main([str(ckpt), "--output", str(out), "--height", "28", "--width", "42"]) == 0
+    assert main(["--checkpoint", str(ckpt), "--output", str(out), "--size", "42x28"]) == 0
     printed = capsys.readouterr().out
     assert f"wrote {out}" in printed and "max abs diff of logits" in printed
     x = np.random.default_rng(2).standard_normal((2, 3, 28, 42)).astype(np.float32)
@@ -151,15 +151,14 @@ def test_cli(tmp_path, capsys):
 
 
 def test_cli_errors(tmp_path, capsys):
-    assert main([str(tmp_path / "none.pt"), "--output", str(tmp_path / "x.onnx")]) == 2
+    assert main(["--checkpoint", str(tmp_path / "none.pt"), "-o", str(tmp_path / "x.onnx")]) == 2
     assert "none.pt not found" in capsys.readouterr().err
     ckpt = save_checkpoint(_model("dinov2_vits14"), tmp_path / "m.pt")
-    assert main([str(ckpt), "-o", str(tmp_path / "x.onnx"), "--height", "30"]) == 2
-    # Said as --size values, width x height, the two nearest: 30 rounds to 28 or 42; the
-    # default width is the model's natural 630 (45 x 14).
+    assert main(["--checkpoint", str(ckpt), "-o", str(tmp_path / "x.onnx"), "--size", "70x30"]) == 2
+    # Said as --size values, width x height, the two nearest: 30 rounds to 28 or 42.
     err = capsys.readouterr().err
-    assert "input size 630x30 (WxH) is not a multiple of the model's patch size 14" in err
-    assert "use --size 630x28 or --size 630x42" in err
+    assert "input size 70x30 (WxH) is not a multiple of the model's patch size 14" in err
+    assert "use --size 70x28 or --size 70x42" in err
     with pytest.raises(FileNotFoundError, match="claravid-export"):
         OnnxSegmenter(tmp_path / "x.onnx")
 
@@ -177,33 +176,26 @@ def _one_error_line(capsys, match):
         (["--tolerance", "-1"], "expected a finite number > 0, got '-1'"),
         (["--tolerance", "nan"], "expected a finite number > 0"),
         (["--tolerance", "0"], "expected a finite number > 0"),
-        (["--height", "0"], "expected a positive integer, got '0'"),
-        (["--width", "-14"], "expected a positive integer"),
         (["--size", "0x28"], "width and height must be positive, got '0x28'"),
         (["--size", "28by28"], "expected WxH (width x height, e.g. 640x480) or N"),
     ],
 )
 def test_cli_rejects_nonsense_numbers(tmp_path, capsys, args, match):
     with pytest.raises(SystemExit) as info:
-        main(["m.pt", "-o", str(tmp_path / "x.onnx"), *args])
+        main(["--checkpoint", "m.pt", "-o", str(tmp_path / "x.onnx"), *args])
     assert info.value.code == 2
     assert match in capsys.readouterr().err
 
 
 def test_cli_checkpoint_flag_and_size(tmp_path, capsys):
     """``--checkpoint`` as on claravid-eval/predict, ``--size`` width x height as on every
-    command; the positional checkpoint and ``--height``/``--width`` stay as older spellings."""
+    command."""
     ckpt = save_checkpoint(_model("dinov2_vits14"), tmp_path / "m.pt")
     out = tmp_path / "m.onnx"
     assert main(["--checkpoint", str(ckpt), "-o", str(out), "--size", "42x28", "--no-check"]) == 0
     assert OnnxSegmenter(out).input_size == (28, 42)  # (height, width), as the tensors
     x = str(tmp_path / "x.onnx")
     for argv, match in [
-        ([str(ckpt), "--checkpoint", str(ckpt), "-o", x],
-         "the checkpoint given twice, as CHECKPOINT and as --checkpoint: give it once"),
-        (["-o", x], "give the checkpoint: --checkpoint CHECKPOINT (or CHECKPOINT alone)"),
-        (["--checkpoint", str(ckpt), "-o", x, "--size", "28", "--width", "28"],
-         "give --size WxH or --height/--width, not both"),
         (["--checkpoint", str(ckpt), "-o", x, "--size", "28x20"],
          "input size 28x20 (WxH) is not a multiple of the model's patch size 14: use --size 28x14 "
          "or --size 28x28"),
@@ -238,7 +230,7 @@ def test_cli_checks_paths_before_loading(tmp_path, capsys):
         ([str(tmp_path / "afile"), "-o", str(tmp_path / "x.onnx")], "not a PyTorch tensor file"),
     ]
     for argv, match in cases:
-        assert main(argv) == 2
+        assert main(["--checkpoint", *argv]) == 2
         _one_error_line(capsys, match)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "m.pt"]
 
@@ -258,7 +250,7 @@ def test_failed_check_writes_nothing_and_keeps_the_old_file(tmp_path, capsys, mo
     ckpt = save_checkpoint(_model("dinov2_vits14"), tmp_path / "m.pt")
     out = tmp_path / "x.onnx"
     out.write_bytes(b"old onnx")
-    args = [str(ckpt), "-o", str(out), "--height", "28", "--width", "28", "--overwrite"]
+    args = ["--checkpoint", str(ckpt), "-o", str(out), "--size", "28", "--overwrite"]
     assert main(args) == 1
     err = capsys.readouterr().err
     assert f"exported model {out} differs" in err and "nothing was written" in err
@@ -272,7 +264,7 @@ def test_an_output_it_did_not_write_needs_overwrite(tmp_path, capsys):
     ckpt = save_checkpoint(_model("dinov2_vits14"), tmp_path / "m.pt")
     out = tmp_path / "existing.txt.onnx"
     out.write_text("someone's notes")
-    args = [str(ckpt), "-o", str(out), "--height", "28", "--width", "28", "--no-check"]
+    args = ["--checkpoint", str(ckpt), "-o", str(out), "--size", "28", "--no-check"]
     assert main(args) == 2
     _one_error_line(capsys, "exists; pass --overwrite")
     assert out.read_text() == "someone's notes"

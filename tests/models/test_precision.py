@@ -94,7 +94,7 @@ def test_refusal_below_min_agreement_leaves_no_file(tmp_path, capsys):
         model.head.head[-1].bias.zero_()  # classes compete on features, not on their biases
     ckpt = save_checkpoint(model, tmp_path / "m.pt")
     out = tmp_path / "q.onnx"
-    argv = [str(ckpt), "-o", str(out), "--height", str(SIZE), "--width", str(SIZE),
+    argv = ["--checkpoint", str(ckpt), "-o", str(out), "--size", str(SIZE),
             "--precision", "int8", "--min-agreement", "1"]  # fmt: skip
     assert main(argv) == 1  # 99.96 % of pixels agree
     captured = capsys.readouterr()
@@ -127,7 +127,8 @@ def test_cli_rejects_calibration_misuse(tmp_path, capsys):
         (["--precision", "int8", "--calibration-images", "8"], "does nothing without --calibr"),
         (["--precision", "int8", "--calibration", str(tmp_path / "no")], "is not a folder"),
     ]:
-        assert main([str(tmp_path / "m.pt"), "-o", str(tmp_path / "x.onnx"), *args]) == 2
+        ckpt = ["--checkpoint", str(tmp_path / "m.pt")]
+        assert main([*ckpt, "-o", str(tmp_path / "x.onnx"), *args]) == 2
         err = capsys.readouterr().err
         lines = [x for x in err.splitlines() if x.startswith("claravid-export: error:")]
         assert len(lines) == 1 and match in lines[0] and "Traceback" not in err

@@ -6,7 +6,7 @@ from claravid.train.cli import build_parser, main, overrides
 
 def test_output_and_no_progress_flags_set_the_config_keys(tmp_path):
     out = tmp_path / "it's a run: 1"  # quote, colon, space: YAML must keep it a plain string
-    args = build_parser().parse_args(["--config", "demo", "-o", str(out), "--quiet"])
+    args = build_parser().parse_args(["--config", "demo", "-o", str(out), "--no-progress"])
     cfg = load_config("demo", overrides(args))
     assert cfg.out_dir == str(out) and cfg.log.progress is False
     plain = load_config("demo", overrides(build_parser().parse_args(["--config", "demo"])))

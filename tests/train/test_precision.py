@@ -8,7 +8,6 @@ import torch
 from claravid.models.checkpoint import read_checkpoint
 from claravid.train import load_config, train
 from claravid.train.cli import main
-from claravid.train.config import from_plain, to_plain
 from claravid.train.loop import amp_dtype
 from tests.train.conftest import tiny
 
@@ -66,26 +65,15 @@ def test_low_precision_training_on_the_cpu(claravid_root, tmp_path, untrained_lo
         assert ckpt["scaler"] == {}
 
 
-def test_old_boolean_amp_values_still_load(claravid_root, tmp_path):
-    """``amp: true`` meant bf16/fp16 autocast on a GPU and float32 on a CPU (= auto);
-    ``amp: false`` meant float32 everywhere (= off). Configs and checkpoints of either age load,
-    and a run stored with the boolean resumes under the new name (no config change)."""
+def test_off_is_off_although_yaml_reads_it_as_false(claravid_root, tmp_path):
     base = tiny(claravid_root, tmp_path / "r")
-    assert load_config("demo", [*base, "train.amp=true"]).train.amp == "auto"
-    assert load_config("demo", [*base, "train.amp=False"]).train.amp == "off"
-    new = load_config("demo", base)
-    assert new.train.amp == "auto"  # the shipped configs say auto
-    old = to_plain(new)
-    old["train"]["amp"] = True  # what a checkpoint of an older version holds
-    assert from_plain(old).train.amp == "auto"
-    old["train"]["amp"] = False
-    assert from_plain(old).train.amp == "off"
-    yaml = tmp_path / "old.yaml"
-    yaml.write_text("train:\n  amp: true\n")
-    assert load_config(yaml, base).train.amp == "auto"
+    assert load_config("demo", [*base, "train.amp=off"]).train.amp == "off"
+    yaml = tmp_path / "off.yaml"
+    yaml.write_text("train:\n  amp: off\n")
+    assert load_config(yaml, base).train.amp == "off"
 
 
-@pytest.mark.parametrize("value", ["fp8", "float16", "1"])
+@pytest.mark.parametrize("value", ["fp8", "float16", "1", "true"])  # a boolean names none
 def test_bad_amp_value_is_one_line_exit_2(claravid_root, tmp_path, capsys, value):
     args = tiny(claravid_root, tmp_path / "r", f"train.amp={value}")
     assert main(["--config", "demo", *args]) == 2

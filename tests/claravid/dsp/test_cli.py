@@ -35,7 +35,7 @@ def collection(tmp_path) -> Path:
 
 
 def _run(argv) -> int:
-    return main([*argv, "--quiet", "--workers", "0"])
+    return main([*argv, "--no-progress", "--workers", "0"])
 
 
 def test_folder_with_recursive_pattern(collection, tmp_path, capsys):
@@ -352,7 +352,7 @@ def test_foreign_inputs_and_arguments(collection, tmp_path, capsys):
         ([str(collection), "--pattern", ""], "must be a non-empty glob relative"),
     ]
     for argv, match in argvs:
-        assert main([*argv, "--quiet", "--output", str(tmp_path / "o.json")]) == 2
+        assert main([*argv, "--no-progress", "--output", str(tmp_path / "o.json")]) == 2
         _one_error(capsys, match)
     with pytest.raises(SystemExit) as info:  # argparse's own check, the same on every command
         main([str(collection), "--workers", "-2", "--output", str(tmp_path / "o.json")])

@@ -197,7 +197,7 @@ def test_workers_write_the_same_bytes(tmp_path, tiny):
     """``--workers 2``: the viewpoints render in worker processes, the files are the same."""
     assert main([str(tmp_path / "w"), "--seed", "3", "--frames-per-viewpoint", "2", "--size",
                  "64x48", "--missions", "rural_1", "urban_high_1", "--workers", "2",
-                 "--quiet"]) == 0  # fmt: skip
+                 "--no-progress"]) == 0  # fmt: skip
     files = sorted(p.relative_to(tiny) for p in tiny.rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(tmp_path / "w") for p in (tmp_path / "w").rglob("*")
                            if p.is_file())  # fmt: skip
@@ -267,7 +267,7 @@ def test_cli_end_to_end(tmp_path, capsys):
             "mid",
             "--direction",
             "v",
-            "--quiet",
+            "--no-progress",
         ]
     )
     assert code == 0
@@ -328,7 +328,7 @@ def test_bad_arguments_raise(tmp_path, kwargs, match):
 )
 def test_cli_rejects_bad_arguments(tmp_path, capsys, args, match):
     with pytest.raises(SystemExit) as exit_info:
-        main([str(tmp_path / "x"), "--quiet", *args])
+        main([str(tmp_path / "x"), "--no-progress", *args])
     assert exit_info.value.code == 2
     assert match in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
@@ -343,12 +343,12 @@ def _one_error(capsys, match):
 
 
 def test_cli_errors_are_one_line(tmp_path, capsys):
-    assert main([str(tmp_path / "x"), "--quiet", "--missions", "mars_1"]) == 2
+    assert main([str(tmp_path / "x"), "--no-progress", "--missions", "mars_1"]) == 2
     _one_error(capsys, "unknown ClaraVid mission 'mars_1'")
     (tmp_path / "afile").write_text("x")
-    assert main([str(tmp_path / "afile"), "--quiet"]) == 2
+    assert main([str(tmp_path / "afile"), "--no-progress"]) == 2
     _one_error(capsys, "is a file; give a folder")
-    assert main([str(tmp_path / "afile" / "sub"), "--quiet"]) == 2
+    assert main([str(tmp_path / "afile" / "sub"), "--no-progress"]) == 2
     _one_error(capsys, "afile")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
 
@@ -359,7 +359,8 @@ def test_a_tree_it_did_not_write_is_refused(tmp_path, capsys):
     frame = real / "003_urban_1" / "left_rgb" / "45deg_low_h" / "000000.jpg"
     frame.parent.mkdir(parents=True)
     frame.write_bytes(b"a real frame")
-    args = ["--frames-per-viewpoint", "1", "--size", "16x12", "--missions", "urban_1", "--quiet"]
+    args = ["--frames-per-viewpoint", "1", "--size", "16x12", "--missions", "urban_1",
+            "--no-progress"]  # fmt: skip
     assert main([str(real), *args]) == 2
     _one_error(capsys, "not written by claravid-synth (no .claravid-synth)")
     with pytest.raises(FileExistsError, match="overwrite=True"):

@@ -350,22 +350,20 @@ def test_bf16_windows_agree_with_float32_on_the_cpu():
     assert agreement >= 0.97, agreement
 
 
-def test_precision_settings_and_the_old_boolean():
-    assert WindowConfig((14, 14), None, 1.0, 4, True).precision == "auto"  # former amp=True
-    assert WindowConfig((14, 14), None, 1.0, 4, False).precision == "fp32"
-    with pytest.raises(ValueError, match="precision must be one of auto, fp32, bf16, fp16"):
-        WindowConfig(precision="fp8")
+def test_precision_settings():
+    assert WindowConfig((14, 14)).precision == "auto"
+    for bad in ("fp8", True):  # a boolean (amp on/off) names no precision
+        with pytest.raises(ValueError, match="precision must be one of auto, fp32, bf16, fp16"):
+            WindowConfig(precision=bad)
     assert flag_precision(None) == "auto" and flag_precision("bf16") == "bf16"
-    with pytest.warns(UserWarning, match="--precision fp32"):
-        assert flag_precision(None, no_amp=True) == "fp32"
-    for args, message in [(("half",), "must be fp32 or bf16, got 'half'"),
-                          (("bf16", True), "--no-amp means --precision fp32"),
-                          (("fp16",), "must be fp32 or bf16")]:  # fmt: skip
+    for value, message in [("half", "must be fp32 or bf16, got 'half'"),
+                           ("fp16", "must be fp32 or bf16")]:  # fmt: skip
         with pytest.raises(ValueError, match=message):
-            flag_precision(*args)
-    for args in [("bf16",), ("fp32",), (None, True)]:  # ONNX runs at its exported precision
+            flag_precision(value)
+    for value in ("bf16", "fp32"):  # ONNX runs at its exported precision
         with pytest.raises(ValueError, match="does nothing with --onnx"):
-            flag_precision(*args, pytorch=False)
+            flag_precision(value, pytorch=False)
+    assert flag_precision(None, pytorch=False) == "auto"
 
 
 def test_onnx_windows_equal_pytorch_windows(model_files):
