@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 
-from claravid.eval.inference.windows import natural_size, patch_fix
 from claravid.infra.cli import (
     EXIT_FAILED,
     UsageError,
@@ -39,6 +38,7 @@ from claravid.models.export import (
     Provenance,
     export_onnx,
 )
+from claravid.models.grid import natural_size, patch_fix
 from claravid.models.onnx_metadata import KEY, PRECISIONS, PREFIX, normalisation_from_config
 
 PROG = "claravid-export"
