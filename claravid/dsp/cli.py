@@ -27,7 +27,8 @@ from claravid.dsp.collection import (
     merge_runs,
     profile_images,
 )
-from claravid.dsp.metrics import METRICS, check_blur_ksize
+from claravid.dsp.measures import METRICS
+from claravid.dsp.metrics import check_blur_ksize
 from claravid.infra.cli import (
     UsageError,
     add_debug_flag,
