@@ -26,12 +26,12 @@ from claravid.infra.cli import (
     UsageError,
     add_debug_flag,
     add_progress_flag,
-    check_output_file,
     parse_size,
     positive_float,
     positive_int,
     run_cli,
 )
+from claravid.infra.files import check_output_file
 from claravid.models.export import (
     ExportCheckError,
     ExportSettings,

@@ -34,9 +34,9 @@ from claravid.infra.cli import (
     add_debug_flag,
     add_progress_flag,
     add_workers_flag,
-    check_output_file,
     run_cli,
 )
+from claravid.infra.files import check_output_file
 from claravid.infra.shards import parse_shard, select_shard
 
 DEFAULT_OUTPUT = "complexity_results.json"
