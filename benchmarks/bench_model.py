@@ -57,9 +57,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from claravid.eval.inference.windows import natural_size
 from claravid.models import OnnxSegmenter, backbone_spec, build_model, export_onnx
 from claravid.models.export import ExportSettings
+from claravid.models.grid import natural_size
 
 BACKBONE_TFLOP_630 = 1.63  # ViT-L/14, 2026 tokens, forward
 NUM_CLASSES = 19  # the claravid palette, as the configs train it

@@ -21,24 +21,24 @@ from typing import Any
 
 import numpy as np
 
-from claravid.eval.inference.windows import natural_size, patch_fix
 from claravid.infra.cli import (
     EXIT_FAILED,
     UsageError,
     add_debug_flag,
     add_progress_flag,
-    check_output_file,
     parse_size,
     positive_float,
     positive_int,
     run_cli,
 )
+from claravid.infra.files import check_output_file
 from claravid.models.export import (
     ExportCheckError,
     ExportSettings,
     Provenance,
     export_onnx,
 )
+from claravid.models.grid import natural_size, patch_fix
 from claravid.models.onnx_metadata import KEY, PRECISIONS, PREFIX, normalisation_from_config
 
 PROG = "claravid-export"

@@ -45,11 +45,11 @@ from claravid.infra.cli import (
     add_progress_flag,
     add_workers_flag,
     check_device,
-    check_output_dir,
     positive_int,
     run_cli,
     window_size,
 )
+from claravid.infra.files import check_output_dir
 from claravid.infra.precision import flag_precision
 from claravid.io import modalities
 from claravid.models.onnx_runtime import PROVIDERS

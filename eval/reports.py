@@ -25,7 +25,7 @@ from claravid.eval.analysis.bootstrap import Bootstrap
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.report.files import REPORT, check_report_kind
 from claravid.eval.settings import Evaluation, ReportSettings, check_type
-from claravid.infra.cli import check_output_dir
+from claravid.infra.files import check_output_dir
 
 
 def warn_outside_edges(report: dict[str, Any], values: np.ndarray, total: int) -> None:

@@ -35,7 +35,8 @@ from claravid.eval.settings import (
     ReportSettings,
     check_type,
 )
-from claravid.infra.cli import UsageError, check_output_dir
+from claravid.infra.cli import UsageError
+from claravid.infra.files import check_output_dir
 
 
 def resolve_data(

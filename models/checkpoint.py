@@ -17,7 +17,7 @@ from typing import Any
 
 import torch
 
-from claravid.infra.cli import atomic_save
+from claravid.infra.files import atomic_save
 from claravid.models.segmenter import Segmenter, build_model
 from claravid.models.torchfile import read_tensor_file
 

@@ -22,7 +22,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from claravid.models.inputs import check_image_batch, check_image_size, input_stats
+from claravid.models.grid import check_image_size
+from claravid.models.inputs import check_image_batch, input_stats
 from claravid.models.layers import (
     LayerScale,
     Mlp,

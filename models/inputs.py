@@ -2,17 +2,18 @@
 
 The input is a batch of normalised float images ``[B, 3, H, W]`` (``(x / 255 - mean) / std``
 with the backbone's own mean and std, which depend on its weights: see
-`claravid.models.backbones`), with H and W multiples of the patch size. The PyTorch segmenter
-also takes uint8 pixels and normalises them itself. Wrong input otherwise fails deep inside
-torch ("Sizes of tensors must match...") or onnxruntime; these checks say what was expected and
-how to fix it.
+`claravid.models.backbones`), with H and W multiples of the patch size (`claravid.models.grid`).
+The PyTorch segmenter also takes uint8 pixels and normalises them itself. Wrong input otherwise
+fails deep inside torch ("Sizes of tensors must match...") or onnxruntime; these checks say what
+was expected and how to fix it.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any
+
+from claravid.models.grid import check_image_size
 
 
 def input_stats(values: Sequence[float], what: str = "mean") -> tuple[float, float, float]:
@@ -42,34 +43,6 @@ def expected_input(
 
 def _triple(values: Sequence[float]) -> str:
     return "(" + ", ".join(f"{float(v):g}" for v in values) + ")"
-
-
-def padded_size(height: int, width: int, patch_size: int) -> tuple[int, int]:
-    """The smallest (H, W) at least as large as the input that the patch grid divides."""
-    p = patch_size
-    return math.ceil(height / p) * p, math.ceil(width / p) * p
-
-
-def check_image_size(height: int, width: int, patch_size: int) -> None:
-    """Raise ``ValueError`` unless H and W are positive multiples of the patch size.
-
-    The message suggests the padded size (and the cropped one when it is not empty).
-    """
-    p = patch_size
-    if height <= 0 or width <= 0:
-        raise ValueError(
-            f"input size {height}x{width} is empty; height and width must be positive multiples "
-            f"of the patch size {p} (e.g. {p * 45}x{p * 45})"
-        )
-    if height % p or width % p:
-        ph, pw = padded_size(height, width, p)
-        crop = (
-            f" (or crop to {height // p * p}x{width // p * p})" if min(height, width) >= p else ""
-        )
-        raise ValueError(
-            f"input size {height}x{width} is not a multiple of the patch size {p}: "
-            f"pad or resize it to {ph}x{pw}{crop}"
-        )
 
 
 def check_image_batch(

@@ -32,6 +32,7 @@ from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
 
 from claravid.data.transforms import AugmentConfig
 from claravid.infra.resources import shipped_file, shipped_names
+from claravid.models.grid import natural_size, nearest_multiples
 
 CLASS_WEIGHTS = ("none", "inverse", "median_frequency", "log_inverse")
 SCHEDULES = ("poly", "cosine")
@@ -409,7 +410,6 @@ def resolve_backbone(cfg: DictConfig) -> None:
         ConfigError: an unknown backbone, a size off the patch grid (naming the two nearest
             sizes on it), weights that cannot be had.
     """
-    from claravid.eval.inference.windows import natural_size, nearest_multiples
     from claravid.models.backbones import BACKBONE_NAMES, BACKBONES
 
     m, a, v = cfg.model, cfg.data.augment, cfg.val

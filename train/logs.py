@@ -15,7 +15,8 @@ from typing import Any
 
 from matplotlib.figure import Figure
 
-from claravid.infra.cli import UsageError, atomic_save, atomic_write_text
+from claravid.infra.cli import UsageError
+from claravid.infra.files import atomic_save, atomic_write_text
 
 
 def _clean(value: Any) -> Any:

@@ -16,7 +16,8 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from claravid.infra.cli import UsageError, atomic_write_text, check_output_dir
+from claravid.infra.cli import UsageError
+from claravid.infra.files import atomic_write_text, check_output_dir
 from claravid.train import config as C
 from claravid.train.checkpoint import load_training_checkpoint
 from claravid.train.logs import read_metrics

@@ -11,7 +11,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from claravid.data.palettes import Palette
-from claravid.infra.cli import atomic_save
+from claravid.infra.files import atomic_save
 
 
 def displayable_image(image: Any) -> np.ndarray:

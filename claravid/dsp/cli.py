@@ -27,15 +27,16 @@ from claravid.dsp.collection import (
     merge_runs,
     profile_images,
 )
-from claravid.dsp.metrics import METRICS, check_blur_ksize
+from claravid.dsp.measures import METRICS
+from claravid.dsp.metrics import check_blur_ksize
 from claravid.infra.cli import (
     UsageError,
     add_debug_flag,
     add_progress_flag,
     add_workers_flag,
-    check_output_file,
     run_cli,
 )
+from claravid.infra.files import check_output_file
 from claravid.infra.shards import parse_shard, select_shard
 
 DEFAULT_OUTPUT = "complexity_results.json"

@@ -33,7 +33,7 @@ from claravid.dsp.metrics import (
 )
 from claravid.dsp.profile import Profile, fit_profile
 from claravid.dsp.tiles import check_tile_size, tile_complexities
-from claravid.infra.cli import atomic_write_text
+from claravid.infra.files import atomic_write_text
 
 
 class NoImagesError(FileNotFoundError):

@@ -25,17 +25,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from claravid.dsp.measures import METRICS
 from claravid.infra.errors import CorruptFileError
 from claravid.io.modalities import decode_bytes, read_checked
-
-#: The official metric names, in the official order.
-METRICS: tuple[str, ...] = ("delent", "glcment", "pixent")
-#: Human-readable names, for titles and tables.
-METRIC_NAMES: dict[str, str] = {
-    "delent": "Delentropy",
-    "glcment": "GLCM Entropy",
-    "pixent": "Pixel Entropy",
-}
 
 _NUM_BINS = 511  # official: 512 - 1 bins per axis over [-256, 256]
 _RANGE = 256.0

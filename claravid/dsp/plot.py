@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from claravid.dsp.metrics import METRIC_NAMES
+from claravid.dsp.measures import METRIC_NAMES
 from claravid.dsp.profile import Profile, fit_profile
-from claravid.infra.cli import atomic_save
+from claravid.infra.files import atomic_save
 
 
 def plot_profile(

@@ -1,7 +1,8 @@
 """Infrastructure that ``train/``, ``eval/`` and ``models/`` share, none of it data or model.
 
-Command-line conventions and atomic writes (``cli``), errors users see (``errors``), job-array
-shards (``shards``), distributed helpers (``distributed``), the precision policy
-(``precision``), packaged resources (``resources``) and the cache folder rule (``cachedir``).
+Command-line conventions (``cli``), output checks and atomic writes (``files``), errors users
+see (``errors``), job-array shards (``shards``), distributed helpers (``distributed``), the
+precision policy (``precision``), packaged resources (``resources``) and the cache folder rule
+(``cachedir``).
 Imports nothing else of the project: every other layer may import it.
 """

@@ -24,13 +24,13 @@ from claravid.infra.cli import (
     add_debug_flag,
     add_progress_flag,
     add_workers_flag,
-    check_output_dir,
     given_once,
     non_negative_int,
     parse_size,
     positive_int,
     run_cli,
 )
+from claravid.infra.files import check_output_dir
 from claravid.io.layout import ALTITUDES, DIRECTIONS, MISSIONS, MODALITIES, viewpoint_folder
 from claravid.synth import MARKER as SYNTH_MARKER
 from claravid.synth import synthesize

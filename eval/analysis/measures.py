@@ -2,14 +2,14 @@
 
 ``delent`` (delentropy, the DSP measure) is always computed and listed first: bins and tiles are
 made of it. ``glcment`` (GLCM entropy) and ``pixent`` (pixel entropy) are the baselines the
-ClaraVid paper compares it with (:mod:`claravid.dsp.metrics`).
+ClaraVid paper compares it with (:mod:`claravid.dsp.measures`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-from claravid.dsp import METRICS
+from claravid.dsp.measures import METRICS
 
 #: The measure bins are made of (always computed, listed first).
 PRIMARY_MEASURE = "delent"

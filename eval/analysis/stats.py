@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from claravid.dsp import DegenerateProfileWarning, fit_profile
+from claravid.dsp.profile import DegenerateProfileWarning, fit_profile
 from claravid.eval.analysis.metrics import finite_or_none
 
 

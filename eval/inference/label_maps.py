@@ -21,7 +21,8 @@ import numpy as np
 from claravid.data.masks import read_label_image
 from claravid.data.palettes import Palette, load_palette
 from claravid.eval.inference.confusion import image_confusion
-from claravid.infra.cli import UsageError, atomic_save, atomic_write_text
+from claravid.infra.cli import UsageError
+from claravid.infra.files import atomic_save, atomic_write_text
 from claravid.io import modalities
 
 if TYPE_CHECKING:  # eval.data names images by image_key: no import at run time

@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from claravid.dsp import METRICS as MEASURES
+from claravid.dsp.measures import METRICS as MEASURES
 from claravid.infra.cli import UsageError
 
 PATH_COLUMN = "path"

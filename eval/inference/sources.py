@@ -21,14 +21,9 @@ from typing import Any
 
 import torch
 
-from claravid.eval.inference.windows import (
-    PAPER_WINDOW,
-    Model,
-    WindowConfig,
-    model_statistics,
-    natural_size,
-)
+from claravid.eval.inference.windows import Model, WindowConfig, model_statistics
 from claravid.infra.cli import UsageError
+from claravid.models.grid import PAPER_WINDOW, natural_size
 from claravid.models.onnx_metadata import (
     backbone_statistics,
     config_get,

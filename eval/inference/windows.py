@@ -6,11 +6,11 @@ or, when it sets none, the model's own (``model.mean``/``model.std`` of a segmen
 ``normalisation`` an ONNX file records): a 12-Mpixel frame is 36 MB on its way to the device,
 not 145 MB of float32 made on the CPU. An image already normalised (float [3,H,W]) is taken as
 it is. It is optionally resized by ``scale``, cut into windows of ``window`` pixels (by default
-the model's natural size, :func:`natural_size`: 630×630 for patches of 14, the paper's window,
-640×640 for patches of 16) every ``stride`` pixels, the last window of a row or column flush
-with the border; windows go through the model in batches, their logits
-are summed into a full-size buffer and divided by how many windows covered each pixel. An image
-smaller than a window is padded at the bottom/right with zeros (the mean colour after
+the model's natural size, ``claravid.models.grid.natural_size``: 630×630 for patches of 14, the
+paper's window, 640×640 for patches of 16) every ``stride`` pixels, the last window of a row or
+column flush with the border; windows go through the model in batches, their logits are summed
+into a full-size buffer and divided by how many windows covered each pixel. An image smaller
+than a window is padded at the bottom/right with zeros (the mean colour after
 normalisation) and the padding is cut off the logits. With ``scale != 1`` the logits are resized
 back (bilinear) to the input size, so scores are always against the native-resolution labels.
 
@@ -37,43 +37,9 @@ import torch.nn.functional as F
 
 from claravid.data.samples import normalise as normalise_image
 from claravid.infra.precision import PRECISIONS, autocast, autocast_dtype
+from claravid.models.grid import PAPER_WINDOW, natural_size, patch_fix
 
 Model = Callable[[torch.Tensor], Any]
-
-#: The paper's window and training crop (ClaraVid supplementary §10.3): 630 = 45 patches of 14.
-PAPER_WINDOW = 630
-
-
-def natural_size(patch_size: int) -> int:
-    """A model's natural window (and training crop): the smallest multiple of its patch size
-    that covers the paper's 630 pixels: 630 (45 × 14) for DINOv2, 640 (40 × 16) for DINOv3."""
-    return math.ceil(PAPER_WINDOW / patch_size) * patch_size
-
-
-def nearest_multiples(size: int, patch_size: int) -> tuple[int, int]:
-    """The two multiples of ``patch_size`` nearest to ``size``, below and above it (the two
-    smallest when ``size`` is below one patch); ``(size, size)`` when it is one already."""
-    p = patch_size
-    if size % p == 0:
-        return size, size
-    below = size // p * p
-    return (below, below + p) if below >= p else (p, 2 * p)
-
-
-def nearest_sizes(
-    height: int, width: int, patch_size: int
-) -> tuple[tuple[int, int], tuple[int, int]]:
-    """The two (height, width) nearest to the given one that the patch grid divides: each side
-    rounded down (the smaller) and up (the larger); a side that fits stays as it is."""
-    (h0, h1), (w0, w1) = nearest_multiples(height, patch_size), nearest_multiples(width, patch_size)
-    return (h0, w0), (h1, w1)
-
-
-def patch_fix(height: int, width: int, patch_size: int, prefix: str = "") -> str:
-    """``use 624x624 or 640x640``: the two nearest valid sizes, width x height (as every size
-    flag takes them), each after ``prefix`` (e.g. ``--size ``)."""
-    small, large = nearest_sizes(height, width, patch_size)
-    return f"use {prefix}{small[1]}x{small[0]} or {prefix}{large[1]}x{large[0]}"
 
 
 @dataclass(frozen=True)
@@ -82,8 +48,8 @@ class WindowConfig:
 
     Attributes:
         size: window height and width (multiples of the model's patch size); None: the model's
-            natural size (:func:`natural_size`; :data:`PAPER_WINDOW` for a model that states no
-            patch size), filled in by :meth:`for_model`.
+            natural size (``claravid.models.grid.natural_size``; ``PAPER_WINDOW`` for a model that
+            states no patch size), filled in by :meth:`for_model`.
         stride: step between windows; default two thirds of the window (overlap 1/3).
         scale: resize factor applied to the image first (the paper reports at 0.5).
         batch_size: windows per forward pass.

@@ -19,7 +19,7 @@ from claravid.eval.analysis.compare import cluster_unit, comparison_warnings, ga
 from claravid.eval.report.files import CONFUSIONS, load_result, read_report, write_json
 from claravid.eval.report.markdown import compare_markdown
 from claravid.eval.report.plots import plot_compare
-from claravid.infra.cli import atomic_write_text
+from claravid.infra.files import atomic_write_text
 
 
 def _folder(path: str | Path) -> Path:

@@ -25,7 +25,8 @@ import numpy as np
 
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.tile_bins import TileTable
-from claravid.infra.cli import UsageError, atomic_save, atomic_write_text
+from claravid.infra.cli import UsageError
+from claravid.infra.files import atomic_save, atomic_write_text
 
 REPORT = "report.json"
 CONFUSIONS = "confusions.npz"

@@ -33,7 +33,7 @@ from claravid.eval.report.plots import (
     plot_scatter,
     plot_tiles,
 )
-from claravid.infra.cli import atomic_write_text, current_umask
+from claravid.infra.files import atomic_write_text, current_umask
 
 #: Files every report folder of this tool may hold: replaced with the folder.
 _OURS = frozenset({REPORT, CONFUSIONS, "report.md", *PLOTS.values()})

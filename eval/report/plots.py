@@ -23,7 +23,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
-from claravid.infra.cli import atomic_save
+from claravid.infra.files import atomic_save
 
 PLOTS = {
     "bins": "miou_per_bin.png",

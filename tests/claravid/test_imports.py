@@ -6,9 +6,9 @@ import subprocess
 import sys
 
 
-def test_claravid_and_dsp_do_not_import_torch():
+def test_claravid_dsp_and_the_patch_grid_do_not_import_torch():
     code = (
-        "import sys, claravid, claravid.dsp\n"
+        "import sys, claravid, claravid.dsp, claravid.models.grid\n"
         "import claravid.data.sdk, claravid.data.palettes, claravid.data.splits\n"
         "from claravid import ClaravidDataset\n"
         "assert 'torch' not in sys.modules, 'torch was imported'\n"

@@ -21,14 +21,36 @@ def _modules(layer: str) -> list[str]:
     )
 
 
-@pytest.mark.parametrize("layer", ["analysis", "report"])
-def test_numpy_layers_do_not_load_torch(layer):
-    # A fresh interpreter: importing every module of the layer (and claravid.eval itself, whose
-    # names are lazy) must leave torch unloaded, so --merge/--compare never pay for it.
-    names = ["claravid.eval", *_modules(layer)]
-    code = f"import sys\nfor m in {names!r}: __import__(m)\nprint('torch' in sys.modules)"
+#: What the numpy-only analysis layer may load of the toolkit (packages and these modules): the
+#: profile fit and the measures' names of claravid.dsp, not its image code or the file readers.
+ANALYSIS_MAY_LOAD = ("claravid.eval.analysis", "claravid.dsp.measures", "claravid.dsp.profile",
+                     "claravid.infra.cli")  # fmt: skip
+PACKAGES = {"claravid", "claravid.dsp", "claravid.eval", "claravid.infra"}
+
+
+def _loaded_after_importing(names: list[str]) -> set[str]:
+    """The modules a fresh interpreter holds after importing ``names``."""
+    code = f"import sys\nfor m in {names!r}: __import__(m)\nprint('\\n'.join(sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "False", f"{layer} loads torch"
+    return set(out.stdout.split())
+
+
+def test_analysis_loads_no_torch_no_opencv_no_files():
+    """The analysis layer is numpy (and scipy) only: no torch, no OpenCV, no plots, and none of
+    the toolkit's file readers or writers (claravid.io, the data layer, claravid.dsp's image code,
+    claravid.infra.files, the report layer)."""
+    loaded = _loaded_after_importing(["claravid.eval", *_modules("analysis")])
+    heavy = sorted({"torch", "cv2", "matplotlib", "PIL", "tifffile"} & loaded)
+    assert not heavy, heavy
+    ours = {m for m in loaded if m.startswith("claravid")} - PACKAGES
+    assert sorted(m for m in ours if not m.startswith(ANALYSIS_MAY_LOAD)) == []
+    assert "claravid.dsp.profile" in ours  # the check sees what is loaded
+
+
+def test_the_report_layer_does_not_load_torch():
+    # Importing every module of the layer (and claravid.eval itself, whose names are lazy) must
+    # leave torch unloaded, so --merge/--compare never pay for it.
+    assert "torch" not in _loaded_after_importing(["claravid.eval", *_modules("report")])
 
 
 def _eval_imports(path: Path) -> set[str]:

@@ -9,8 +9,6 @@ import torch
 from claravid import models
 from claravid.eval.inference.windows import (
     WindowConfig,
-    natural_size,
-    nearest_multiples,
     predict_labels,
     sliding_window_logits,
     window_starts,
@@ -189,16 +187,6 @@ def test_window_not_a_patch_multiple_names_the_two_nearest():
     with pytest.raises(ValueError, match=re.escape(message)):
         WindowConfig(size=(30, 56)).check_patch(14)
     WindowConfig(size=(32, 48)).check_patch(16)  # multiples: nothing to say
-
-
-def test_natural_size_and_nearest_multiples_by_hand():
-    assert natural_size(14) == 630  # 45 x 14, the paper's window
-    assert natural_size(16) == 640  # 40 x 16: the smallest multiple of 16 covering 630
-    assert natural_size(8) == 632  # 79 x 8
-    assert nearest_multiples(640, 14) == (630, 644)
-    assert nearest_multiples(630, 16) == (624, 640)
-    assert nearest_multiples(630, 14) == (630, 630)
-    assert nearest_multiples(10, 14) == (14, 28)  # below one patch: the two smallest
 
 
 TINY_HEAD = {"layers": [0, 1, 2, 3], "features": 8, "out_channels": [8, 8, 8, 8]}
