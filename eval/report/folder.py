@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from claravid.dsp.measures import METRICS
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.report.files import CONFUSIONS, REPORT, save_confusions, write_json
 from claravid.eval.report.markdown import metric_markdown, report_markdown
@@ -154,11 +155,13 @@ def _write_report(
 
 
 def images_csv(report: dict[str, Any]) -> str:
-    """``images.csv``: one row per image, its path and every per-image number of the report
-    (complexity, mIoU, pixel accuracy, mBoundaryIoU, ECE, consistency of its pair); an empty
-    cell where an image has no value (no pair, no class present)."""
+    """``images.csv``: one row per image, its path and every per-image score of the report
+    (mIoU, pixel accuracy, mBoundaryIoU, ECE, consistency of its pair; not the complexity,
+    which ``--scores`` measures itself); an empty cell where an image has no value (no pair,
+    no class present)."""
     rows = report["images"]
-    columns = list(dict.fromkeys(k for row in rows for k in row if k != "path"))
+    skip = {"path", *METRICS}
+    columns = list(dict.fromkeys(k for row in rows for k in row if k not in skip))
     lines = [",".join(["path", *columns])]
     for row in rows:
         cells = [_csv_cell(row["path"])]
