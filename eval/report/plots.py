@@ -326,8 +326,8 @@ def plot_metric_scatter(
     report: dict[str, Any], metric: str, path: str | Path, measure: str = "delent"
 ) -> Path:
     """A ``--scores`` metric per image against ``measure``, with the least-squares line."""
-    x = np.array([r.get(measure, np.nan) for r in report["images"]], dtype=np.float64)
-    y = np.array([r.get(metric, np.nan) for r in report["images"]], dtype=np.float64)
+    x = np.array([np.nan if r.get(measure) is None else r[measure] for r in report["images"]])
+    y = np.array([np.nan if r.get(metric) is None else r[metric] for r in report["images"]])
     corr = report["correlation"].get(measure, {}).get(metric, {})
     fig = _scatter(x, y, corr, f"{metric} vs {measure}", f"{measure} (bits)", metric, "+.3g")
     return save_figure(fig, path)
