@@ -68,6 +68,8 @@ _LAZY: dict[str, tuple[str, str]] = {
     "stratify": ("claravid.eval.analysis.miou_bins", "stratify"),
     "bin_mious": ("claravid.eval.analysis.miou_bins", "bin_mious"),
     "EvalResult": ("claravid.eval.analysis.table", "EvalResult"),
+    "QualityTable": ("claravid.eval.analysis.quality_table", "QualityTable"),
+    "PairTable": ("claravid.eval.analysis.quality_table", "PairTable"),
     "merge_results": ("claravid.eval.analysis.table", "merge_results"),
     # report (numpy, files, matplotlib)
     "build_report": ("claravid.eval.report.build", "build_report"),
@@ -81,6 +83,7 @@ _LAZY: dict[str, tuple[str, str]] = {
     "window_starts": ("claravid.eval.inference.windows", "window_starts"),
     "confusion_matrix": ("claravid.eval.inference.confusion", "confusion_matrix"),
     "ImageScore": ("claravid.eval.inference.run_model", "ImageScore"),
+    "ImageMeasures": ("claravid.eval.inference.image_measures", "ImageMeasures"),
     "evaluate_model": ("claravid.eval.inference.run_model", "evaluate_model"),
     "sample_key": ("claravid.eval.inference.run_model", "sample_key"),
     "open_data": ("claravid.eval.inference.data", "open_data"),

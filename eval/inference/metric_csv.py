@@ -3,9 +3,9 @@
 The CSV holds a ``path`` column (relative to the data root, or absolute) and one or more numeric
 columns (PSNR, SSIM, a depth error, or the ``images.csv`` of a report: mIoU, mBoundaryIoU, ECE,
 cross-view consistency). An empty cell is an image without that value (a frame without a pair):
-it is left out of that column's means and correlations. Rows are numbered as a spreadsheet numbers them, by the
-file's lines: the header is row 1 and blank lines count (a record after two blank lines below the
-header is row 4). Every error names the rows it is about.
+it is left out of that column's means and correlations. Rows are numbered as a spreadsheet
+numbers them, by the file's lines: the header is row 1 and blank lines count (a record after two
+blank lines below the header is row 4). Every error names the rows it is about.
 """
 
 from __future__ import annotations
