@@ -131,7 +131,7 @@ def evaluate(
     from claravid.eval.inference.collect import CollectSettings, collect
     from claravid.eval.inference.hardest import hardest_items
     from claravid.eval.inference.label_maps import MARKER, write_marker
-    from claravid.eval.inference.pairs import pairs_unavailable
+    from claravid.eval.inference.pass_frames import pairs_unavailable
     from claravid.eval.inference.quality_plan import plan_quality
     from claravid.eval.report.build import build_report
     from claravid.eval.report.folder import write_outputs

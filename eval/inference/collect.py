@@ -47,7 +47,7 @@ from claravid.eval.inference.label_maps import (
 )
 from claravid.eval.inference.label_maps import write_prediction as save_label_map
 from claravid.eval.inference.pair_stream import PairKeeper, PairStream
-from claravid.eval.inference.pairs import PairResult, PassFrames, measure_pair, pairs_unavailable
+from claravid.eval.inference.pass_frames import PairResult, PassFrames, measure_pair, pairs_unavailable
 from claravid.eval.inference.quality_plan import QualityPlan, plan_quality
 from claravid.eval.inference.run_model import ImageScore, evaluate_model
 from claravid.eval.inference.sources import ModelSource

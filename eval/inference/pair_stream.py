@@ -20,7 +20,7 @@ import numpy as np
 
 from claravid.eval.analysis.quality_table import PAIR_OK
 from claravid.eval.inference.hardest import thumbnail
-from claravid.eval.inference.pairs import PairResult, PassFrames, measure_pair
+from claravid.eval.inference.pass_frames import PairResult, PassFrames, measure_pair
 
 
 def pair_consistency(result: PairResult) -> float:
