@@ -47,7 +47,12 @@ from claravid.eval.inference.label_maps import (
 )
 from claravid.eval.inference.label_maps import write_prediction as save_label_map
 from claravid.eval.inference.pair_stream import PairKeeper, PairStream
-from claravid.eval.inference.pass_frames import PairResult, PassFrames, measure_pair, pairs_unavailable
+from claravid.eval.inference.pass_frames import (
+    PairResult,
+    PassFrames,
+    measure_pair,
+    pairs_unavailable,
+)
 from claravid.eval.inference.quality_plan import QualityPlan, plan_quality
 from claravid.eval.inference.run_model import ImageScore, evaluate_model
 from claravid.eval.inference.sources import ModelSource
@@ -310,7 +315,8 @@ def _pair_item(frames: PassFrames, item: dict[str, Any]) -> dict[str, Any]:
         return thumbnail(frames.image(key).permute(1, 2, 0).numpy(), nearest=False)
 
     stem = item["next"].rsplit("/", 1)[-1]
-    title = f"{item['key']}\nconsistency {item['consistency']:.3f} with {stem}"
+    title = (f"{item['key']}\nconsistency {item['consistency']:.3f} with {stem} (kept pixels: "
+             "green agree, red disagree)")  # fmt: skip
     return {**item, "image": rgb(item["key"]), "next_image": rgb(item["next"]), "title": title}
 
 
@@ -341,9 +347,13 @@ def _label_map_measure(
         if frames is None:
             return boundary, None
         key = data.keys[index]
-        result = measure_pair(frames, key, ids, mask, pred_s, k, maps=keeper.k > 0)
-        keeper.offer(index, key, result, ids, mask)
-        result.kept = result.agree = None
+        after = frames.next_of(key)
+        other = pred_s(after) if after else ""
+        result = measure_pair(frames, key, ids, mask, lambda _key: other, k,
+                              keep_geometry=keeper.k > 0)  # fmt: skip
+        if result.geometry is not None:
+            keeper.offer(index, key, result, (ids, mask, other, frames.mask(after)))
+        result.geometry = None  # full-size depth maps are not kept past the sheet
         return boundary, result
 
     return measure

@@ -5,7 +5,8 @@ frame of its pass when that frame is evaluated by the same run (a rank's contigu
 and is measured as soon as its prediction arrives; otherwise (the last frame of the shard or of
 a block of the split) the next frame is predicted here, once, so the pair is still counted by
 t's run. :class:`PairKeeper` keeps small copies of the k pairs of lowest consistency (their
-kept and disagreeing pixels), whose images are read after the run for ``hardest.png``.
+kept and disagreeing pixels, :func:`claravid.eval.inference.pair_marks.pair_marks`), whose
+images are read after the run for ``hardest.png``.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 
 from claravid.eval.analysis.quality_table import PAIR_OK
 from claravid.eval.inference.hardest import thumbnail
+from claravid.eval.inference.pair_marks import pair_marks
 from claravid.eval.inference.pass_frames import PairResult, PassFrames, measure_pair
 
 
@@ -40,25 +42,27 @@ class PairKeeper:
     heap: list[tuple[float, int, dict[str, Any]]] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
-    def offer(self, index: int, key: str, result: PairResult, pred: np.ndarray,
-              gt: np.ndarray) -> None:  # fmt: skip
-        """Keep this pair if it is among the k of lowest consistency so far."""
+    def offer(self, index: int, key: str, result: PairResult, labels: tuple[np.ndarray, ...]
+              ) -> None:  # fmt: skip
+        """Keep this pair if it is among the k of lowest consistency so far.
+
+        Args:
+            index: frame t's index in the evaluation (ties: the lower index is kept).
+            key: frame t.
+            result: its pair, with both frames' geometry.
+            labels: ``(pred_t, gt_t, pred_s, gt_s)``, uint8 [H, W] each.
+        """
         value = pair_consistency(result)
-        if self.k <= 0 or not np.isfinite(value) or result.kept is None:
+        if self.k <= 0 or not np.isfinite(value) or result.geometry is None:
             return
         rank = (-value, -index)  # the root is the most consistent kept pair, evicted first
         with self.lock:
             if len(self.heap) == self.k and rank <= self.heap[0][:2]:
                 return
-        item = {
-            "key": key,
-            "next": result.next,
-            "consistency": value,
-            "prediction": thumbnail(np.asarray(pred, np.uint8), True),
-            "mask": thumbnail(np.asarray(gt, np.uint8), True),
-            "kept": thumbnail(result.kept.astype(np.uint8), True).astype(bool),
-            "agree": thumbnail(result.agree.astype(np.uint8), True).astype(bool),
-        }
+        pred_t, gt_t = (thumbnail(np.asarray(a, np.uint8), True) for a in labels[:2])
+        kept, agree = pair_marks(*result.geometry, *labels, (pred_t.shape[1], pred_t.shape[0]))
+        item = {"key": key, "next": result.next, "consistency": value, "prediction": pred_t,
+                "mask": gt_t, "kept": kept, "agree": agree}  # fmt: skip
         entry = (*rank, item)
         with self.lock:
             if len(self.heap) < self.k:
@@ -117,10 +121,14 @@ class PairStream:
         return self.results
 
     def _measure(self, key: str, pred: np.ndarray, gt: np.ndarray,
-                 pred_s: Callable[[str], np.ndarray | str]) -> None:  # fmt: skip
-        maps = self.keeper is not None and self.keeper.k > 0
-        result = measure_pair(self.frames, key, pred, gt, pred_s, self.num_classes, maps)
+                 pred_s: Callable[[str], np.ndarray]) -> None:  # fmt: skip
+        after = self.frames.next_of(key)
+        other = pred_s(after) if after else None
+        sheet = self.keeper is not None and self.keeper.k > 0
+        result = measure_pair(self.frames, key, pred, gt, lambda _key: other,
+                              self.num_classes, keep_geometry=sheet)  # fmt: skip
         self.results[key] = result
-        if maps:
-            self.keeper.offer(self.index[key], key, result, pred, gt)
-        result.kept = result.agree = None  # full-size maps are not kept past the sheet
+        if sheet and result.geometry is not None:
+            labels = (pred, gt, other, self.frames.mask(after))
+            self.keeper.offer(self.index[key], key, result, labels)
+        result.geometry = None  # full-size depth maps are not kept past the sheet

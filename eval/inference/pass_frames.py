@@ -8,10 +8,11 @@ label map) and predicting s otherwise (the last frame of a rank's shard, of a jo
 a block of the split). So every pair is counted once, by one rank, and the parts of a job array
 merge into exactly one run's sums.
 
-The pair's sums come from :func:`claravid.eval.inference.cross_view.cross_view` on the two
-frames' depth, poses, intrinsics, predictions, ground truths and dynamic masks; a frame without
-its depth PNG, extrinsics or dynamic mask (a partial download) makes its pairs unavailable,
-with the reason, and nothing else changes.
+The pair's sums are :func:`claravid.eval.inference.cross_view.cross_view` of the two frames'
+depth, poses, intrinsics, predictions, ground truths and dynamic masks
+(:func:`claravid.eval.inference.pairs.read_geometry`); a frame without its depth PNG,
+extrinsics or dynamic mask (a partial download) makes its pairs unavailable, with the reason,
+and nothing else changes.
 """
 
 from __future__ import annotations
@@ -36,8 +37,7 @@ from claravid.eval.analysis.quality_table import (
     pair_columns,
 )
 from claravid.eval.inference.data import EvalData
-from claravid.io import modalities
-from claravid.io.layout import MISSIONS, frame_file
+from claravid.io.layout import MISSIONS, MODALITIES
 
 #: The files a pair reads of each frame besides its labels, by SDK field.
 GEOMETRY_FIELDS = ("depth", "extrinsics", "dynamic_mask")
@@ -45,16 +45,15 @@ GEOMETRY_FIELDS = ("depth", "extrinsics", "dynamic_mask")
 
 @dataclass
 class PairResult:
-    """One frame t's pair: its status, the reason when unavailable, the row of sums
-    (:class:`~claravid.eval.analysis.quality_table.PairTable`), and, for the hardest-images
-    sheet, t's kept and agreeing pixels (bool [H, W] each; None when not counted)."""
+    """One frame t's pair: the next frame's key, its status, the reason when not counted, the
+    row of sums (:class:`~claravid.eval.analysis.quality_table.PairTable`), and the two frames'
+    geometry (for the hardest-images sheet, dropped once offered)."""
 
     next: str
     status: str
     reason: str
     sums: np.ndarray
-    kept: np.ndarray | None = None
-    agree: np.ndarray | None = None
+    geometry: tuple[Any, Any] | None = None
 
 
 def pairs_unavailable(data: EvalData) -> str | None:
@@ -65,17 +64,10 @@ def pairs_unavailable(data: EvalData) -> str | None:
     raw = data.dataset.dataset
     roots = {Path(raw.root) / MISSIONS[f.mission] for f in raw.frames}
     for field in GEOMETRY_FIELDS:
-        folder = modalities_folder(field)
-        if not any((root / folder).is_dir() for root in roots):
+        folder = MODALITIES[field].folder
+        if not any((root / str(folder)).is_dir() for root in roots):
             return f"no {folder}/ folder in the evaluated missions (a partial download?)"
     return None
-
-
-def modalities_folder(field: str) -> str:
-    """The modality folder of an SDK field (``depth`` -> ``depth``, ``rgb`` -> ``left_rgb``)."""
-    from claravid.io.layout import MODALITIES
-
-    return str(MODALITIES[field].folder)
 
 
 class PassFrames:
@@ -125,25 +117,21 @@ class PassFrames:
         """The RGB of frame ``key`` (uint8 [3, H, W])."""
         return self.frames[self.position[key]]["image"]
 
-    def geometry(self, key: str) -> dict[str, Any] | str:
-        """``{"depth", "pose", "dynamic"}`` of frame ``key``, or why it cannot be read (a file
-        missing). A damaged file (a pose that is not a rigid transform...) raises, naming it."""
+    def geometry(self, key: str) -> Any:
+        """Frame ``key``'s depth, pose, dynamic mask and intrinsics
+        (:class:`~claravid.eval.inference.pairs.FrameGeometry`), or why they cannot be read (a
+        file missing). A damaged file (a pose that is not a rigid transform...) raises, naming
+        it."""
+        from claravid.eval.inference.pairs import GeometryUnavailable, read_geometry
+
         with self._lock:
             if key in self._cache:
                 self._cache.move_to_end(key)
                 return self._cache[key]
-        frame = self.frames.frames[self.position[key]]
-        folder = self.root / MISSIONS[frame.mission]
-        files = {f: frame_file(folder, frame.viewpoint, frame.stem, f) for f in GEOMETRY_FIELDS}
-        missing = [str(p) for p in files.values() if not p.is_file()]
-        if missing:
-            found: dict[str, Any] | str = f"missing {missing[0]}"
-        else:
-            found = {
-                "depth": modalities.read_depth(files["depth"]),
-                "pose": modalities.read_extrinsics(files["extrinsics"]),
-                "dynamic": modalities.read_dynamic_mask(files["dynamic_mask"]),
-            }
+        try:
+            found: Any = read_geometry(self.root, self.frames.frames[self.position[key]])
+        except GeometryUnavailable as exc:
+            found = str(exc)
         with self._lock:
             self._cache[key] = found
             while len(self._cache) > self._size:
@@ -154,11 +142,11 @@ class PassFrames:
 def measure_pair(
     frames: PassFrames,
     key_t: str,
-    pred_t: np.ndarray | None,
+    pred_t: np.ndarray,
     gt_t: np.ndarray,
     pred_s: Callable[[str], np.ndarray | str],
     num_classes: int,
-    maps: bool = False,
+    keep_geometry: bool = False,
 ) -> PairResult:
     """Frame ``key_t``'s pair with the next frame of its pass.
 
@@ -168,45 +156,31 @@ def measure_pair(
         pred_t, gt_t: t's prediction and labels (uint8 [H, W]).
         pred_s: the prediction of a frame by its key, or why there is none.
         num_classes: K.
-        maps: also keep t's kept and agreeing pixels (the hardest-images sheet).
+        keep_geometry: keep both frames' geometry in the result (the hardest-images sheet).
     """
+    from claravid.eval.inference.cross_view import SAME_POSE, cross_view
+
     width = pair_columns(num_classes)
     key_s = frames.next_of(key_t)
     if not key_s:
         return PairResult("", PAIR_LAST, "", np.zeros(width, np.int64))
-    geometry = [frames.geometry(key_t), frames.geometry(key_s)]
+    t, s = frames.geometry(key_t), frames.geometry(key_s)
     prediction = pred_s(key_s)
-    for found in (*geometry, prediction):
+    for found in (t, s, prediction):
         if isinstance(found, str):
             return PairResult(key_s, PAIR_UNAVAILABLE, found, np.zeros(width, np.int64))
-    if np.array_equal(geometry[0]["pose"], geometry[1]["pose"]):
+    if np.abs(np.asarray(t.c2w, np.float64) - s.c2w).max() <= SAME_POSE:
         why = f"{key_t} and {key_s} have identical poses: their consistency would be 1"
         return PairResult(key_s, PAIR_IDENTICAL, why, np.zeros(width, np.int64))
-    return cross_view_sums(geometry, pred_t, prediction, gt_t, frames.mask(key_s),
-                           num_classes, key_s, maps)  # fmt: skip
-
-
-def cross_view_sums(
-    geometry: list[dict[str, Any]],
-    pred_t: np.ndarray,
-    pred_s: np.ndarray,
-    gt_t: np.ndarray,
-    gt_s: np.ndarray,
-    num_classes: int,
-    key_s: str,
-    maps: bool,
-) -> PairResult:
-    """The pair's row of sums from :func:`claravid.eval.inference.cross_view.cross_view`."""
-    from claravid.eval.inference.cross_view import cross_view
-
-    t, s = geometry
-    out = cross_view(t["depth"], s["depth"], t["pose"], s["pose"], pred_t, pred_s, gt_t, gt_s,
-                     t["dynamic"], s["dynamic"], num_classes)  # fmt: skip
-    if out.skipped:
-        return PairResult(key_s, PAIR_TURN, "", np.zeros(pair_columns(num_classes), np.int64))
-    row = np.concatenate([[out.kept, out.agree, out.agree_gt], out.intersections, out.unions,
-                          out.intersections_gt, out.unions_gt]).astype(np.int64)  # fmt: skip
-    kept = agree = None
-    if maps:
-        kept, agree = out.kept_map, out.agree_map
-    return PairResult(key_s, PAIR_OK, "", row, kept, agree)
+    if t.depth.shape != s.depth.shape:
+        why = f"{key_t} and {key_s} have depth maps of different sizes"
+        return PairResult(key_s, PAIR_UNAVAILABLE, why, np.zeros(width, np.int64))
+    out = cross_view(t.depth, s.depth, t.c2w, s.c2w, t.intrinsics, pred_t, prediction, gt_t,
+                     frames.mask(key_s), t.dynamic, s.dynamic, num_classes=num_classes)  # fmt: skip
+    if out.status == "unavailable":
+        return PairResult(key_s, PAIR_UNAVAILABLE, out.reason, np.zeros(width, np.int64))
+    if out.status != "ok":  # skipped: too few pixels kept (a turn)
+        return PairResult(key_s, PAIR_TURN, "", np.zeros(width, np.int64))
+    row = np.concatenate([[out.kept, out.agree, out.gt_agree], out.intersection, out.union,
+                          out.gt_intersection, out.gt_union]).astype(np.int64)  # fmt: skip
+    return PairResult(key_s, PAIR_OK, "", row, (t, s) if keep_geometry else None)
