@@ -212,10 +212,12 @@ def _refuse_idle_options(args: argparse.Namespace, source: str) -> None:
     """Refuse an option that would silently do nothing with this source."""
     for name in IDLE.get(source, ()):
         value = getattr(args, name)
-        if value is not None and (value is not False or name in QUALITY_FLAGS):
-            flag = ("--" if value is not False else "--no-") + name.replace("_", "-")
-            what = " (the reports carry their own measures)" if name in QUALITY_FLAGS else ""
-            raise UsageError(f"{flag} does nothing with --{source}{what}; drop it")
+        # 0 or False is a flag's default, except --no-boundary and the like (None is theirs).
+        if value is None or (value in (0, False) and name not in QUALITY_FLAGS):
+            continue
+        flag = ("--" if value is not False else "--no-") + name.replace("_", "-")
+        what = " (the reports carry their own measures)" if name in QUALITY_FLAGS else ""
+        raise UsageError(f"{flag} does nothing with --{source}{what}; drop it")
 
 
 def _data_choice(args: argparse.Namespace) -> DataChoice:

@@ -167,7 +167,8 @@ def concat_quality(
     for name in QUALITY:
         lacking = [f"{n} ({t.status[name]})" for t, n in zip(tables, names, strict=True)
                    if not t.computed(name)]  # fmt: skip
-        first = tables[0].settings.get(name, {})
+        computing = [t for t in tables if t.computed(name)]
+        first = computing[0].settings.get(name, {}) if computing else {}
         lacking += [f"{n} (other settings: {t.settings.get(name)} vs {first})"
                     for t, n in zip(tables, names, strict=True)
                     if t.computed(name) and t.settings.get(name, {}) != first]  # fmt: skip

@@ -15,12 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from claravid.eval.inference.boundary import DILATION_RATIO, boundary_iou
+from claravid.eval.inference.calibration import N_BINS as CALIBRATION_BINS
+from claravid.eval.inference.calibration import calibration_sums
 from claravid.eval.inference.windows import Model, WindowConfig, sliding_window_logits
-
-#: The Boundary IoU paper's dilation ratio (d = 101 pixels on a 4032×3024 frame).
-DILATION_RATIO = 0.02
-#: Equal-width confidence bins (torchmetrics' default).
-CALIBRATION_BINS = 15
 
 
 @dataclass(frozen=True)
@@ -71,9 +69,6 @@ def image_measures(
     Raises:
         ValueError: calibration asked for without ``confidence``; shapes or ids that do not fit.
     """
-    from claravid.eval.inference.boundary import boundary_iou
-    from claravid.eval.inference.calibration import calibration_sums
-
     boundary = calibration = None
     if measures.boundary:
         inter, union = boundary_iou(prediction, target, num_classes, measures.dilation_ratio)
