@@ -3,7 +3,8 @@
 Three layers, imports pointing one way (inference → analysis ← report):
 
 - :mod:`claravid.eval.inference` (torch): the data an evaluation reads, model and label-map
-  sources, sliding windows, the confusion of an image and of its tiles, and the per-image
+  sources, sliding windows, the per-image sums (the confusion of an image and of its tiles,
+  Boundary IoU, calibration bins) and the per-pair cross-view sums, and the per-image
   collection with its background complexity job;
 - :mod:`claravid.eval.analysis` (numpy only, no torch, no files): the per-image table and its
   merging, metrics, bins, units, the cluster bootstrap, mIoU per bin, tiles' bins, paired
@@ -40,6 +41,15 @@ and step by step::
     report = build_report(collected.result, bins=3)
     write_outputs("report/", report, collected.result)
 
+Beyond mIoU, each measure is a sum per image (or per pair), like a confusion matrix::
+
+    from claravid.eval import boundary_iou, calibration_bins, cross_view
+
+    inter, union = boundary_iou(pred, gt, num_classes=8)            # int64 [K] each
+    count, conf_sum, correct = calibration_bins(probs, gt)          # 15 bins
+    sums = cross_view(depth_t, depth_s, c2w_t, c2w_s, K, pred_t, pred_s, gt_t, gt_s,
+                      dynamic_t, dynamic_s, num_classes=8)          # a CrossViewSums
+
 Every name below is imported on first use, so ``import claravid.eval`` (and the analysis and
 report layers) never loads torch unless a torch-side name is asked for.
 """
@@ -57,6 +67,7 @@ _LAZY: dict[str, tuple[str, str]] = {
     "iou_per_class": ("claravid.eval.analysis.metrics", "iou_per_class"),
     "mean_iou": ("claravid.eval.analysis.metrics", "mean_iou"),
     "pixel_accuracy": ("claravid.eval.analysis.metrics", "pixel_accuracy"),
+    "calibration_errors": ("claravid.eval.analysis.calibration", "calibration_errors"),
     "confusion_scores": ("claravid.eval.analysis.metrics", "confusion_scores"),
     "Bin": ("claravid.eval.analysis.bins", "Bin"),
     "bin_names": ("claravid.eval.analysis.bins", "bin_names"),
@@ -82,6 +93,10 @@ _LAZY: dict[str, tuple[str, str]] = {
     "sliding_window_logits": ("claravid.eval.inference.windows", "sliding_window_logits"),
     "window_starts": ("claravid.eval.inference.windows", "window_starts"),
     "confusion_matrix": ("claravid.eval.inference.confusion", "confusion_matrix"),
+    "boundary_iou": ("claravid.eval.inference.boundary", "boundary_iou"),
+    "calibration_bins": ("claravid.eval.inference.calibration", "calibration_bins"),
+    "cross_view": ("claravid.eval.inference.cross_view", "cross_view"),
+    "CrossViewSums": ("claravid.eval.inference.cross_view", "CrossViewSums"),
     "ImageScore": ("claravid.eval.inference.run_model", "ImageScore"),
     "ImageMeasures": ("claravid.eval.inference.image_measures", "ImageMeasures"),
     "evaluate_model": ("claravid.eval.inference.run_model", "evaluate_model"),
