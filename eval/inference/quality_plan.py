@@ -23,11 +23,12 @@ from claravid.eval.analysis.quality_table import (
     QUALITY,
     UNAVAILABLE,
 )
+from claravid.eval.inference.cross_view import MIN_KEPT, TOLERANCE
 from claravid.eval.inference.image_measures import CALIBRATION_BINS, DILATION_RATIO, ImageMeasures
 from claravid.infra.cli import UsageError
 
 #: How the pairs' consistency is computed (what a report records).
-CONSISTENCY_SETTINGS = {"tau": 0.01, "min_kept": 0.1}
+CONSISTENCY_SETTINGS = {"tau": TOLERANCE, "min_kept": MIN_KEPT}
 _FLAGS = {BOUNDARY: "--boundary", CALIBRATION: "--calibration", CONSISTENCY: "--consistency"}
 
 
