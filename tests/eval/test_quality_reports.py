@@ -6,13 +6,16 @@ here by hand) still read, merge and compare, their new measures marked absent.""
 from __future__ import annotations
 
 import json
+import subprocess
 
 import cv2
 import numpy as np
+import pytest
 
 from claravid.eval.cli import main
 from claravid.eval.report.files import load_result
 from tests.eval.conftest import WINDOW
+from tests.torchrun import torchrun
 
 # Frames of the tiny tree: rural_1/45deg_low_h/000001 -> 000002 and urban_1/55deg_mid_h/000000
 # -> 000001 are pairs with overlap; the first is split between the two parts.
@@ -206,3 +209,28 @@ def test_old_and_new_parts_merge_with_the_new_measures_marked(label_map_reports,
     quality = merged["quality"]["boundary_iou"]
     assert quality["status"] == "unavailable" and "not in every part" in quality["reason"]
     assert "old (absent)" in quality["reason"]
+
+
+@pytest.mark.slow
+def test_torchrun_counts_a_pair_split_across_ranks_once(model_files, tmp_path):
+    """Two ranks take contiguous halves: rural_1/45deg_low_h/000001 (rank 0) pairs with
+    000002 (rank 1), which rank 0 predicts for that pair; the sums equal one process's."""
+    split = _split(tmp_path, "four", [*PART0, *PART1[:2]])
+    argv = ["-m", "claravid.eval", "--checkpoint", str(model_files["checkpoint"]), "--split",
+            split, "--window", WINDOW, "--no-progress", "--device", "cpu", "--bins", "2",
+            "--bootstrap", "100"]  # fmt: skip
+    run = subprocess.run([*torchrun(2), *argv, "--output", str(tmp_path / "two")],
+                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert main([*argv[2:], "--output", str(tmp_path / "one")]) == 0
+    with (
+        np.load(tmp_path / "two" / "confusions.npz") as two,
+        np.load(tmp_path / "one" / "confusions.npz") as one,
+    ):
+        for name in QUALITY_ARRAYS:
+            np.testing.assert_array_equal(two[name], one[name], err_msg=name)
+        assert one["pair_status"].tolist()[1] == "ok"  # the split pair, counted once
+    two = json.loads((tmp_path / "two" / "report.json").read_text())
+    one = json.loads((tmp_path / "one" / "report.json").read_text())
+    for key in ("overall", "bins", "images", "quality"):
+        assert two[key] == one[key], key
