@@ -34,6 +34,7 @@ from claravid.eval.analysis.quality_table import (
 )
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.tile_bins import TileTable
+from claravid.eval.inference.background import Background
 from claravid.eval.inference.complexity_job import ComplexityJob
 from claravid.eval.inference.data import EvalData
 from claravid.eval.inference.hardest import Hardest, thumbnail
@@ -207,43 +208,52 @@ def collect(
             tile_size=tile_size,
         )
         if model is not None:
-            stream = None
-            if frames is not None:
-                window = (s.window or WindowConfig()).for_model(model.model)
+            # The image's measures and its pair run in threads beside the next prediction.
+            with Background(max(1, workers)) as background:
+                stream = None
+                if frames is not None:
+                    window = (s.window or WindowConfig()).for_model(model.model)
 
-                def predict_other(key: str) -> np.ndarray:
-                    image = frames.image(key).to(s.device)
-                    return predict_labels(model.model, image, window).to("cpu", torch.uint8).numpy()
+                    def predict_other(key: str) -> np.ndarray:
+                        image = frames.image(key).to(s.device)
+                        return (
+                            predict_labels(model.model, image, window)
+                            .to("cpu", torch.uint8)
+                            .numpy()
+                        )
 
-                stream = PairStream(frames, [data.keys[i] for i in mine], k, predict_other,
-                                    pair_keeper, mine)  # fmt: skip
+                    stream = PairStream(frames, [data.keys[i] for i in mine], k, predict_other,
+                                        pair_keeper, mine, background)  # fmt: skip
 
-            def on_score(sample: dict[str, Any], pred: torch.Tensor, score: ImageScore) -> None:
-                ids = pred.to("cpu", torch.uint8).numpy() if save_predictions or stream else None
-                if save_predictions is not None:
-                    save_label_map(save_predictions, score.key, ids)
-                keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
+                def on_score(sample: dict[str, Any], pred: torch.Tensor, score: ImageScore) -> None:
+                    ids = (
+                        pred.to("cpu", torch.uint8).numpy() if save_predictions or stream else None
+                    )
+                    if save_predictions is not None:
+                        save_label_map(save_predictions, score.key, ids)
+                    keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
+                    if stream is not None:
+                        stream.add(score.key, ids, np.asarray(sample["mask"], dtype=np.uint8))
+
+                scores = evaluate_model(
+                    model.model,
+                    data.dataset,
+                    k,
+                    s.window,
+                    device=s.device,
+                    indices=mine,
+                    num_workers=workers,
+                    tile_size=tile_size,
+                    progress=s.progress,
+                    on_score=on_score,
+                    measures=plan.image_measures(),
+                    background=background,
+                )
+                confusions = [s.confusion for s in scores]
+                tile_confs = [s.tiles for s in scores]
+                extras = [(s.boundary, s.calibration) for s in scores]
                 if stream is not None:
-                    stream.add(score.key, ids, np.asarray(sample["mask"], dtype=np.uint8))
-
-            scores = evaluate_model(
-                model.model,
-                data.dataset,
-                k,
-                s.window,
-                device=s.device,
-                indices=mine,
-                num_workers=workers,
-                tile_size=tile_size,
-                progress=s.progress,
-                on_score=on_score,
-                measures=plan.image_measures(),
-            )
-            confusions = [s.confusion for s in scores]
-            tile_confs = [s.tiles for s in scores]
-            extras = [(s.boundary, s.calibration) for s in scores]
-            if stream is not None:
-                pairs = stream.finish()
+                    pairs = stream.finish()
         else:
             threads = max(1, workers)
             measure = _label_map_measure(data, predictions, plan, frames, pair_keeper)
