@@ -32,7 +32,9 @@ On generated full-size 4032×3024 ClaraVid frames (uavid palette: panoptic PNG +
    pass of consecutive frames, with every measure on (Boundary IoU, calibration, cross-view
    consistency, the pairs sheet) against the same evaluation with none, alternated in one run
    (medians of ``--repeats``, after a warm-up that fills the DSP and label caches). Target
-   <= 1.3x. The pairs counted are printed, so the figure is known to include their geometry.
+   <= 1.3x. Beside it, the per-image work alone (``collect``: inference, complexity and the
+   measures, without writing the report and its plots, a cost per run rather than per frame).
+   The pairs counted are printed, so the figure is known to include their geometry.
 """
 
 from __future__ import annotations
@@ -51,11 +53,17 @@ import torch
 
 from claravid import models
 from claravid.dsp import compute_complexities, compute_measures
-from claravid.eval.inference.collect import collect
+from claravid.eval.inference.collect import CollectSettings, collect
 from claravid.eval.inference.data import open_data
+from claravid.eval.inference.quality_plan import plan_quality
 from claravid.eval.inference.run_model import evaluate_model
+from claravid.eval.inference.sources import load_source
 from claravid.eval.inference.windows import WindowConfig
 from claravid.synth import synthesize
+
+#: Sections 1 and 2 time what they always timed: mIoU and complexity, no measure beyond mIoU.
+NO_QUALITY = plan_quality(dict.fromkeys(("boundary_iou", "calibration", "consistency"), False),
+                          has_scores=True, pairs_reason=None)  # fmt: skip
 
 
 def _cold_cache(tmp: Path, name: str) -> None:
@@ -79,7 +87,8 @@ def predictions_path(data, preds: Path, tmp: Path, workers: int, **options) -> t
     """(wall, CPU) seconds of the whole --predictions evaluation (cold complexity cache)."""
     _cold_cache(tmp, f"p{workers}")
     start, cpu = time.perf_counter(), time.process_time()
-    collect(data, predictions=preds, workers=workers, hardest=0, **options)
+    settings = CollectSettings(workers=workers, hardest=0, quality=NO_QUALITY, **options)
+    collect(data, predictions=preds, settings=settings)
     return time.perf_counter() - start, time.process_time() - cpu
 
 
@@ -167,7 +176,8 @@ def section_model(data, tmp: Path) -> None:
 
     _cold_cache(tmp, "ours")
     start = time.perf_counter()
-    collect(data, model=source, window=config, hardest=0)
+    collect(data, model=source, settings=CollectSettings(window=config, hardest=0,
+                                                         quality=NO_QUALITY))  # fmt: skip
     ours = time.perf_counter() - start
     print(f"\n2. model path ({n} images, demo-sized model, 224² windows at scale 0.25, CPU)")
     print(f"   sequential (inference, then complexity): {n / sequential:6.3f} images/s")
@@ -313,11 +323,26 @@ def section_measures(tmp: Path, frames: int, size: tuple[int, int], scale: float
     config = {"data": {"root": str(root), "palette": "uavid"}}
     ckpt = models.save_checkpoint(model, tmp / "vits14.pt", config=config)
     _, pairs = _evaluation(ckpt, tmp / "warm", scale, True)  # DSP and label caches filled
+    data = open_data(root, split="all", palette="uavid")
+    source = load_source(checkpoint=ckpt)
+    names = ("boundary_iou", "calibration", "consistency")
+    plans = {on: plan_quality(dict.fromkeys(names, None if on else False), has_scores=True,
+                              pairs_reason=None) for on in (False, True)}  # fmt: skip
+
+    def per_image(on: bool) -> float:
+        settings = CollectSettings(window=WindowConfig(scale=scale), quality=plans[on])
+        start = time.perf_counter()
+        collect(data, model=source, settings=settings)
+        return time.perf_counter() - start
+
     times: dict[bool, list[float]] = {True: [], False: []}
+    work: dict[bool, list[float]] = {True: [], False: []}
     for _ in range(repeats):
         for on in (False, True):
             times[on].append(_evaluation(ckpt, tmp / f"report-{on}", scale, on)[0])
+            work[on].append(per_image(on))
     none, every = statistics.median(times[False]), statistics.median(times[True])
+    bare, full = statistics.median(work[False]), statistics.median(work[True])
     device = "CUDA" if torch.cuda.is_available() else f"CPU ({os.cpu_count()} cores)"
     print(
         f"\n5. measures beyond mIoU: ViT-S/14 + DPT checkpoint, {frames} frames of one pass at "
@@ -329,6 +354,8 @@ def section_measures(tmp: Path, frames: int, size: tuple[int, int], scale: float
         f"   every measure on:   {every:8.2f} s ({every / frames:.2f} s/frame)   ratio "
         f"{every / none:.2f} (target <= 1.3)"
     )
+    print(f"   per-image work (collect, no report): off {bare:.2f} s, on {full:.2f} s, ratio "
+          f"{full / bare:.2f}")  # fmt: skip
     print(f"   pairs: {pairs}")
 
 
