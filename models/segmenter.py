@@ -1,7 +1,8 @@
-"""The segmenter: a frozen DINOv2 or DINOv3 backbone feeding a trainable DPT head."""
+"""The segmenter: a DINOv2 or DINOv3 backbone, frozen by default, feeding a trainable DPT head."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Sequence
 from typing import Any
@@ -15,12 +16,20 @@ from claravid.models.dpt import DPTHead
 from claravid.models.inputs import check_image_batch
 from claravid.models.tracing import is_exporting
 
+#: Backbone parts that serve pre-training only, so no segmentation loss ever reaches them: the
+#: masked-image-modelling token (both families) and DINOv3's norm of the local crops' class
+#: tokens (SAT ViT-L, 7B). They stay frozen when the backbone trains (DDP refuses a parameter
+#: that never gets a gradient).
+PRETRAINING_ONLY = ("mask_token", "local_cls_norm")
+
 
 class Segmenter(nn.Module):
-    """Frozen backbone + DPT head: images [B,3,H,W] -> logits [B,K,H,W].
+    """Backbone + DPT head: images [B,3,H,W] -> logits [B,K,H,W].
 
-    The backbone has no gradients, stays in eval mode whatever ``.train()`` says, and runs under
-    ``no_grad`` so none of its activations are kept: training memory is the decoder's.
+    By default the backbone is frozen (the paper's protocol): it has no gradients and runs under
+    ``no_grad``, so none of its activations are kept and training memory is the decoder's.
+    `unfreeze_backbone` trains it end to end instead. Either way the backbone stays in eval mode
+    whatever ``.train()`` says (no dropout or stochastic depth while fine-tuning).
 
     Args:
         backbone: A backbone from `build_backbone` (frozen here).
@@ -39,6 +48,24 @@ class Segmenter(nn.Module):
         self.head = head
         self.layers = tuple(int(i) for i in layers)
         self.model_args: dict[str, Any] = {}
+        self.backbone_frozen = True
+
+    def freeze_backbone(self) -> Segmenter:
+        """No gradients through the backbone, which runs under ``no_grad`` (the default)."""
+        self.backbone.requires_grad_(False)
+        self.backbone_frozen = True
+        return self
+
+    def unfreeze_backbone(self) -> Segmenter:
+        """Train end to end: gradients reach every backbone parameter but the pre-training-only
+        ones (`PRETRAINING_ONLY`)."""
+        self.backbone.requires_grad_(True)
+        for name in PRETRAINING_ONLY:
+            part = getattr(self.backbone, name, None)
+            if part is not None:
+                part.requires_grad_(False)
+        self.backbone_frozen = False
+        return self
 
     @property
     def patch_size(self) -> int:
@@ -61,11 +88,11 @@ class Segmenter(nn.Module):
         return self.head.head[-1].out_channels
 
     def num_trainable_parameters(self) -> int:
-        """Parameters that receive gradients (the head's)."""
+        """Parameters that receive gradients (the head's, and the backbone's when it trains)."""
         return sum(p.numel() for p in self.parameters() if p.requires_grad)
 
     def train(self, mode: bool = True) -> Segmenter:
-        """Set the head's mode; the frozen backbone always stays in eval mode."""
+        """Set the head's mode; the backbone always stays in eval mode."""
         super().train(mode)
         self.backbone.eval()
         return self
@@ -93,7 +120,7 @@ class Segmenter(nn.Module):
         if x.dtype == torch.uint8:
             x = self.normalise(x)
         h, w = x.shape[-2:]
-        with torch.no_grad():
+        with torch.no_grad() if self.backbone_frozen else contextlib.nullcontext():
             feats = self.backbone.get_intermediate_layers(x, self.layers, return_class_token=True)
         p = self.patch_size
         return self.head(feats, h // p, w // p, (h, w))

@@ -90,30 +90,6 @@ class RunResult:
     already_finished: bool = False
 
 
-class EndToEnd(nn.Module):
-    """The segmenter with gradients through its backbone (``model.freeze_backbone: false``).
-
-    ``Segmenter.forward`` runs the backbone under ``no_grad`` (the paper's frozen protocol);
-    this module repeats its three lines with gradients, so models/ keeps one behaviour.
-    """
-
-    def __init__(self, model: models.Segmenter) -> None:
-        super().__init__()
-        self.model = model.requires_grad_(True)
-        # The mask token (both families) and DINOv3's local_cls_norm (SAT ViT-L, 7B) serve
-        # pre-training only: no gradient ever reaches them (and DDP refuses parameters that
-        # never get one).
-        model.backbone.mask_token.requires_grad_(False)
-        if getattr(model.backbone, "local_cls_norm", None) is not None:
-            model.backbone.local_cls_norm.requires_grad_(False)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        m = self.model
-        feats = m.backbone.get_intermediate_layers(x, m.layers, return_class_token=True)
-        h, w = x.shape[-2:]
-        return m.head(feats, h // m.patch_size, w // m.patch_size, (h, w))
-
-
 def amp_dtype(amp: str, device: torch.device) -> torch.dtype | None:
     """The autocast type ``train.amp`` means on ``device`` (None: float32, no autocast)."""
     return autocast_dtype("fp32" if amp == "off" else amp, device)
@@ -148,7 +124,7 @@ class Run:
     start: int
     total: int
     model: models.Segmenter
-    module: nn.Module  # what the steps call: the model, end to end, under DDP, compiled
+    module: nn.Module  # what the steps call: the model, under DDP, compiled
     ddp: nn.parallel.DistributedDataParallel | None
     optimizer: torch.optim.Optimizer
     scheduler: torch.optim.lr_scheduler.LRScheduler
@@ -244,7 +220,8 @@ def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
     dtype = amp_dtype(cfg.train.amp, device)
     # Checked before the first step, not at the first validation.
     window = _val_window(cfg, model.patch_size, precision_name(dtype))
-    trained: nn.Module = model if cfg.model.freeze_backbone else EndToEnd(model)
+    if not cfg.model.freeze_backbone:
+        model.unfreeze_backbone()  # before the optimiser collects what trains
     model.to(device)
     optimizer = build_optimizer(model, cfg)
     scheduler = build_scheduler(optimizer, cfg, total)
@@ -262,7 +239,7 @@ def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
         best_miou, best_step = ckpt.get("best_miou"), ckpt.get("best_step")
         last_val = ckpt.get("metrics") or {}
         say(f"resuming {out / 'last.pt'} at step {start}/{total}")
-    module, ddp = _wrap(trained, cfg, info)
+    module, ddp = _wrap(model, cfg, info)
     validator = Validator(val_set, list(palette.names), window, cfg.val.bins, cfg.data.val_limit,
                           device)  # fmt: skip
     batches = _batches(cfg, train_set, info, start)
@@ -361,14 +338,14 @@ def _class_weights(
 
 
 def _wrap(
-    trained: nn.Module, cfg: DictConfig, info: DistInfo
+    model: models.Segmenter, cfg: DictConfig, info: DistInfo
 ) -> tuple[nn.Module, nn.parallel.DistributedDataParallel | None]:
     """What the steps call: the model under DDP (several ranks) and compiled (train.compile)."""
-    module: nn.Module = trained
+    module: nn.Module = model
     ddp = None
     if info.world_size > 1:
         ids = [info.device.index] if info.device.type == "cuda" else None
-        module = ddp = nn.parallel.DistributedDataParallel(trained, device_ids=ids)
+        module = ddp = nn.parallel.DistributedDataParallel(model, device_ids=ids)
     if cfg.train.compile:
         module = torch.compile(module)
     module.train()

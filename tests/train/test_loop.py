@@ -344,15 +344,13 @@ def test_end_to_end_training_leaves_no_parameter_without_a_gradient(backbone):
     """``model.freeze_backbone: false``: every trainable parameter gets a gradient (DDP refuses
     one that never does): the pre-training-only mask token and DINOv3 SAT's local_cls_norm are
     frozen."""
-    from claravid.train.loop import EndToEnd
-
     torch.manual_seed(0)
     kwargs = {"embed_dim": 32, "depth": 4, "num_heads": 2}
     model = models.build_model(backbone, 3, backbone_kwargs=kwargs, layers=[0, 1, 2, 3],
                                features=8, out_channels=[8, 8, 8, 8])  # fmt: skip
-    wrapped = EndToEnd(model).train()
+    model.unfreeze_backbone().train()
     patch = model.patch_size
-    wrapped(torch.randn(1, 3, 2 * patch, 3 * patch)).sum().backward()
+    model(torch.randn(1, 3, 2 * patch, 3 * patch)).sum().backward()
     missing = [n for n, p in model.named_parameters() if p.requires_grad and p.grad is None]
     assert missing == []
     assert any(n.startswith("backbone.blocks") and p.grad is not None
