@@ -90,6 +90,14 @@ class RunResult:
     already_finished: bool = False
 
 
+def segmentation_loss(
+    logits: torch.Tensor, target: torch.Tensor, weights: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Cross-entropy in float32, (weighted) mean over the pixels whose train id is not
+    ``IGNORE_INDEX``: a crop's padding and the classes a palette ignores never train."""
+    return F.cross_entropy(logits.float(), target, weight=weights, ignore_index=IGNORE_INDEX)
+
+
 def amp_dtype(amp: str, device: torch.device) -> torch.dtype | None:
     """The autocast type ``train.amp`` means on ``device`` (None: float32, no autocast)."""
     return autocast_dtype("fp32" if amp == "off" else amp, device)
@@ -383,7 +391,7 @@ def optimiser_step(run: Run, step: int, lr: float) -> tuple[float, float]:
         with contextlib.nullcontext() if run.ddp is None or last else run.ddp.no_sync():
             with torch.autocast(device.type, dtype=dtype, enabled=dtype is not None):
                 logits = run.module(x)
-            loss = F.cross_entropy(logits.float(), y, weight=run.weights, ignore_index=IGNORE_INDEX)
+            loss = segmentation_loss(logits, y, run.weights)
             run.scaler.scale(loss / accum).backward()
         losses.append(loss.detach())
         run.images += x.shape[0]

@@ -1,7 +1,7 @@
 """Augmentation pipelines over sample dicts (albumentations 2.x).
 
 Training: a random crop at native resolution first (padded at a random position with the
-ignore index when the image is smaller), then colour jitter, brightness/contrast, rotation,
+ignore index, 255, when the image is smaller), then colour jitter, brightness/contrast, rotation,
 optical or grid distortion and a horizontal flip. Cropping first is what makes this cheap:
 augmenting a 630×630 crop takes a few ms, the full 4032×3024 frame hundreds.
 The crop window can be drawn before anything is decoded (:meth:`SegmentationTransform.draw_window`
@@ -38,6 +38,7 @@ import torch
 from omegaconf import OmegaConf
 
 from claravid.io.headers import MAX_PIXELS
+from claravid.io.layout import UNLABELED_ID
 from claravid.io.yamlfile import YamlFileError, load_yaml
 
 #: The largest crop side: no JPEG frame is larger (libjpeg's JPEG_MAX_DIMENSION).
@@ -75,7 +76,6 @@ class AugmentConfig:
     # ImageNet's for normalize=True without a model).
     mean: tuple[float, float, float] | None = None
     std: tuple[float, float, float] | None = None
-    ignore_index: int = 255
 
     def __post_init__(self) -> None:
         """Refuse values the pipelines cannot use, naming the setting (they failed deep inside
@@ -108,8 +108,6 @@ class AugmentConfig:
                 f"mean={mean}, std={std}: three values each (R, G, B), std non-zero, "
                 "or null for the backbone's statistics"
             )
-        if not 0 <= self.ignore_index <= 255:
-            raise ValueError(f"ignore_index={self.ignore_index}: masks are uint8, 0..255")
 
 
 def augment_config(overrides: Any = None) -> AugmentConfig:
@@ -144,7 +142,8 @@ class CropWindow(NamedTuple):
 
 def _train_ops(cfg: AugmentConfig) -> list[A.BasicTransform]:
     """The augmentations after the crop (the crop itself is `SegmentationTransform`'s)."""
-    fill = {"border_mode": cv2.BORDER_CONSTANT, "fill": 0, "fill_mask": cfg.ignore_index}
+    # Masks are filled with the one ignore id (every palette's, the loss's and the metrics').
+    fill = {"border_mode": cv2.BORDER_CONSTANT, "fill": 0, "fill_mask": UNLABELED_ID}
     nearest = {"mask_interpolation": cv2.INTER_NEAREST}
     ops: list[A.BasicTransform] = []
     if cfg.color_jitter_p > 0:
@@ -183,7 +182,7 @@ class SegmentationTransform:
 
     Args:
         ops: the augmentations after the crop.
-        cfg: the config (normalisation, ignore index, crop size).
+        cfg: the config (normalisation, crop size).
         crop: ``(height, width)`` of the random crop; None: no crop (evaluation).
         normalize: end with the normalisation (float32 images, with ``cfg.mean``/``std``, else
             ImageNet's); False (default): uint8 images, normalised where the model runs (the
@@ -253,9 +252,8 @@ class SegmentationTransform:
                 np.ascontiguousarray(image), *pad, cv2.BORDER_CONSTANT, value=(0, 0, 0)
             )
             if mask is not None:
-                fill = self.cfg.ignore_index
                 mask = cv2.copyMakeBorder(
-                    np.ascontiguousarray(mask), *pad, cv2.BORDER_CONSTANT, value=fill
+                    np.ascontiguousarray(mask), *pad, cv2.BORDER_CONSTANT, value=UNLABELED_ID
                 )
         return image, mask, window
 

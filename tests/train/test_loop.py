@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import sys
 
 import pytest
@@ -355,3 +356,49 @@ def test_end_to_end_training_leaves_no_parameter_without_a_gradient(backbone):
     assert missing == []
     assert any(n.startswith("backbone.blocks") and p.grad is not None
                for n, p in model.named_parameters())  # fmt: skip
+
+
+def test_a_crops_padding_is_ignored_by_the_loss_and_the_ignore_id_is_no_setting(claravid_root):
+    """A frame smaller than the crop is padded with the one ignore id (255); the training loss is
+    the cross-entropy of the frame's own pixels alone, computed here by hand. An
+    ``ignore_index`` setting (once accepted: it padded with any id while the loss ignored 255
+    only, so padding trained as a class) is refused at every entry."""
+    import numpy as np
+
+    from claravid.data.transforms import AugmentConfig, augment_config, train_transforms
+    from claravid.train.config import ConfigError
+    from claravid.train.loop import segmentation_loss
+
+    rng = np.random.default_rng(0)
+    image = rng.integers(1, 256, (3, 20, 24), dtype=np.uint8)  # no 0: the padding is black
+    mask = rng.integers(0, 3, (20, 24)).astype(np.uint8)
+    still = dict.fromkeys(
+        ("hflip_p", "color_jitter_p", "lighting_p", "rotate_p", "distortion_p"), 0
+    )
+    crop = train_transforms({"crop_height": 28, "crop_width": 42, **still})
+    sample = crop({"image": torch.from_numpy(image), "mask": torch.from_numpy(mask)})
+    frame = sample["image"].numpy().sum(0) > 0
+    top, left = np.argwhere(frame).min(0)
+    assert frame.sum() == 20 * 24 and frame[top : top + 20, left : left + 24].all()
+    got = sample["mask"].numpy()
+    np.testing.assert_array_equal(got[top : top + 20, left : left + 24], mask)
+    assert (got[~frame] == 255).all()
+
+    logits = torch.randn(
+        1, 3, 28, 42, generator=torch.Generator().manual_seed(1), dtype=torch.float64
+    )
+    logits[0, :, ~torch.from_numpy(frame)] = 1e4  # whatever is predicted on the padding
+    loss = segmentation_loss(logits, torch.from_numpy(got).long()[None])
+    z = logits[0].numpy()[:, top : top + 20, left : left + 24]
+    log_p = z - np.log(np.exp(z - z.max(0)).sum(0)) - z.max(0)  # log-softmax over classes
+    by_hand = -np.take_along_axis(log_p, mask[None].astype(np.int64), 0).mean()
+    assert loss.item() == pytest.approx(by_hand, rel=1e-6)
+
+    with pytest.raises(TypeError, match="ignore_index"):
+        AugmentConfig(ignore_index=7)
+    with pytest.raises(ValueError, match="ignore_index"):
+        augment_config({"ignore_index": 7})
+    with pytest.raises(
+        ConfigError, match=re.escape("unknown config key 'data.augment.ignore_index'")
+    ):
+        load_config("demo", tiny(claravid_root, "out", "data.augment.ignore_index=7"))
