@@ -25,16 +25,21 @@ SETTINGS = {
 }
 
 
-def _model(head, backbone="dinov3_vits16", seed=0):
+def _model(head, backbone="dinov3_vits16", seed=0, num_classes=3):
     """A tiny model whose BatchNorm statistics are not their init (they must travel too)."""
     torch.manual_seed(seed)
-    model = build_model(backbone, 3, head=head, backbone_kwargs=TINY, **SETTINGS[head])
+    model = build_model(backbone, num_classes, head=head, backbone_kwargs=TINY, **SETTINGS[head])
     with torch.no_grad():
         for module in model.head.modules():
             if isinstance(module, torch.nn.BatchNorm2d):
                 module.running_mean.normal_()
                 module.running_var.uniform_(0.5, 2.0)
                 module.weight.normal_()
+        # The classifiers start near zero (std 0.01, as the protocols): label maps would be flat.
+        if head != "dpt":
+            last = model.head.classifier if head == "upernet" else model.head.conv
+            last.weight.normal_(0.0, 0.3)
+            last.bias.normal_(0.0, 0.3)
     return model.eval()
 
 
@@ -132,6 +137,32 @@ def test_checkpoints_with_a_foreign_head_are_refused_by_name(tmp_path, capsys):
             assert len(lines) == 1 and match in lines[0], (prog, err)
             assert "Traceback" not in err
     assert not (tmp_path / "x.onnx").exists()
+
+
+@pytest.mark.parametrize("head", ["linear", "upernet"])
+def test_predict_labels_an_image_with_the_checkpoint_s_head(head, tmp_path, capsys):
+    """claravid-predict rebuilds the head from the checkpoint: the label map of a one-window
+    image is the model's argmax on the pixels normalised by hand."""
+    import cv2
+
+    from claravid.eval.predict import main as predict_main
+    from claravid.models.backbones import IMAGENET_MEAN, IMAGENET_STD
+
+    model = _model(head, num_classes=8)  # the uavid palette's classes
+    checkpoint = save_checkpoint(model, tmp_path / "m.pt", config={"data": {"palette": "uavid"}})
+    rng = np.random.default_rng(0)
+    coarse = rng.integers(0, 256, (3, 5, 3)).astype(np.uint8)  # smooth colour fields
+    bgr = cv2.resize(coarse, (80, 48), interpolation=cv2.INTER_LINEAR)
+    cv2.imwrite(str(tmp_path / "a.png"), bgr)
+    argv = ["--checkpoint", str(checkpoint), str(tmp_path / "a.png"), "-o",
+            str(tmp_path / "pred"), "--window", "80x48", "--no-overlays",
+            "--no-progress"]  # fmt: skip
+    assert predict_main(argv) == 0, capsys.readouterr().err
+    x = (bgr[..., ::-1] / 255 - np.array(IMAGENET_MEAN)) / np.array(IMAGENET_STD)
+    expected = _logits(model, torch.from_numpy(x.transpose(2, 0, 1)[None]).float())[0].argmax(0)
+    assert len(np.unique(expected.numpy())) > 1  # a flat map would pass with any image
+    label_map = cv2.imread(str(tmp_path / "pred" / "a.png"), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(label_map, expected.numpy())
 
 
 @pytest.mark.slow
