@@ -36,7 +36,6 @@ class HeadSpec:
         name: ``dpt``, ``linear`` or ``upernet``.
         settings: The `build_model` arguments it takes, beside the backbone's and the classes.
         taps: How many backbone blocks it reads; None: one or more (concatenated).
-        summary: One line for messages and docs.
         min_micro_batch: The fewest images one training forward pass may hold (UperNet's
             BatchNorm after pooling to one cell sees one value per image and channel).
     """
@@ -44,30 +43,13 @@ class HeadSpec:
     name: str
     settings: tuple[str, ...]
     taps: int | None
-    summary: str
     min_micro_batch: int = 1
 
 
 HEADS: dict[str, HeadSpec] = {
-    "dpt": HeadSpec(
-        "dpt",
-        ("layers", "features", "out_channels", "use_cls"),
-        4,
-        "DPT decoder on four taps (the ClaraVid paper's protocol)",
-    ),
-    "linear": HeadSpec(
-        "linear",
-        ("layers", "use_cls"),
-        None,
-        "BatchNorm and a 1x1 convolution on the last block (DINOv3's linear protocol)",
-    ),
-    "upernet": HeadSpec(
-        "upernet",
-        ("layers", "features"),
-        4,
-        "UperNet on a pyramid of four taps (the DINOv3 paper's geospatial benchmarks)",
-        min_micro_batch=2,
-    ),
+    "dpt": HeadSpec("dpt", ("layers", "features", "out_channels", "use_cls"), taps=4),
+    "linear": HeadSpec("linear", ("layers", "use_cls"), taps=None),
+    "upernet": HeadSpec("upernet", ("layers", "features"), taps=4, min_micro_batch=2),
 }
 HEAD_NAMES: tuple[str, ...] = tuple(HEADS)
 #: Every head setting, with the value that means "not given".
