@@ -1,12 +1,13 @@
-"""Models: DINOv2 and DINOv3 ViT backbones in plain PyTorch, the DPT segmentation decoder, ONNX
-export.
+"""Models: DINOv2 and DINOv3 ViT backbones in plain PyTorch, segmentation heads (DPT, linear,
+UperNet), ONNX export.
 
 Public API::
 
     BACKBONES / backbone_spec(name)          # what each named backbone is (backbones.py)
     build_backbone(name, weights=None)       # DINOv2 ViT-S/B/L/g (+ _reg), DINOv3 ViT-S/S+/B/
                                              # L/H+/7B (+ _sat); official or Hugging Face weights
-    build_model(backbone, num_classes, ...)  # frozen backbone + trainable DPT head
+    HEADS / head_spec(name)                  # the heads and their settings (heads.py)
+    build_model(backbone, num_classes, head="dpt", ...)  # frozen backbone + trainable head
     save_checkpoint / load_checkpoint        # weights_only-safe model files
     export_onnx(model, path, ExportSettings(...))  # ONNX + onnxruntime check
     OnnxSegmenter(path)                      # onnxruntime runner
@@ -33,6 +34,11 @@ _LAZY = {
     "save_checkpoint": "claravid.models.checkpoint",
     "DinoV3VisionTransformer": "claravid.models.dinov3",
     "DPTHead": "claravid.models.dpt",
+    "HEAD_NAMES": "claravid.models.heads",
+    "HEADS": "claravid.models.heads",
+    "HeadSpec": "claravid.models.heads",
+    "head_spec": "claravid.models.heads",
+    "LinearHead": "claravid.models.linear_head",
     "ExportCheckError": "claravid.models.export",
     "export_onnx": "claravid.models.export",
     "ExportSettings": "claravid.models.export",
@@ -41,6 +47,7 @@ _LAZY = {
     "OnnxSegmenter": "claravid.models.onnx_runtime",
     "Segmenter": "claravid.models.segmenter",
     "build_model": "claravid.models.segmenter",
+    "UperNetHead": "claravid.models.upernet",
     "DinoVisionTransformer": "claravid.models.vit",
     "WeightsError": "claravid.models.weights",
     "hf_to_official": "claravid.models.weights",

@@ -113,6 +113,11 @@ class DPTHead(nn.Module):
             nn.Conv2d(features, num_classes, kernel_size=1),
         )
 
+    @property
+    def num_classes(self) -> int:
+        """Number of output channels."""
+        return self.head[-1].out_channels
+
     def forward(
         self,
         feats: Sequence[tuple[torch.Tensor, torch.Tensor]],

@@ -246,6 +246,10 @@ def _check_settings(model: Segmenter, height: object, width: object, tolerance: 
 def _export(model: Segmenter, path: Path, height: int, width: int, dynamic: bool) -> None:
     p = model.patch_size
     param = next(model.parameters())
+    if dynamic:
+        # torch.export specialises a size of 1 in the traced example: UperNet's coarsest level
+        # (half the grid) would freeze at 1. Four patches a side keep every level symbolic.
+        height, width = max(height, 4 * p), max(width, 4 * p)
     example = torch.randn(2, 3, height, width, device=param.device)
     batch = torch.export.Dim("batch", min=1, max=4096)
     shapes: dict[int, Any] = {0: batch}

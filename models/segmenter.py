@@ -1,4 +1,5 @@
-"""The segmenter: a DINOv2 or DINOv3 backbone, frozen by default, feeding a trainable DPT head."""
+"""The segmenter: a DINOv2 or DINOv3 backbone, frozen by default, feeding a trainable head
+(DPT, linear or UperNet: `claravid.models.heads`)."""
 
 from __future__ import annotations
 
@@ -10,11 +11,22 @@ from typing import Any
 import torch
 from torch import nn
 
-from claravid.models.backbones import DEFAULT_BACKBONE, backbone_spec
+from claravid.models.backbones import DEFAULT_BACKBONE, DPTDefaults, backbone_spec
 from claravid.models.build import Backbone, build_backbone
 from claravid.models.dpt import DPTHead
+from claravid.models.heads import (
+    DEFAULT_HEAD,
+    UPERNET_CHANNELS,
+    HeadSpec,
+    check_head_settings,
+    default_layers,
+)
 from claravid.models.inputs import check_image_batch
+from claravid.models.linear_head import LinearHead
 from claravid.models.tracing import is_exporting
+from claravid.models.upernet import UperNetHead
+
+Head = DPTHead | LinearHead | UperNetHead
 
 #: Backbone parts that serve pre-training only, so no segmentation loss ever reaches them: the
 #: masked-image-modelling token (both families) and DINOv3's norm of the local crops' class
@@ -24,7 +36,7 @@ PRETRAINING_ONLY = ("mask_token", "local_cls_norm")
 
 
 class Segmenter(nn.Module):
-    """Backbone + DPT head: images [B,3,H,W] -> logits [B,K,H,W].
+    """Backbone + head: images [B,3,H,W] -> logits [B,K,H,W].
 
     By default the backbone is frozen (the paper's protocol): it has no gradients and runs under
     ``no_grad``, so none of its activations are kept and training memory is the decoder's.
@@ -33,14 +45,16 @@ class Segmenter(nn.Module):
 
     Args:
         backbone: A backbone from `build_backbone` (frozen here).
-        head: The DPT head.
-        layers: Backbone block indices fed to the head, fine to coarse.
+        head: The head: any module that maps the tapped blocks' (patch tokens, CLS) pairs, the
+            patch grid and the output size to logits (`DPTHead`, `LinearHead`, `UperNetHead`).
+        layers: Backbone block indices fed to the head, fine to coarse (four for DPT and
+            UperNet, one or more for the linear head).
     """
 
-    def __init__(self, backbone: Backbone, head: DPTHead, layers: Sequence[int]) -> None:
+    def __init__(self, backbone: Backbone, head: Head, layers: Sequence[int]) -> None:
         super().__init__()
-        if len(layers) != 4:
-            raise ValueError(f"layers needs 4 block indices, got {list(layers)}")
+        if not layers:
+            raise ValueError("layers needs at least one block index")
         bad = [i for i in layers if not 0 <= i < backbone.n_blocks]
         if bad:
             raise ValueError(f"layers {bad} outside the backbone's {backbone.n_blocks} blocks")
@@ -85,7 +99,7 @@ class Segmenter(nn.Module):
     @property
     def num_classes(self) -> int:
         """Number of output channels."""
-        return self.head.head[-1].out_channels
+        return self.head.num_classes
 
     def num_trainable_parameters(self) -> int:
         """Parameters that receive gradients (the head's, and the backbone's when it trains)."""
@@ -133,13 +147,14 @@ def build_model(
     backbone: str = DEFAULT_BACKBONE,
     num_classes: int = 19,
     weights: str | os.PathLike | None = None,
+    head: str = DEFAULT_HEAD,
     layers: Sequence[int] | None = None,
     features: int | None = None,
     out_channels: Sequence[int] | None = None,
     use_cls: bool = False,
     backbone_kwargs: dict[str, Any] | None = None,
 ) -> Segmenter:
-    """Build the segmenter with the backbone's DPT defaults.
+    """Build the segmenter: a named backbone and a head with the backbone's defaults.
 
     Args:
         backbone: A name of ``BACKBONE_NAMES``, e.g. ``"dinov2_vitl14"``, ``"dinov2_vits14_reg"``
@@ -147,35 +162,74 @@ def build_model(
         num_classes: Number of logits channels K.
         weights: Backbone weights: ``None`` (random), a ``.pth``/``.safetensors`` path or
             ``"official"`` (DINOv2 only; see `build_backbone`).
-        layers: Tapped block indices (default per size, e.g. 4, 11, 17, 23 for ViT-L).
-        features: DPT fusion width (default per size).
-        out_channels: DPT reassemble widths (default per size).
-        use_cls: CLS readout in the reassemble stage.
+        head: ``"dpt"`` (the default), ``"linear"`` or ``"upernet"`` (`claravid.models.heads`).
+        layers: Tapped block indices. DPT and UperNet: four (default per size, e.g. 4, 11, 17,
+            23 for ViT-L); linear: one or more, concatenated (default: the last block).
+        features: DPT: fusion width (default per size); UperNet: its width (default 512).
+        out_channels: DPT only: reassemble widths (default per size).
+        use_cls: DPT: CLS readout in the reassemble stage; linear: the CLS token concatenated
+            to each patch token.
         backbone_kwargs: Overrides of the backbone architecture (tiny test models).
 
     Returns:
-        A `Segmenter` whose ``model_args`` records these arguments (for checkpoints).
+        A `Segmenter` whose ``model_args`` records the head and its resolved settings (for
+        checkpoints: evaluation and export rebuild the same model from them).
 
     Raises:
-        ValueError: an unknown backbone name (e.g. from a newer checkpoint), naming the known
-            ones, or inconsistent head arguments.
+        ValueError: an unknown backbone or head name (e.g. from a newer checkpoint), naming the
+            known ones; a setting the head does not take; inconsistent head arguments.
     """
+    given = {"layers": layers, "features": features, "out_channels": out_channels,
+             "use_cls": use_cls}  # fmt: skip
+    spec = check_head_settings(head, given)
     defaults = backbone_spec(backbone).dpt
     backbone_kwargs = dict(backbone_kwargs or {})
     vit = build_backbone(backbone, weights=weights, **backbone_kwargs)
-    layers = tuple(layers if layers is not None else defaults.layers)
-    features = int(features if features is not None else defaults.features)
-    out_channels = tuple(out_channels if out_channels is not None else defaults.out_channels)
-    head = DPTHead(vit.embed_dim, num_classes, features, out_channels, use_cls)
-    model = Segmenter(vit, head, layers)
+    if layers is None:
+        layers = default_layers(spec, vit.n_blocks, defaults.layers)
+    taps = tuple(layers)
+    settings = _head_settings(spec, defaults, taps, features, out_channels, use_cls)
+    model = Segmenter(vit, _build_head(spec.name, vit.embed_dim, num_classes, settings), taps)
     model.model_args = {
         "backbone": backbone,
         "num_classes": int(num_classes),
         "weights": None if weights is None else str(weights),
-        "layers": list(layers),
-        "features": features,
-        "out_channels": [int(c) for c in out_channels],
-        "use_cls": bool(use_cls),
+        "head": spec.name,
+        **settings,
         "backbone_kwargs": backbone_kwargs,
     }
     return model
+
+
+def _head_settings(
+    spec: HeadSpec,
+    dpt: DPTDefaults,
+    layers: Sequence[int],
+    features: int | None,
+    out_channels: Sequence[int] | None,
+    use_cls: bool,
+) -> dict[str, Any]:
+    """The head's own settings, defaults filled in, as plain values (what ``model_args``
+    records; DPT's four keys are those of checkpoints written before there was a choice)."""
+    if features is None:
+        features = dpt.features if spec.name == "dpt" else UPERNET_CHANNELS
+    if out_channels is None:
+        out_channels = dpt.out_channels
+    resolved = {
+        "layers": [int(i) for i in layers],
+        "features": int(features),
+        "out_channels": [int(c) for c in out_channels],
+        "use_cls": bool(use_cls),
+    }
+    return {key: resolved[key] for key in spec.settings}
+
+
+def _build_head(name: str, embed_dim: int, num_classes: int, settings: dict[str, Any]) -> Head:
+    if name == "dpt":
+        return DPTHead(
+            embed_dim, num_classes, settings["features"], settings["out_channels"],
+            settings["use_cls"],
+        )  # fmt: skip
+    if name == "linear":
+        return LinearHead(embed_dim, num_classes, len(settings["layers"]), settings["use_cls"])
+    return UperNetHead(embed_dim, num_classes, settings["features"])

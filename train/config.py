@@ -89,10 +89,12 @@ class DataConfig:
 class ModelConfig:
     backbone: str = "dinov2_vitl14"
     weights: str | None = "official"  # a .pth/.safetensors path, "official", or null (random)
-    layers: list[int] | None = None  # null: the DPT defaults of the backbone size
-    features: int | None = None
-    out_channels: list[int] | None = None
-    use_cls: bool = False
+    head: str = "dpt"  # dpt (the paper's) | linear (DINOv3's linear protocol) | upernet
+    # Head settings; a setting the chosen head does not take is an error (docs/models.md).
+    layers: list[int] | None = None  # null: dpt/upernet the backbone's 4 taps, linear the last
+    features: int | None = None  # dpt: fusion width; upernet: its width (null: 512)
+    out_channels: list[int] | None = None  # dpt only: reassemble widths
+    use_cls: bool = False  # dpt: CLS readout; linear: CLS concatenated to each token
     backbone_kwargs: dict[str, Any] = field(default_factory=dict)  # tiny test backbones
     freeze_backbone: bool = True  # the paper's protocol; false trains the backbone too
 
@@ -387,13 +389,25 @@ def check_config(cfg: DictConfig) -> None:
     _require(v.stride is None or v.stride >= 1, "val.stride", v.stride, ">= 1 or null")
     _require(v.bins >= 1, "val.bins", v.bins, ">= 1")
     _require(math.isfinite(v.scale) and 0 < v.scale <= 8, "val.scale", v.scale, "in (0, 8]")
-    _require(
-        m.layers is None or len(m.layers) == 4, "model.layers", m.layers, "4 block indices or null"
-    )
+    _check_head(m)
     a = d.augment
     _require(
         a.crop_height >= 1 and a.crop_width >= 1, "data.augment.crop_height", a.crop_height, ">= 1"
     )
+
+
+def _check_head(m: DictConfig) -> None:
+    """``model.head`` is a head, and the head settings given are that head's."""
+    from claravid.models.heads import HEAD_NAMES, SETTING_DEFAULTS, check_head_settings
+
+    _require(m.head in HEAD_NAMES, "model.head", m.head, f"one of {', '.join(HEAD_NAMES)}")
+    settings = {key: m[key] for key in SETTING_DEFAULTS}
+    if settings["layers"] is not None:
+        settings["layers"] = list(settings["layers"])
+    try:
+        check_head_settings(m.head, settings, prefix="model.")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def resolve_backbone(cfg: DictConfig) -> None:

@@ -20,6 +20,7 @@ from claravid.data.splits import SPLITS
 from claravid.data.targets import UAVidSegmentation
 from claravid.data.transforms import AugmentConfig, train_transforms
 from claravid.io import jpeg_region
+from claravid.models.heads import head_spec
 from claravid.train.sampler import StepSampler
 
 
@@ -247,6 +248,15 @@ def check_batch(cfg: DictConfig, world_size: int) -> int:
         raise ValueError(
             f"train.batch_size={t.batch_size} must be a multiple of ranks ({world_size}) × "
             f"train.grad_accum ({t.grad_accum}) × data.crops_per_frame ({k}) = {per_step}"
+        )
+    least = head_spec(cfg.model.head).min_micro_batch
+    micro = t.batch_size // (world_size * t.grad_accum)
+    if micro < least:
+        raise ValueError(
+            f"model.head={cfg.model.head} trains BatchNorm on pooled features and needs at least "
+            f"{least} crops per forward pass; train.batch_size={t.batch_size} over {world_size} "
+            f"rank(s) × train.grad_accum={t.grad_accum} gives {micro}: raise train.batch_size or "
+            "lower train.grad_accum"
         )
     return t.batch_size // k
 

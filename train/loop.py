@@ -322,6 +322,7 @@ def _build_model(cfg: DictConfig, num_classes: int) -> models.Segmenter:
         m.backbone,
         num_classes=num_classes,
         weights=m.weights,
+        head=m.head,
         layers=list(m.layers) if m.layers is not None else None,
         features=m.features,
         out_channels=list(m.out_channels) if m.out_channels is not None else None,
@@ -353,6 +354,11 @@ def _wrap(
     ddp = None
     if info.world_size > 1:
         ids = [info.device.index] if info.device.type == "cuda" else None
+        if info.device.type == "cuda":
+            # The heads' BatchNorms (linear, UperNet) normalise over every rank's micro-batch, as
+            # the official protocols train them. SyncBatchNorm needs CUDA; it keeps the module's
+            # parameters (the optimiser's) and state-dict keys.
+            model = nn.SyncBatchNorm.convert_sync_batchnorm(model)
         module = ddp = nn.parallel.DistributedDataParallel(model, device_ids=ids)
     if cfg.train.compile:
         module = torch.compile(module)

@@ -15,7 +15,7 @@ from claravid.models.checkpoint import read_checkpoint
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.checkpoint import save_training_checkpoint
 from claravid.train.cli import main
-from tests.train.conftest import miou_by_hand, tiny, tiny_v3
+from tests.train.conftest import HEAD_OVERRIDES, miou_by_hand, tiny, tiny_v3
 
 
 def rows(out):
@@ -202,6 +202,7 @@ def test_every_shipped_config_trains_two_steps(name, claravid_root, uavid_root, 
         extra += [f"data.root={uavid_root}", "data.val_split=val"]
     if cfg.data.val_dataset == "uavid":
         extra += [f"data.val_root={uavid_root}", "data.val_split=val"]
+    extra += HEAD_OVERRIDES[cfg.model.head]  # the tiny widths of the config's own head
     args = tiny(claravid_root, tmp_path / "run", "train.steps=2", "train.batch_size=2",
                 "val.every=0", "data.num_workers=0", *extra)  # fmt: skip
     cfg = load_config(name, args)
