@@ -56,6 +56,11 @@ class Segmenter(nn.Module):
         return self.backbone.std
 
     @property
+    def dtype(self) -> torch.dtype:
+        """The parameters' dtype: what a float batch is cast to, what uint8 pixels become."""
+        return next(self.backbone.parameters()).dtype
+
+    @property
     def num_classes(self) -> int:
         """Number of output channels."""
         return self.head.head[-1].out_channels
@@ -71,16 +76,18 @@ class Segmenter(nn.Module):
         return self
 
     def normalise(self, pixels: torch.Tensor) -> torch.Tensor:
-        """uint8 pixels [B,3,H,W] -> float32 ``(x / 255 - mean) / std`` on their device."""
+        """uint8 pixels [B,3,H,W] -> ``(x / 255 - mean) / std`` on their device, computed in
+        float32 and given the model's dtype (`dtype`: bfloat16 for a model cast to it)."""
         mean = torch.tensor(self.mean, device=pixels.device).view(1, 3, 1, 1)
         std = torch.tensor(self.std, device=pixels.device).view(1, 3, 1, 1)
-        return (pixels.float() / 255 - mean) / std
+        return ((pixels.float() / 255 - mean) / std).to(self.dtype)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Logits [B,K,H,W] of images [B,3,H,W] (H, W patch multiples).
 
         ``x`` is either uint8 pixels in [0, 255], normalised here with the backbone's own mean
-        and std (`normalise`), or a float batch taken as normalised already.
+        and std (`normalise`), or a float batch taken as normalised already and cast to the
+        model's `dtype` (a float16 batch into a float32 model).
 
         Raises:
             TypeError: ``x`` is neither a floating-point nor a uint8 tensor (e.g. numpy).
@@ -92,6 +99,8 @@ class Segmenter(nn.Module):
             )
         if x.dtype == torch.uint8:
             x = self.normalise(x)
+        elif x.dtype != self.dtype:
+            x = x.to(self.dtype)
         h, w = x.shape[-2:]
         with torch.no_grad():
             feats = self.backbone.get_intermediate_layers(x, self.layers, return_class_token=True)

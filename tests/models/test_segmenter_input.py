@@ -1,0 +1,46 @@
+"""What a segmenter makes of the batches users bring: dtypes, value ranges, layouts, and the
+statistics a checkpoint recorded."""
+
+import pytest
+import torch
+
+from claravid.models import build_model
+
+TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
+HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
+IMAGENET_MEAN = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
+IMAGENET_STD = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
+
+
+def _model():
+    torch.manual_seed(0)
+    return build_model("dinov2_vits14", num_classes=5, backbone_kwargs=TINY, **HEAD).eval()
+
+
+def _pixels(h=28, w=42, seed=1):
+    g = torch.Generator().manual_seed(seed)
+    return torch.randint(0, 256, (2, 3, h, w), dtype=torch.uint8, generator=g)
+
+
+@pytest.mark.parametrize("dtype", [torch.bfloat16, torch.float16])
+def test_a_model_cast_to_half_precision_takes_uint8_pixels(dtype):
+    model = _model()
+    pixels = _pixels()
+    with torch.no_grad():
+        reference = model(pixels)
+        low = model.to(dtype)(pixels)  # crashed: "Input type (float) and bias type (...)"
+        assert model.normalise(pixels).dtype == dtype
+    assert low.dtype == dtype
+    # Half precision keeps ~3 significant digits: compare relative to the logits' spread.
+    assert (low.float() - reference).abs().max() < 0.1 * reference.std()
+
+
+@pytest.mark.parametrize("dtype", [torch.float16, torch.float64])
+def test_a_float_batch_of_another_dtype_is_cast_to_the_model_s(dtype):
+    model = _model()
+    x = (_pixels().float() / 255 - IMAGENET_MEAN) / IMAGENET_STD
+    with torch.no_grad():
+        expected = model(x.to(dtype).float())  # the same rounded values, in float32
+        got = model(x.to(dtype))  # was PyTorch's raw conv error
+    assert got.dtype == torch.float32
+    torch.testing.assert_close(got, expected, atol=1e-5, rtol=0)
