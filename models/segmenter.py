@@ -77,7 +77,24 @@ class Segmenter(nn.Module):
 
     def normalise(self, pixels: torch.Tensor) -> torch.Tensor:
         """uint8 pixels [B,3,H,W] -> ``(x / 255 - mean) / std`` on their device, computed in
-        float32 and given the model's dtype (`dtype`: bfloat16 for a model cast to it)."""
+        float32 and given the model's dtype (`dtype`: bfloat16 for a model cast to it).
+
+        Raises:
+            TypeError: not a uint8 tensor.
+            ValueError: not [B,3,H,W] (e.g. channels last).
+        """
+        if not isinstance(pixels, torch.Tensor) or pixels.dtype != torch.uint8:
+            got = pixels.dtype if isinstance(pixels, torch.Tensor) else type(pixels).__name__
+            raise TypeError(
+                f"normalise takes uint8 pixels [B,3,H,W], got {got}; a float batch goes to the "
+                "model as it is (normalised)"
+            )
+        if pixels.ndim != 4 or pixels.shape[1] != 3:
+            last = pixels.ndim == 4 and pixels.shape[-1] == 3
+            hint = ": channels last? x.permute(0, 3, 1, 2)" if last else ""
+            raise ValueError(
+                f"normalise takes uint8 pixels [B,3,H,W], got shape {list(pixels.shape)}{hint}"
+            )
         mean = torch.tensor(self.mean, device=pixels.device).view(1, 3, 1, 1)
         std = torch.tensor(self.std, device=pixels.device).view(1, 3, 1, 1)
         return ((pixels.float() / 255 - mean) / std).to(self.dtype)

@@ -44,3 +44,13 @@ def test_a_float_batch_of_another_dtype_is_cast_to_the_model_s(dtype):
         got = model(x.to(dtype))  # was PyTorch's raw conv error
     assert got.dtype == torch.float32
     torch.testing.assert_close(got, expected, atol=1e-5, rtol=0)
+
+
+def test_normalise_names_a_channels_last_batch():
+    model = _model()
+    with pytest.raises(ValueError, match=r"shape \[2, 28, 42, 3\]: channels last\? x.permute"):
+        model.normalise(_pixels().permute(0, 2, 3, 1))
+    with pytest.raises(TypeError, match=r"uint8 pixels \[B,3,H,W\], got torch.float32"):
+        model.normalise(_pixels().float())
+    by_hand = (_pixels().float() / 255 - IMAGENET_MEAN) / IMAGENET_STD
+    torch.testing.assert_close(model.normalise(_pixels()), by_hand)
