@@ -44,6 +44,57 @@ def _triple(values: Sequence[float]) -> str:
     return "(" + ", ".join(f"{float(v):g}" for v in values) + ")"
 
 
+#: Beyond this magnitude a float batch cannot be normalised pixels: normalising 0..255 pixels
+#: gives values within ±5 with any backbone's statistics (ImageNet's: -2.1..2.6, SAT-493M's:
+#: -2.8..4.9), and 0..255 floats reach 25 in all but nearly black images.
+RAW_PIXEL_LIMIT = 25.0
+
+
+class RawPixelsWarning(UserWarning):
+    """A float batch with no negative value reached a segmenter, which takes float batches as
+    normalised: raw pixels in [0, 1] (torchgeo's convention) would give wrong labels silently."""
+
+
+def normalised_bound(mean: Sequence[float], std: Sequence[float]) -> float:
+    """The largest magnitude ``(x / 255 - mean) / std`` reaches for pixels 0..255."""
+    return max(max(m, 1 - m) / abs(s) for m, s in zip(mean, std, strict=True))
+
+
+def check_value_range(
+    low: float, high: float, mean: Sequence[float], std: Sequence[float]
+) -> str | None:
+    """Refuse a float batch whose values are 0..255 pixels; say when it has no negative value.
+
+    Args:
+        low, high: The batch's smallest and largest value.
+        mean, std: The statistics the model normalises with (stated in the messages).
+
+    Returns:
+        The text of a `RawPixelsWarning` when no value is negative (raw pixels in [0, 1]?),
+        else None.
+
+    Raises:
+        ValueError: a value beyond `RAW_PIXEL_LIMIT` (0..255 pixels as floats).
+    """
+    stats = f"mean {_triple(mean)}, std {_triple(std)}"
+    if high > RAW_PIXEL_LIMIT or low < -RAW_PIXEL_LIMIT:
+        raise ValueError(
+            f"a float batch with values in [{low:.4g}, {high:.4g}] reached the model, which "
+            f"takes float batches as normalised (within ±{normalised_bound(mean, std):.1f} with "
+            f"{stats}): 0..255 pixels? pass them as uint8 (x.round().to(torch.uint8)), which "
+            "the model normalises itself, or normalise them first: (x / 255 - mean) / std"
+        )
+    if low >= 0:
+        return (
+            f"a float batch with no negative value (values in [{low:.3g}, {high:.3g}]) reached "
+            "the model, which takes float batches as normalised ((x / 255 - mean) / std, "
+            f"{stats}): raw pixels in [0, 1] (torchgeo's convention)? normalise them with "
+            "(x - mean) / std, or pass uint8 pixels; if the batch is normalised, silence this with "
+            "warnings.filterwarnings('ignore', category=claravid.models.RawPixelsWarning)"
+        )
+    return None
+
+
 def padded_size(height: int, width: int, patch_size: int) -> tuple[int, int]:
     """The smallest (H, W) at least as large as the input that the patch grid divides."""
     p = patch_size

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -12,7 +13,11 @@ from torch import nn
 from claravid.models.backbones import DEFAULT_BACKBONE, backbone_spec
 from claravid.models.build import Backbone, build_backbone
 from claravid.models.dpt import DPTHead
-from claravid.models.inputs import check_image_batch
+from claravid.models.inputs import (
+    RawPixelsWarning,
+    check_image_batch,
+    check_value_range,
+)
 from claravid.models.tracing import is_exporting
 
 
@@ -39,6 +44,7 @@ class Segmenter(nn.Module):
         self.head = head
         self.layers = tuple(int(i) for i in layers)
         self.model_args: dict[str, Any] = {}
+        self._warned_raw = False  # the raw-pixels warning is given once per model
 
     @property
     def patch_size(self) -> int:
@@ -104,16 +110,20 @@ class Segmenter(nn.Module):
 
         ``x`` is either uint8 pixels in [0, 255], normalised here with the backbone's own mean
         and std (`normalise`), or a float batch taken as normalised already and cast to the
-        model's `dtype` (a float16 batch into a float32 model).
+        model's `dtype` (a float16 batch into a float32 model). A float batch with no negative
+        value warns once (`RawPixelsWarning`: raw pixels in [0, 1]?).
 
         Raises:
             TypeError: ``x`` is neither a floating-point nor a uint8 tensor (e.g. numpy).
-            ValueError: ``x`` is not 4-D with 3 channels, or H/W are not patch multiples.
+            ValueError: ``x`` is not 4-D with 3 channels, H/W are not patch multiples, or a
+                float batch holds 0..255 pixels (a value beyond ±25).
         """
         if not is_exporting():  # before anything indexes x (shapes are symbols while exporting)
             check_image_batch(
                 x, self.patch_size, torch.Tensor, mean=self.mean, std=self.std, allow_uint8=True
             )
+            if x.is_floating_point() and not torch.compiler.is_compiling():
+                self._check_values(x)  # data-dependent: a compiled graph would break on it
         if x.dtype == torch.uint8:
             x = self.normalise(x)
         elif x.dtype != self.dtype:
@@ -123,6 +133,16 @@ class Segmenter(nn.Module):
             feats = self.backbone.get_intermediate_layers(x, self.layers, return_class_token=True)
         p = self.patch_size
         return self.head(feats, h // p, w // p, (h, w))
+
+    def _check_values(self, x: torch.Tensor) -> None:
+        """Refuse 0..255 floats; warn once about a batch with no negative value."""
+        if x.numel() == 0:
+            return
+        low, high = torch.stack(torch.aminmax(x.detach())).float().tolist()  # one sync
+        message = check_value_range(low, high, self.mean, self.std)
+        if message is not None and not self._warned_raw:
+            self._warned_raw = True
+            warnings.warn(message, RawPixelsWarning, stacklevel=3)
 
     def extra_repr(self) -> str:
         return f"layers={self.layers}, trainable={self.num_trainable_parameters():,}"

@@ -1,10 +1,12 @@
 """What a segmenter makes of the batches users bring: dtypes, value ranges, layouts, and the
 statistics a checkpoint recorded."""
 
+import warnings
+
 import pytest
 import torch
 
-from claravid.models import build_model
+from claravid.models import RawPixelsWarning, build_model
 
 TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
 HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
@@ -44,6 +46,33 @@ def test_a_float_batch_of_another_dtype_is_cast_to_the_model_s(dtype):
         got = model(x.to(dtype))  # was PyTorch's raw conv error
     assert got.dtype == torch.float32
     torch.testing.assert_close(got, expected, atol=1e-5, rtol=0)
+
+
+def test_a_float_batch_of_0_255_pixels_is_refused():
+    model = _model()
+    with pytest.raises(ValueError, match=r"values in \[0, 255\].*0\.\.255 pixels\? pass them as "
+                       r"uint8") as info:  # fmt: skip
+        model(torch.full((1, 3, 28, 28), 255.0).index_fill_(3, torch.tensor([0]), 0.0))
+    assert "within ±2.6 with mean (0.485, 0.456, 0.406)" in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_a_raw_0_1_batch_warns_once_saying_how_to_silence_it():
+    model = _model()
+    raw = _pixels().float() / 255  # torchgeo's float images in [0, 1]
+    with pytest.warns(RawPixelsWarning, match=r"no negative value.*raw pixels in \[0, 1\]") as rec:
+        model(raw)
+    message = str(rec[0].message)
+    assert "filterwarnings('ignore', category=claravid.models.RawPixelsWarning)" in message
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # once per model: a second batch says nothing
+        model(raw)
+        # Normalised batches hold negative values: no warning from another model either.
+        _model()((raw - IMAGENET_MEAN) / IMAGENET_STD)
+    with warnings.catch_warnings():  # what the message says silences it
+        warnings.simplefilter("error")
+        warnings.filterwarnings("ignore", category=RawPixelsWarning)
+        _model()(raw)
 
 
 def test_normalise_names_a_channels_last_batch():
