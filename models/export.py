@@ -205,6 +205,7 @@ def export_onnx(
             config=record.config,
             step=record.step,
             palette=record.palette,
+            statistics=(model.mean, model.std),
         )
         _write_metadata(staged, document)
         result.update(max_abs_diff=None, agreement=None, check_shape=None)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import warnings
 from collections.abc import Sequence
@@ -17,8 +18,11 @@ from claravid.models.inputs import (
     RawPixelsWarning,
     check_image_batch,
     check_value_range,
+    input_stats,
 )
 from claravid.models.tracing import is_exporting
+
+Triple = tuple[float, float, float]  # R, G, B
 
 
 class Segmenter(nn.Module):
@@ -44,7 +48,10 @@ class Segmenter(nn.Module):
         self.head = head
         self.layers = tuple(int(i) for i in layers)
         self.model_args: dict[str, Any] = {}
-        self._warned_raw = False  # the raw-pixels warning is given once per model
+        # Statistics other than the backbone's (a checkpoint's training config), and whether
+        # the raw-pixels warning was given (once per model).
+        self._statistics: tuple[Triple, Triple] | None = None
+        self._warned_raw = False
 
     @property
     def patch_size(self) -> int:
@@ -52,14 +59,38 @@ class Segmenter(nn.Module):
         return self.backbone.patch_size
 
     @property
-    def mean(self) -> tuple[float, float, float]:
-        """Per-channel mean (RGB, pixels in [0, 1]) the backbone's weights expect."""
-        return self.backbone.mean
+    def mean(self) -> Triple:
+        """Per-channel mean (RGB, pixels in [0, 1]) of the input normalisation: the backbone's
+        weights', unless `set_statistics` chose others (a checkpoint's training config)."""
+        return self._statistics[0] if self._statistics else self.backbone.mean
 
     @property
-    def std(self) -> tuple[float, float, float]:
-        """Per-channel std the backbone's weights expect."""
-        return self.backbone.std
+    def std(self) -> Triple:
+        """Per-channel std of the input normalisation (see `mean`)."""
+        return self._statistics[1] if self._statistics else self.backbone.std
+
+    def set_statistics(
+        self, mean: Sequence[float] | None = None, std: Sequence[float] | None = None
+    ) -> None:
+        """Normalise uint8 input with ``mean`` and ``std`` (RGB, pixels in [0, 1]) instead of
+        the backbone's; both None: the backbone's again.
+
+        Raises:
+            ValueError: not three finite numbers each, a std not positive, or values on the
+                0–255 scale.
+        """
+        if mean is None and std is None:
+            self._statistics = None
+            return
+        if mean is None or std is None:
+            raise ValueError("give mean and std together (or neither: the backbone's)")
+        m, s = input_stats(mean, "mean"), input_stats(std, "std")
+        if not all(math.isfinite(v) for v in m + s) or min(s) <= 0 or max(m + s) > 1:
+            raise ValueError(
+                f"statistics mean {list(m)}, std {list(s)}: need finite numbers for pixels in "
+                "[0, 1] (mean in [0, 1], std in (0, 1]); divide 0–255 statistics by 255"
+            )
+        self._statistics = (m, s)
 
     @property
     def dtype(self) -> torch.dtype:
@@ -108,10 +139,11 @@ class Segmenter(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Logits [B,K,H,W] of images [B,3,H,W] (H, W patch multiples).
 
-        ``x`` is either uint8 pixels in [0, 255], normalised here with the backbone's own mean
-        and std (`normalise`), or a float batch taken as normalised already and cast to the
-        model's `dtype` (a float16 batch into a float32 model). A float batch with no negative
-        value warns once (`RawPixelsWarning`: raw pixels in [0, 1]?).
+        ``x`` is either uint8 pixels in [0, 255], normalised here with `mean` and `std` (the
+        backbone's own unless `set_statistics` chose others; `normalise`), or a float batch
+        taken as normalised already and cast to the model's `dtype` (a float16 batch into a
+        float32 model). A float batch with no negative value warns once (`RawPixelsWarning`:
+        raw pixels in [0, 1]?).
 
         Raises:
             TypeError: ``x`` is neither a floating-point nor a uint8 tensor (e.g. numpy).

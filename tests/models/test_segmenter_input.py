@@ -6,7 +6,7 @@ import warnings
 import pytest
 import torch
 
-from claravid.models import RawPixelsWarning, build_model
+from claravid.models import RawPixelsWarning, build_model, load_checkpoint, save_checkpoint
 
 TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
 HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
@@ -83,3 +83,41 @@ def test_normalise_names_a_channels_last_batch():
         model.normalise(_pixels().float())
     by_hand = (_pixels().float() / 255 - IMAGENET_MEAN) / IMAGENET_STD
     torch.testing.assert_close(model.normalise(_pixels()), by_hand)
+
+
+def test_a_checkpoint_normalises_uint8_with_the_statistics_it_trained_with(tmp_path):
+    model = _model()
+    mean, std = [0.5, 0.4, 0.3], [0.2, 0.25, 0.3]  # not ImageNet's: the config named them
+    config = {"data": {"augment": {"mean": mean, "std": std}}}
+    save_checkpoint(model, tmp_path / "best.pt", config=config)
+    loaded = load_checkpoint(tmp_path / "best.pt").eval()
+    assert loaded.mean == tuple(mean) and loaded.std == tuple(std)
+    pixels = _pixels()
+    recorded = (pixels.float() / 255 - torch.tensor(mean).view(1, 3, 1, 1)) / torch.tensor(
+        std
+    ).view(1, 3, 1, 1)
+    with torch.no_grad():
+        torch.testing.assert_close(loaded(pixels), model(recorded), atol=1e-5, rtol=0)
+        assert (loaded(pixels) - model(pixels)).abs().max() > 1e-3  # ImageNet's differ
+    # Saved again without the config, the model keeps them; unset, the backbone's are back.
+    save_checkpoint(loaded, tmp_path / "again.pt")
+    assert load_checkpoint(tmp_path / "again.pt").std == tuple(std)
+    loaded.set_statistics(None, None)
+    assert loaded.mean == (0.485, 0.456, 0.406)
+    save_checkpoint(loaded, tmp_path / "plain.pt")
+    assert "statistics" not in torch.load(tmp_path / "plain.pt", weights_only=True)
+
+
+@pytest.mark.parametrize(
+    ("mean", "std", "match"),
+    [
+        ([123.7, 116.3, 103.5], [58.4, 57.1, 57.4], "divide 0–255 statistics by 255"),
+        ([0.5, 0.5, 0.5], [0.2, 0.0, 0.2], r"std in \(0, 1\]"),
+        ([0.5, float("nan"), 0.5], [0.2, 0.2, 0.2], "finite"),
+        ([0.5, 0.5], [0.2, 0.2, 0.2], r"mean needs 3 values"),
+        ([0.5, 0.5, 0.5], None, "together"),
+    ],
+)
+def test_unusable_statistics_are_refused(mean, std, match):
+    with pytest.raises(ValueError, match=match):
+        _model().set_statistics(mean, std)
