@@ -24,7 +24,7 @@ def input_stats(values: Sequence[float], what: str = "mean") -> tuple[float, flo
 
 
 def expected_input(
-    patch_size: int,
+    patch_size: int | None,
     mean: Sequence[float] | None = None,
     std: Sequence[float] | None = None,
     allow_uint8: bool = False,
@@ -35,9 +35,8 @@ def expected_input(
     else:
         stats = "the backbone's mean/std"
     pixels = " or uint8 pixels [B,3,H,W] in [0, 255]" if allow_uint8 else ""
-    return (
-        f"float images [B,3,H,W], normalised ({stats}){pixels}, H and W multiples of {patch_size}"
-    )
+    grid = f", H and W multiples of {patch_size}" if patch_size else ""
+    return f"float images [B,3,H,W], normalised ({stats}){pixels}{grid}"
 
 
 def _triple(values: Sequence[float]) -> str:
@@ -125,7 +124,7 @@ def check_image_size(height: int, width: int, patch_size: int) -> None:
 
 def check_image_batch(
     x: Any,
-    patch_size: int,
+    patch_size: int | None,
     array_type: type,
     *,
     mean: Sequence[float] | None = None,
@@ -136,7 +135,7 @@ def check_image_batch(
 
     Args:
         x: The input batch.
-        patch_size: H and W must be multiples of it.
+        patch_size: H and W must be multiples of it (None: unknown, H and W not checked).
         array_type: ``torch.Tensor`` (PyTorch model) or ``numpy.ndarray`` (ONNX Runtime runner).
         mean: The normalisation's mean, stated in the messages when given.
         std: The normalisation's std.
@@ -162,4 +161,5 @@ def check_image_batch(
     if shape[1] != 3:
         hint = " (channels last? permute to [B,3,H,W])" if shape[-1] == 3 else ""
         raise ValueError(f"expected {expected}; got {shape[1]} channels in {list(shape)}{hint}")
-    check_image_size(int(shape[2]), int(shape[3]), patch_size)
+    if patch_size:
+        check_image_size(int(shape[2]), int(shape[3]), patch_size)
