@@ -30,7 +30,7 @@ import yaml
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
 
-from claravid.data.transforms import AugmentConfig
+from claravid.data.transforms import AugmentConfig, statistics_problem
 from claravid.infra.resources import shipped_file, shipped_names
 
 CLASS_WEIGHTS = ("none", "inverse", "median_frequency", "log_inverse")
@@ -266,6 +266,7 @@ def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] | str =
             ) from None
         raise ConfigError(f"cannot parse {source}: {exc}") from None
     _check_loaded(loaded, source)
+    _check_statistics_given(loaded, source)
     _one_item_lists(cfg, loaded)
     cfg = _merge(cfg, loaded, source)
     if isinstance(overrides, str):  # "train.steps=5 val.every=0": one string, split on spaces
@@ -274,11 +275,43 @@ def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] | str =
     if bad:
         raise ConfigError(f"override {bad[0]!r} is not key=value (e.g. train.steps=100)")
     given = OmegaConf.from_dotlist(list(overrides))
+    _check_statistics_given(given, "command line")
     _one_item_lists(cfg, given)
     cfg = _merge(cfg, given, "command line")
     check_config(cfg)
     resolve_backbone(cfg)
     return cfg
+
+
+def _check_statistics_given(given: DictConfig, source: str) -> None:
+    """``data.augment.mean/std`` as given must be three numbers each (or null): said here, by
+    key, instead of OmegaConf's "bad value for None ... '$VALUE'" from the merge."""
+    augment = given.get("data", {}).get("augment", {}) if "data" in given else {}
+    if not isinstance(augment, DictConfig):
+        return  # not a mapping: _check_loaded and the merge name it
+    for name in ("mean", "std"):
+        if name not in augment:
+            continue
+        value = OmegaConf.to_container(augment, resolve=False)[name]  # type: ignore[index]
+        if value is None or _three_numbers(value):
+            continue  # the merge converts them; check_config checks their values
+        problem = statistics_problem(value if name == "mean" else None,
+                                     value if name == "std" else None)  # fmt: skip
+        raise ConfigError(f"bad value for data.augment.{problem} ({source})")
+
+
+def _three_numbers(value: Any) -> bool:
+    if (
+        not isinstance(value, list | tuple)
+        or len(value) != 3
+        or any(isinstance(v, bool) for v in value)
+    ):
+        return False
+    try:
+        [float(v) for v in value]
+    except (TypeError, ValueError):
+        return False
+    return True
 
 
 def _one_item_lists(schema: DictConfig, given: DictConfig) -> None:
@@ -396,6 +429,12 @@ def check_config(cfg: DictConfig) -> None:
     _require(
         a.crop_height >= 1 and a.crop_width >= 1, "data.augment.crop_height", a.crop_height, ">= 1"
     )
+    problem = statistics_problem(a.mean, a.std)  # before any data is read, not at validation
+    if problem is not None:
+        raise ConfigError(
+            f"bad value for data.augment.{problem}; leave data.augment.mean/std unset for the "
+            "backbone's statistics"
+        )
 
 
 def resolve_backbone(cfg: DictConfig) -> None:
