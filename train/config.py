@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -445,7 +446,8 @@ def resolve_backbone(cfg: DictConfig) -> None:
     - ``data.augment.crop_height``/``crop_width`` and ``val.window`` must be multiples of the
       backbone's patch size (its ``model.backbone_kwargs.patch_size`` when overridden);
     - ``model.weights``: licence-gated weights (DINOv3) cannot be ``official`` and must be
-      given as a path.
+      given as a path; a path is recorded absolute (``~`` expanded, symbolic links kept), so
+      the checkpoints that record it are evaluated and exported from any folder.
 
     Raises:
         ConfigError: an unknown backbone, a size off the patch grid (naming the two nearest
@@ -458,6 +460,8 @@ def resolve_backbone(cfg: DictConfig) -> None:
     spec = BACKBONES.get(m.backbone)
     _require(spec is not None, "model.backbone", m.backbone, f"one of {', '.join(BACKBONE_NAMES)}")
     _check_weights(cfg, spec)
+    if _weights_path(m) is not None:
+        m.weights = os.path.abspath(os.path.expanduser(m.weights))
     patch = int(m.backbone_kwargs.get("patch_size", spec.patch_size))
     if a.mean is None:
         a.mean = tuple(spec.mean)
@@ -489,6 +493,34 @@ def _check_weights(cfg: DictConfig, spec: Any) -> None:
         f"model.weights: the {spec.family_name} weights of {spec.name} are licence-gated, with "
         f"no official download; request them at {DINOV3_REQUEST_URL} and pass "
         f"model.weights=/path/to/{spec.weights.file}"
+    )
+
+
+def _weights_path(m: DictConfig) -> str | None:
+    """``model.weights`` when it names a file (not null, ``official`` or missing)."""
+    if OmegaConf.is_missing(m, "weights") or m.weights in (None, "official"):
+        return None
+    return str(m.weights)
+
+
+def check_weights_file(cfg: DictConfig) -> None:
+    """Refuse a ``model.weights`` path that is no file, before any data is indexed or cached
+    and before the run folder is written.
+
+    Raises:
+        ConfigError: one line naming the path and what to pass instead.
+    """
+    path = _weights_path(cfg.model)
+    if path is None or os.path.isfile(path):
+        return
+    from claravid.models.backbones import BACKBONES
+
+    spec = BACKBONES.get(cfg.model.backbone)
+    what = "a folder, not a file" if os.path.isdir(path) else "no such file"
+    instead = "" if spec is None or spec.weights.url is None else ", model.weights=official"
+    raise ConfigError(
+        f"model.weights={path}: {what}; pass the path of {cfg.model.backbone}'s .pth or "
+        f".safetensors weights file{instead} or model.weights=null (a random backbone)"
     )
 
 
