@@ -39,7 +39,7 @@ _LAZY = {
     "Provenance": "claravid.models.export",
     "NotEnoughMemoryError": "claravid.models.memory",
     "OnnxSegmenter": "claravid.models.onnx_runtime",
-    "RawPixelsWarning": "claravid.models.inputs",
+    "InputRangeWarning": "claravid.models.inputs",
     "Segmenter": "claravid.models.segmenter",
     "build_model": "claravid.models.segmenter",
     "DinoVisionTransformer": "claravid.models.vit",

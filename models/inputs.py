@@ -47,11 +47,16 @@ def _triple(values: Sequence[float]) -> str:
 #: gives values within ±5 with any backbone's statistics (ImageNet's: -2.1..2.6, SAT-493M's:
 #: -2.8..4.9), and 0..255 floats reach 25 in all but nearly black images.
 RAW_PIXEL_LIMIT = 25.0
+#: Within this magnitude everywhere, a batch was normalised and then divided by 255 again
+#: (torchgeo's default ``Normalize(mean=0, std=255)`` after ``normalize=True``): an aerial
+#: batch normalised once spans about ±2.
+TWICE_NORMALISED_LIMIT = 0.05
 
 
-class RawPixelsWarning(UserWarning):
-    """A float batch with no negative value reached a segmenter, which takes float batches as
-    normalised: raw pixels in [0, 1] (torchgeo's convention) would give wrong labels silently."""
+class InputRangeWarning(UserWarning):
+    """A float batch reached a segmenter, which takes float batches as normalised, with values
+    that do not look normalised: raw pixels in [0, 1] (torchgeo's convention, no negative value)
+    or a batch normalised twice (every value within ±0.05); the labels would be wrong silently."""
 
 
 def normalised_bound(mean: Sequence[float], std: Sequence[float]) -> float:
@@ -62,20 +67,27 @@ def normalised_bound(mean: Sequence[float], std: Sequence[float]) -> float:
 def check_value_range(
     low: float, high: float, mean: Sequence[float], std: Sequence[float]
 ) -> str | None:
-    """Refuse a float batch whose values are 0..255 pixels; say when it has no negative value.
+    """Refuse a float batch whose values are 0..255 pixels; say when it does not look normalised.
 
     Args:
         low, high: The batch's smallest and largest value.
         mean, std: The statistics the model normalises with (stated in the messages).
 
     Returns:
-        The text of a `RawPixelsWarning` when no value is negative (raw pixels in [0, 1]?),
-        else None.
+        The text of an `InputRangeWarning` when no value is negative (raw pixels in [0, 1]?) or
+        every value is within `TWICE_NORMALISED_LIMIT` (normalised twice?), else None.
 
     Raises:
         ValueError: a value beyond `RAW_PIXEL_LIMIT` (0..255 pixels as floats).
     """
     stats = f"mean {_triple(mean)}, std {_triple(std)}"
+    expects = (
+        f"the model, which takes float batches as normalised ((x / 255 - mean) / std, {stats})"
+    )
+    silence = (
+        "if the batch is normalised, silence this with "
+        "warnings.filterwarnings('ignore', category=claravid.models.InputRangeWarning)"
+    )
     if high > RAW_PIXEL_LIMIT or low < -RAW_PIXEL_LIMIT:
         raise ValueError(
             f"a float batch with values in [{low:.4g}, {high:.4g}] reached the model, which "
@@ -86,10 +98,15 @@ def check_value_range(
     if low >= 0:
         return (
             f"a float batch with no negative value (values in [{low:.3g}, {high:.3g}]) reached "
-            "the model, which takes float batches as normalised ((x / 255 - mean) / std, "
-            f"{stats}): raw pixels in [0, 1] (torchgeo's convention)? normalise them with "
-            "(x - mean) / std, or pass uint8 pixels; if the batch is normalised, silence this with "
-            "warnings.filterwarnings('ignore', category=claravid.models.RawPixelsWarning)"
+            f"{expects}: raw pixels in [0, 1] (torchgeo's convention)? normalise them with "
+            f"(x - mean) / std, or pass uint8 pixels; {silence}"
+        )
+    if max(-low, high) < TWICE_NORMALISED_LIMIT:
+        return (
+            f"a float batch with every value within ±{TWICE_NORMALISED_LIMIT:g} (values in "
+            f"[{low:.3g}, {high:.3g}]) reached {expects}: normalised twice (torchgeo's default "
+            "division by 255 after train_transforms(normalize=True))? normalise once, or pass "
+            f"uint8 pixels; {silence}"
         )
     return None
 

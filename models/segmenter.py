@@ -15,7 +15,7 @@ from claravid.models.backbones import DEFAULT_BACKBONE, backbone_spec
 from claravid.models.build import Backbone, build_backbone
 from claravid.models.dpt import DPTHead
 from claravid.models.inputs import (
-    RawPixelsWarning,
+    InputRangeWarning,
     check_image_batch,
     check_value_range,
     input_stats,
@@ -49,9 +49,9 @@ class Segmenter(nn.Module):
         self.layers = tuple(int(i) for i in layers)
         self.model_args: dict[str, Any] = {}
         # Statistics other than the backbone's (a checkpoint's training config), and whether
-        # the raw-pixels warning was given (once per model).
+        # the input-range warning was given (once per model).
         self._statistics: tuple[Triple, Triple] | None = None
-        self._warned_raw = False
+        self._warned_range = False
 
     @property
     def patch_size(self) -> int:
@@ -142,8 +142,9 @@ class Segmenter(nn.Module):
         ``x`` is either uint8 pixels in [0, 255], normalised here with `mean` and `std` (the
         backbone's own unless `set_statistics` chose others; `normalise`), or a float batch
         taken as normalised already and cast to the model's `dtype` (a float16 batch into a
-        float32 model). A float batch with no negative value warns once (`RawPixelsWarning`:
-        raw pixels in [0, 1]?).
+        float32 model). A float batch that does not look normalised warns once
+        (`InputRangeWarning`: no negative value, raw pixels in [0, 1]?; every value within
+        ±0.05, normalised twice?).
 
         Raises:
             TypeError: ``x`` is neither a floating-point nor a uint8 tensor (e.g. numpy).
@@ -167,14 +168,14 @@ class Segmenter(nn.Module):
         return self.head(feats, h // p, w // p, (h, w))
 
     def _check_values(self, x: torch.Tensor) -> None:
-        """Refuse 0..255 floats; warn once about a batch with no negative value."""
+        """Refuse 0..255 floats; warn once about a batch that does not look normalised."""
         if x.numel() == 0:
             return
         low, high = torch.stack(torch.aminmax(x.detach())).float().tolist()  # one sync
         message = check_value_range(low, high, self.mean, self.std)
-        if message is not None and not self._warned_raw:
-            self._warned_raw = True
-            warnings.warn(message, RawPixelsWarning, stacklevel=3)
+        if message is not None and not self._warned_range:
+            self._warned_range = True
+            warnings.warn(message, InputRangeWarning, stacklevel=3)
 
     def extra_repr(self) -> str:
         return f"layers={self.layers}, trainable={self.num_trainable_parameters():,}"

@@ -349,7 +349,9 @@ def train_transforms(config: Any = None, normalize: bool = False) -> Segmentatio
     segmenter normalises with its own statistics on its device.
 
     With ``normalize=True`` the pipeline ends with the normalisation (float32 crops, with the
-    config's ``mean``/``std``, else ImageNet's), for models that do not normalise themselves.
+    config's ``mean``/``std``, else ImageNet's), for models that do not normalise themselves;
+    not inside a torchgeo data module, which divides images by 255 again on the device (keep
+    uint8 there: docs/data.md, "With torchgeo and Lightning").
     """
     cfg = config if isinstance(config, AugmentConfig) else augment_config(config)
     crop = (cfg.crop_height, cfg.crop_width)

@@ -6,7 +6,7 @@ import warnings
 import pytest
 import torch
 
-from claravid.models import RawPixelsWarning, build_model, load_checkpoint, save_checkpoint
+from claravid.models import InputRangeWarning, build_model, load_checkpoint, save_checkpoint
 
 TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
 HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
@@ -60,10 +60,10 @@ def test_a_float_batch_of_0_255_pixels_is_refused():
 def test_a_raw_0_1_batch_warns_once_saying_how_to_silence_it():
     model = _model()
     raw = _pixels().float() / 255  # torchgeo's float images in [0, 1]
-    with pytest.warns(RawPixelsWarning, match=r"no negative value.*raw pixels in \[0, 1\]") as rec:
+    with pytest.warns(InputRangeWarning, match=r"no negative value.*raw pixels in \[0, 1\]") as rec:
         model(raw)
     message = str(rec[0].message)
-    assert "filterwarnings('ignore', category=claravid.models.RawPixelsWarning)" in message
+    assert "filterwarnings('ignore', category=claravid.models.InputRangeWarning)" in message
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # once per model: a second batch says nothing
         model(raw)
@@ -71,7 +71,7 @@ def test_a_raw_0_1_batch_warns_once_saying_how_to_silence_it():
         _model()((raw - IMAGENET_MEAN) / IMAGENET_STD)
     with warnings.catch_warnings():  # what the message says silences it
         warnings.simplefilter("error")
-        warnings.filterwarnings("ignore", category=RawPixelsWarning)
+        warnings.filterwarnings("ignore", category=InputRangeWarning)
         _model()(raw)
 
 
