@@ -45,6 +45,7 @@ _LAZY = {
     "Provenance": "claravid.models.export",
     "NotEnoughMemoryError": "claravid.models.memory",
     "OnnxSegmenter": "claravid.models.onnx_runtime",
+    "InputRangeWarning": "claravid.models.inputs",
     "Segmenter": "claravid.models.segmenter",
     "build_model": "claravid.models.segmenter",
     "UperNetHead": "claravid.models.upernet",

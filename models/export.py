@@ -31,6 +31,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from claravid.models.onnx_grid import guard_patch_grid
 from claravid.models.onnx_metadata import (
     PRECISIONS,
     build_metadata,
@@ -82,7 +83,8 @@ class ExportSettings:
     Attributes:
         height: example (and, unless dynamic, the only) input height; a patch multiple.
         width: example input width.
-        dynamic: also make H and W dynamic (multiples of the patch size).
+        dynamic: also make H and W dynamic (multiples of the patch size: other sizes fail in
+            ONNX Runtime itself, see `claravid.models.onnx_grid`).
         precision: ``fp32``, ``fp16`` (float16 graph, float32 input and output) or ``int8``
             (`claravid.models.quantize`).
         check: run ``onnx.checker`` and compare ONNX Runtime with PyTorch after export.
@@ -202,6 +204,7 @@ def export_onnx(
             config=record.config,
             step=record.step,
             palette=record.palette,
+            statistics=(model.mean, model.std),
         )
         _write_metadata(staged, document)
         result.update(max_abs_diff=None, agreement=None, check_shape=None)
@@ -271,6 +274,8 @@ def _export(model: Segmenter, path: Path, height: int, width: int, dynamic: bool
             opset_version=OPSET,
             verbose=False,
         )
+    if dynamic:  # sizes off the patch grid fail in ONNX Runtime too, not only in our runner
+        guard_patch_grid(path, p)
 
 
 def _write_metadata(path: Path, document: dict[str, Any]) -> None:

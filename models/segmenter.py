@@ -4,7 +4,9 @@
 from __future__ import annotations
 
 import contextlib
+import math
 import os
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -21,7 +23,12 @@ from claravid.models.heads import (
     check_head_settings,
     default_layers,
 )
-from claravid.models.inputs import check_image_batch
+from claravid.models.inputs import (
+    InputRangeWarning,
+    check_image_batch,
+    check_value_range,
+    input_stats,
+)
 from claravid.models.linear_head import LinearHead
 from claravid.models.tracing import is_exporting
 from claravid.models.upernet import UperNetHead
@@ -33,6 +40,8 @@ Head = DPTHead | LinearHead | UperNetHead
 #: tokens (SAT ViT-L, 7B). They stay frozen when the backbone trains (DDP refuses a parameter
 #: that never gets a gradient).
 PRETRAINING_ONLY = ("mask_token", "local_cls_norm")
+
+Triple = tuple[float, float, float]  # R, G, B
 
 
 class Segmenter(nn.Module):
@@ -62,6 +71,10 @@ class Segmenter(nn.Module):
         self.head = head
         self.layers = tuple(int(i) for i in layers)
         self.model_args: dict[str, Any] = {}
+        # Statistics other than the backbone's (a checkpoint's training config), and whether
+        # the input-range warning was given (once per model).
+        self._statistics: tuple[Triple, Triple] | None = None
+        self._warned_range = False
         self.backbone_frozen = True
 
     def freeze_backbone(self) -> Segmenter:
@@ -87,14 +100,43 @@ class Segmenter(nn.Module):
         return self.backbone.patch_size
 
     @property
-    def mean(self) -> tuple[float, float, float]:
-        """Per-channel mean (RGB, pixels in [0, 1]) the backbone's weights expect."""
-        return self.backbone.mean
+    def mean(self) -> Triple:
+        """Per-channel mean (RGB, pixels in [0, 1]) of the input normalisation: the backbone's
+        weights', unless `set_statistics` chose others (a checkpoint's training config)."""
+        return self._statistics[0] if self._statistics else self.backbone.mean
 
     @property
-    def std(self) -> tuple[float, float, float]:
-        """Per-channel std the backbone's weights expect."""
-        return self.backbone.std
+    def std(self) -> Triple:
+        """Per-channel std of the input normalisation (see `mean`)."""
+        return self._statistics[1] if self._statistics else self.backbone.std
+
+    def set_statistics(
+        self, mean: Sequence[float] | None = None, std: Sequence[float] | None = None
+    ) -> None:
+        """Normalise uint8 input with ``mean`` and ``std`` (RGB, pixels in [0, 1]) instead of
+        the backbone's; both None: the backbone's again.
+
+        Raises:
+            ValueError: not three finite numbers each, a std not positive, or values on the
+                0–255 scale.
+        """
+        if mean is None and std is None:
+            self._statistics = None
+            return
+        if mean is None or std is None:
+            raise ValueError("give mean and std together (or neither: the backbone's)")
+        m, s = input_stats(mean, "mean"), input_stats(std, "std")
+        if not all(math.isfinite(v) for v in m + s) or min(s) <= 0 or max(m + s) > 1:
+            raise ValueError(
+                f"statistics mean {list(m)}, std {list(s)}: need finite numbers for pixels in "
+                "[0, 1] (mean in [0, 1], std in (0, 1]); divide 0–255 statistics by 255"
+            )
+        self._statistics = (m, s)
+
+    @property
+    def dtype(self) -> torch.dtype:
+        """The parameters' dtype: what a float batch is cast to, what uint8 pixels become."""
+        return next(self.backbone.parameters()).dtype
 
     @property
     def num_classes(self) -> int:
@@ -112,32 +154,69 @@ class Segmenter(nn.Module):
         return self
 
     def normalise(self, pixels: torch.Tensor) -> torch.Tensor:
-        """uint8 pixels [B,3,H,W] -> float32 ``(x / 255 - mean) / std`` on their device."""
+        """uint8 pixels [B,3,H,W] -> ``(x / 255 - mean) / std`` on their device, computed in
+        float32 and given the model's dtype (`dtype`: bfloat16 for a model cast to it).
+
+        Raises:
+            TypeError: not a uint8 tensor.
+            ValueError: not [B,3,H,W] (e.g. channels last).
+        """
+        if not isinstance(pixels, torch.Tensor) or pixels.dtype != torch.uint8:
+            got = pixels.dtype if isinstance(pixels, torch.Tensor) else type(pixels).__name__
+            raise TypeError(
+                f"normalise takes uint8 pixels [B,3,H,W], got {got}; a float batch goes to the "
+                "model as it is (normalised)"
+            )
+        if pixels.ndim != 4 or pixels.shape[1] != 3:
+            last = pixels.ndim == 4 and pixels.shape[-1] == 3
+            hint = ": channels last? x.permute(0, 3, 1, 2)" if last else ""
+            raise ValueError(
+                f"normalise takes uint8 pixels [B,3,H,W], got shape {list(pixels.shape)}{hint}"
+            )
         mean = torch.tensor(self.mean, device=pixels.device).view(1, 3, 1, 1)
         std = torch.tensor(self.std, device=pixels.device).view(1, 3, 1, 1)
-        return (pixels.float() / 255 - mean) / std
+        return ((pixels.float() / 255 - mean) / std).to(self.dtype)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Logits [B,K,H,W] of images [B,3,H,W] (H, W patch multiples).
 
-        ``x`` is either uint8 pixels in [0, 255], normalised here with the backbone's own mean
-        and std (`normalise`), or a float batch taken as normalised already.
+        ``x`` is either uint8 pixels in [0, 255], normalised here with `mean` and `std` (the
+        backbone's own unless `set_statistics` chose others; `normalise`), or a float batch
+        taken as normalised already and cast to the model's `dtype` (a float16 batch into a
+        float32 model). A float batch that does not look normalised warns once
+        (`InputRangeWarning`: no negative value, raw pixels in [0, 1]?; every value within
+        ±0.05, normalised twice?).
 
         Raises:
             TypeError: ``x`` is neither a floating-point nor a uint8 tensor (e.g. numpy).
-            ValueError: ``x`` is not 4-D with 3 channels, or H/W are not patch multiples.
+            ValueError: ``x`` is not 4-D with 3 channels, H/W are not patch multiples, or a
+                float batch holds 0..255 pixels (a value beyond ±25).
         """
         if not is_exporting():  # before anything indexes x (shapes are symbols while exporting)
             check_image_batch(
                 x, self.patch_size, torch.Tensor, mean=self.mean, std=self.std, allow_uint8=True
             )
+            if x.is_floating_point() and not torch.compiler.is_compiling():
+                self._check_values(x)  # data-dependent: a compiled graph would break on it
         if x.dtype == torch.uint8:
             x = self.normalise(x)
+        elif x.dtype != self.dtype:
+            x = x.to(self.dtype)
         h, w = x.shape[-2:]
         with torch.no_grad() if self.backbone_frozen else contextlib.nullcontext():
             feats = self.backbone.get_intermediate_layers(x, self.layers, return_class_token=True)
         p = self.patch_size
         return self.head(feats, h // p, w // p, (h, w))
+
+    def _check_values(self, x: torch.Tensor) -> None:
+        """Refuse 0..255 floats; warn once about a batch that does not look normalised."""
+        if x.numel() == 0:
+            return
+        low, high = torch.stack(torch.aminmax(x.detach())).float().tolist()  # one sync
+        message = check_value_range(low, high, self.mean, self.std)
+        if message is not None and not self._warned_range:
+            self._warned_range = True
+            warnings.warn(message, InputRangeWarning, stacklevel=3)
 
     def extra_repr(self) -> str:
         return f"layers={self.layers}, trainable={self.num_trainable_parameters():,}"

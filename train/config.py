@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,7 @@ import yaml
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
 
-from claravid.data.transforms import AugmentConfig
+from claravid.data.transforms import AugmentConfig, statistics_problem
 from claravid.infra.resources import shipped_file, shipped_names
 from claravid.models.grid import natural_size, nearest_multiples
 
@@ -266,6 +267,7 @@ def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] | str =
             ) from None
         raise ConfigError(f"cannot parse {source}: {exc}") from None
     _check_loaded(loaded, source)
+    _check_statistics_given(loaded, source)
     _one_item_lists(cfg, loaded)
     cfg = _merge(cfg, loaded, source)
     if isinstance(overrides, str):  # "train.steps=5 val.every=0": one string, split on spaces
@@ -274,11 +276,43 @@ def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] | str =
     if bad:
         raise ConfigError(f"override {bad[0]!r} is not key=value (e.g. train.steps=100)")
     given = OmegaConf.from_dotlist(list(overrides))
+    _check_statistics_given(given, "command line")
     _one_item_lists(cfg, given)
     cfg = _merge(cfg, given, "command line")
     check_config(cfg)
     resolve_backbone(cfg)
     return cfg
+
+
+def _check_statistics_given(given: DictConfig, source: str) -> None:
+    """``data.augment.mean/std`` as given must be three numbers each (or null): said here, by
+    key, instead of OmegaConf's "bad value for None ... '$VALUE'" from the merge."""
+    augment = given.get("data", {}).get("augment", {}) if "data" in given else {}
+    if not isinstance(augment, DictConfig):
+        return  # not a mapping: _check_loaded and the merge name it
+    for name in ("mean", "std"):
+        if name not in augment:
+            continue
+        value = OmegaConf.to_container(augment, resolve=False)[name]  # type: ignore[index]
+        if value is None or _three_numbers(value):
+            continue  # the merge converts them; check_config checks their values
+        problem = statistics_problem(value if name == "mean" else None,
+                                     value if name == "std" else None)  # fmt: skip
+        raise ConfigError(f"bad value for data.augment.{problem} ({source})")
+
+
+def _three_numbers(value: Any) -> bool:
+    if (
+        not isinstance(value, list | tuple)
+        or len(value) != 3
+        or any(isinstance(v, bool) for v in value)
+    ):
+        return False
+    try:
+        [float(v) for v in value]
+    except (TypeError, ValueError):
+        return False
+    return True
 
 
 def _one_item_lists(schema: DictConfig, given: DictConfig) -> None:
@@ -394,6 +428,12 @@ def check_config(cfg: DictConfig) -> None:
     _require(
         a.crop_height >= 1 and a.crop_width >= 1, "data.augment.crop_height", a.crop_height, ">= 1"
     )
+    problem = statistics_problem(a.mean, a.std)  # before any data is read, not at validation
+    if problem is not None:
+        raise ConfigError(
+            f"bad value for data.augment.{problem}; leave data.augment.mean/std unset for the "
+            "backbone's statistics"
+        )
 
 
 def _check_head(m: DictConfig) -> None:
@@ -418,7 +458,8 @@ def resolve_backbone(cfg: DictConfig) -> None:
     - ``data.augment.crop_height``/``crop_width`` and ``val.window`` must be multiples of the
       backbone's patch size (its ``model.backbone_kwargs.patch_size`` when overridden);
     - ``model.weights``: licence-gated weights (DINOv3) cannot be ``official`` and must be
-      given as a path.
+      given as a path; a path is recorded absolute (``~`` expanded, symbolic links kept), so
+      the checkpoints that record it are evaluated and exported from any folder.
 
     Raises:
         ConfigError: an unknown backbone, a size off the patch grid (naming the two nearest
@@ -430,6 +471,8 @@ def resolve_backbone(cfg: DictConfig) -> None:
     spec = BACKBONES.get(m.backbone)
     _require(spec is not None, "model.backbone", m.backbone, f"one of {', '.join(BACKBONE_NAMES)}")
     _check_weights(cfg, spec)
+    if _weights_path(m) is not None:
+        m.weights = os.path.abspath(os.path.expanduser(m.weights))
     patch = int(m.backbone_kwargs.get("patch_size", spec.patch_size))
     if a.mean is None:
         a.mean = tuple(spec.mean)
@@ -461,6 +504,34 @@ def _check_weights(cfg: DictConfig, spec: Any) -> None:
         f"model.weights: the {spec.family_name} weights of {spec.name} are licence-gated, with "
         f"no official download; request them at {DINOV3_REQUEST_URL} and pass "
         f"model.weights=/path/to/{spec.weights.file}"
+    )
+
+
+def _weights_path(m: DictConfig) -> str | None:
+    """``model.weights`` when it names a file (not null, ``official`` or missing)."""
+    if OmegaConf.is_missing(m, "weights") or m.weights in (None, "official"):
+        return None
+    return str(m.weights)
+
+
+def check_weights_file(cfg: DictConfig) -> None:
+    """Refuse a ``model.weights`` path that is no file, before any data is indexed or cached
+    and before the run folder is written.
+
+    Raises:
+        ConfigError: one line naming the path and what to pass instead.
+    """
+    path = _weights_path(cfg.model)
+    if path is None or os.path.isfile(path):
+        return
+    from claravid.models.backbones import BACKBONES
+
+    spec = BACKBONES.get(cfg.model.backbone)
+    what = "a folder, not a file" if os.path.isdir(path) else "no such file"
+    instead = "" if spec is None or spec.weights.url is None else ", model.weights=official"
+    raise ConfigError(
+        f"model.weights={path}: {what}; pass the path of {cfg.model.backbone}'s .pth or "
+        f".safetensors weights file{instead} or model.weights=null (a random backbone)"
     )
 
 

@@ -207,6 +207,7 @@ def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
     Returns a :class:`RunResult` instead when ``out_dir`` holds a finished run (nothing to do).
     """
     C.resolve_backbone(cfg)  # idempotent: a config not from load_config gets it too
+    C.check_weights_file(cfg)  # before indexing, the label cache and config.yaml
     info, say = _start_process(cfg, say)
     device, main = info.device, info.is_main
     if main and (message := C.statistics_warning(cfg)) is not None:

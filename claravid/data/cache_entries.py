@@ -29,7 +29,9 @@ from claravid.io.labels import identity_fingerprint, source_identity
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _HOST = re.sub(r"[^A-Za-z0-9.-]", "_", socket.gethostname()) or "host"
-_FULL_ERRNOS = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)}
+#: No room for any entry: a full disk, or the user's quota exceeded (EDQUOT, where it exists).
+_EDQUOT = getattr(errno, "EDQUOT", None)
+_FULL_ERRNOS = {errno.ENOSPC} | ({_EDQUOT} if _EDQUOT is not None else set())
 _FOLDER_ERRNOS = {errno.EROFS, *_FULL_ERRNOS}
 
 
@@ -122,7 +124,8 @@ def folder_refuses(exc: OSError, directory: Path) -> bool:
 def write_error(exc: OSError, directory: Path) -> str:
     """Why writing the cache failed, in words, naming the folder."""
     if exc.errno in _FULL_ERRNOS:
-        return f"the disk is full (no space left for the label cache in {directory})"
+        full = "disk quota is exceeded" if exc.errno == _EDQUOT else "disk is full"
+        return f"the {full} (no space left for the label cache in {directory})"
     if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
         return f"the label cache folder {directory} is not writable ({exc.strerror})"
     return f"cannot write the label cache in {directory} ({exc.strerror or exc})"

@@ -25,7 +25,9 @@ leave it to the dataset (int64, what a loss takes).
 
 from __future__ import annotations
 
+import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -98,16 +100,48 @@ class AugmentConfig:
             value = getattr(self, name)
             if not 0 <= value <= 1:
                 raise ValueError(f"{name}={value}: a probability, must be between 0 and 1")
-        # None: the backbone's statistics (filled in by claravid-train), checked there.
-        mean = None if self.mean is None else list(self.mean)
-        std = None if self.std is None else list(self.std)
-        if (mean is not None and len(mean) != 3) or (
-            std is not None and (len(std) != 3 or any(s == 0 for s in std))
-        ):
-            raise ValueError(
-                f"mean={mean}, std={std}: three values each (R, G, B), std non-zero, "
-                "or null for the backbone's statistics"
+        # None: the backbone's statistics (filled in by claravid-train).
+        problem = statistics_problem(self.mean, self.std)
+        if problem is not None:
+            raise ValueError(f"{problem}; or null for the backbone's statistics")
+
+
+def statistics_problem(mean: Any, std: Any) -> str | None:
+    """What makes input statistics unusable, in words; None when they are usable (or None).
+
+    A mean and a std are three finite numbers each (R, G, B) for pixels in [0, 1]: a mean in
+    [0, 1], a std in (0, 1]. Statistics on the 0–255 scale (``mean=[123.7, 116.3, 103.5]``)
+    would leave inputs a hundred times off their range; a zero or negative std, or NaN, would
+    make every input infinite or NaN.
+    """
+    for name, values in (("mean", mean), ("std", std)):
+        if values is None:
+            continue
+        numbers = isinstance(values, Sequence) and not isinstance(values, str)
+        listed = list(values) if numbers else values
+        if not numbers or len(listed) != 3 or not all(_is_number(v) for v in listed):
+            return (
+                f"{name}={listed!r}: three numbers (R, G, B) for pixels in [0, 1], e.g. "
+                "[0.5, 0.4, 0.3]"
             )
+        if not all(math.isfinite(v) for v in listed):
+            return f"{name}={listed}: not finite"
+    given = {name: list(v) for name, v in (("mean", mean), ("std", std)) if v is not None}
+    if any(v > 1 for values in given.values() for v in values):
+        named = ", ".join(f"{name}={values}" for name, values in given.items())
+        return (
+            f"{named}: statistics on the 0–255 scale? they are for pixels in [0, 1]: divide "
+            "them by 255"
+        )
+    if mean is not None and min(mean) < 0:
+        return f"mean={list(mean)}: must lie in [0, 1]"
+    if std is not None and min(std) <= 0:
+        return f"std={list(std)}: must be positive"
+    return None
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 def augment_config(overrides: Any = None) -> AugmentConfig:
@@ -313,7 +347,9 @@ def train_transforms(config: Any = None, normalize: bool = False) -> Segmentatio
     segmenter normalises with its own statistics on its device.
 
     With ``normalize=True`` the pipeline ends with the normalisation (float32 crops, with the
-    config's ``mean``/``std``, else ImageNet's), for models that do not normalise themselves.
+    config's ``mean``/``std``, else ImageNet's), for models that do not normalise themselves;
+    not inside a torchgeo data module, which divides images by 255 again on the device (keep
+    uint8 there: docs/data.md, "With torchgeo and Lightning").
     """
     cfg = config if isinstance(config, AugmentConfig) else augment_config(config)
     crop = (cfg.crop_height, cfg.crop_width)
