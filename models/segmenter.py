@@ -14,6 +14,7 @@ from claravid.models.build import Backbone, build_backbone
 from claravid.models.dpt import DPTHead
 from claravid.models.inputs import check_image_batch
 from claravid.models.tracing import is_exporting
+from claravid.models.trunk import block_indices
 
 
 class Segmenter(nn.Module):
@@ -35,6 +36,7 @@ class Segmenter(nn.Module):
         bad = [i for i in layers if not 0 <= i < backbone.n_blocks]
         if bad:
             raise ValueError(f"layers {bad} outside the backbone's {backbone.n_blocks} blocks")
+        block_indices(layers, backbone.n_blocks)  # each block once, or a clear error now
         self.backbone = backbone.eval().requires_grad_(False)
         self.head = head
         self.layers = tuple(int(i) for i in layers)
