@@ -1,9 +1,8 @@
 """Building a named backbone from its description (`claravid.models.backbones`), with weights.
 
 The description's family picks the module class from the dict below, and the weights loader
-(`claravid.models.weights`) the family's declared formats. Every module built here exposes
-``patch_size``, ``embed_dim``, ``n_blocks``, ``mean``, ``std``, ``get_intermediate_layers``,
-``check_input``, ``check_input_size`` and ``freeze_pos_embed``.
+(`claravid.models.weights`) the family's declared formats. Every module built here is a
+`claravid.models.protocol.Backbone`.
 """
 
 from __future__ import annotations
@@ -21,11 +20,14 @@ from claravid.models.backbones import (
 )
 from claravid.models.dinov3 import DinoV3VisionTransformer
 from claravid.models.memory import check_memory
+from claravid.models.protocol import Backbone
+from claravid.models.trunk import VisionTransformer
 from claravid.models.vit import DinoVisionTransformer
 from claravid.models.weights import WeightsSource, load_weights, locate_weights
 
-Backbone = DinoVisionTransformer | DinoV3VisionTransformer
-_MODULES: dict[str, type[Backbone]] = {
+__all__ = ["Backbone", "build_backbone", "parameter_bytes"]
+
+_MODULES: dict[str, type[VisionTransformer]] = {
     "dinov2": DinoVisionTransformer,
     "dinov3": DinoV3VisionTransformer,
 }
@@ -33,7 +35,7 @@ _MODULES: dict[str, type[Backbone]] = {
 
 def build_backbone(
     name: str = DEFAULT_BACKBONE, weights: str | os.PathLike | None = None, **overrides: Any
-) -> Backbone:
+) -> VisionTransformer:
     """Build a named DINOv2 or DINOv3 backbone, optionally with weights.
 
     Args:

@@ -31,6 +31,7 @@ from claravid.models.inputs import (
 )
 from claravid.models.linear_head import LinearHead
 from claravid.models.tracing import is_exporting
+from claravid.models.trunk import block_indices
 from claravid.models.upernet import UperNetHead
 
 Head = DPTHead | LinearHead | UperNetHead
@@ -67,6 +68,7 @@ class Segmenter(nn.Module):
         bad = [i for i in layers if not 0 <= i < backbone.n_blocks]
         if bad:
             raise ValueError(f"layers {bad} outside the backbone's {backbone.n_blocks} blocks")
+        block_indices(layers, backbone.n_blocks)  # each block once, or a clear error now
         self.backbone = backbone.eval().requires_grad_(False)
         self.head = head
         self.layers = tuple(int(i) for i in layers)

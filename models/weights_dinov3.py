@@ -25,6 +25,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from claravid.models.layers import swiglu_hidden
 from claravid.models.rope import rope_periods
 from claravid.models.weight_formats import KeyFormat, Rename, Split, WeightsError, WeightsFamily
 
@@ -154,8 +155,6 @@ def _checks(state: dict[str, torch.Tensor], model: nn.Module, source: str) -> No
 
 
 def _hidden(arch) -> int:
-    from claravid.models.layers import swiglu_hidden
-
     if arch["ffn"] == "swiglu":
         return swiglu_hidden(arch["embed_dim"], arch["ffn_ratio"], arch["swiglu_align"])
     return int(arch["embed_dim"] * arch["ffn_ratio"])

@@ -205,8 +205,8 @@ def test_wrapper_prefixes_are_removed(tmp_path):
 
 
 def test_a_claravid_checkpoint_is_not_backbone_weights(tmp_path):
-    model = build_model("dinov3_vits16", num_classes=3, backbone_kwargs=TINY_V3,
-                        layers=[0, 1, 2, 2], features=8, out_channels=[8, 8, 8, 8])  # fmt: skip
+    model = build_model("dinov3_vits16", num_classes=3, backbone_kwargs={**TINY_V3, "depth": 4},
+                        layers=[0, 1, 2, 3], features=8, out_channels=[8, 8, 8, 8])  # fmt: skip
     path = save_checkpoint(model, tmp_path / "best.pt")
     with pytest.raises(WeightsError) as err:
         build_backbone("dinov3_vits16", weights=path, **TINY_V3)
