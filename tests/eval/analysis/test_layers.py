@@ -22,9 +22,10 @@ def _modules(layer: str) -> list[str]:
 
 
 #: What the numpy-only analysis layer may load of the toolkit (packages and these modules): the
-#: profile fit and the measures' names of claravid.dsp, not its image code or the file readers.
+#: profile fit and the measures' names of claravid.dsp, not its image code or the file readers;
+#: the packages' lazy names come from claravid.infra.lazy.
 ANALYSIS_MAY_LOAD = ("claravid.eval.analysis", "claravid.dsp.measures", "claravid.dsp.profile",
-                     "claravid.infra.cli")  # fmt: skip
+                     "claravid.infra.cli", "claravid.infra.lazy")  # fmt: skip
 PACKAGES = {"claravid", "claravid.dsp", "claravid.eval", "claravid.infra"}
 
 
