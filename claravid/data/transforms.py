@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")  # it phones home at import otherwise
 
@@ -35,7 +35,7 @@ import albumentations as A
 import cv2
 import numpy as np
 import torch
-from omegaconf import OmegaConf
+from omegaconf import Container, OmegaConf
 
 from claravid.io.headers import MAX_PIXELS
 from claravid.io.yamlfile import YamlFileError, load_yaml
@@ -112,6 +112,11 @@ class AugmentConfig:
             raise ValueError(f"ignore_index={self.ignore_index}: masks are uint8, 0..255")
 
 
+def _fields(config: Container) -> dict[str, Any]:
+    """A structured config's values as plain Python, keyed by the dataclass's field names."""
+    return cast(dict[str, Any], OmegaConf.to_container(config))
+
+
 def augment_config(overrides: Any = None) -> AugmentConfig:
     """The default config merged with a dict, DictConfig, or YAML file path.
 
@@ -119,7 +124,7 @@ def augment_config(overrides: Any = None) -> AugmentConfig:
     """
     base = OmegaConf.structured(AugmentConfig)
     if overrides is None:
-        return AugmentConfig(**OmegaConf.to_container(base))
+        return AugmentConfig(**_fields(base))
     if isinstance(overrides, str | os.PathLike):
         try:  # the strict loader names the file, and a duplicate key with its lines
             overrides = load_yaml(overrides) or {}
@@ -129,7 +134,7 @@ def augment_config(overrides: Any = None) -> AugmentConfig:
         merged = OmegaConf.merge(base, overrides)
     except Exception as error:  # omegaconf raises several unrelated types
         raise ValueError(f"invalid augmentation config: {error}") from None
-    return AugmentConfig(**OmegaConf.to_container(merged))
+    return AugmentConfig(**_fields(merged))
 
 
 class CropWindow(NamedTuple):

@@ -27,7 +27,7 @@ import sys
 import traceback
 import warnings
 from collections.abc import Callable, Iterator
-from typing import TypeVar
+from typing import NoReturn, TypeVar
 
 EXIT_OK = 0
 EXIT_PARTIAL = 1  # the work ran, some inputs could not be used (listed)
@@ -186,7 +186,7 @@ def _one_line_usage_errors(parser: argparse.ArgumentParser) -> None:
     """argparse's own errors (a bad number, a missing flag) as one line, not usage + error."""
     prog = parser.prog
 
-    def error(message: str):  # argparse's signature: never returns
+    def error(message: str) -> NoReturn:  # argparse's signature
         parser.exit(EXIT_USAGE, f"{prog}: error: {message} (see {prog} --help)\n")
 
     parser.error = error  # type: ignore[method-assign]
