@@ -43,6 +43,8 @@ class MaskedBiasLinear(nn.Linear):
     score of a query, which softmax cancels), and store the mask with the weights.
     """
 
+    bias_mask: torch.Tensor  # a buffer, with a bias
+
     def __init__(self, dim: int, bias: bool = True) -> None:
         super().__init__(dim, 3 * dim, bias=bias)
         if bias:
@@ -178,7 +180,9 @@ class DinoV3VisionTransformer(nn.Module):
         self.patch_embed = PatchEmbed(patch_size, 3, embed_dim)
         self.cls_token = nn.Parameter(torch.zeros(1, 1, embed_dim))
         if num_storage_tokens:
-            self.storage_tokens = nn.Parameter(torch.zeros(1, num_storage_tokens, embed_dim))
+            self.storage_tokens: nn.Parameter | None = nn.Parameter(
+                torch.zeros(1, num_storage_tokens, embed_dim)
+            )
         else:
             self.storage_tokens = None
         self.rope_embed = RopePositionEmbedding(embed_dim // num_heads, rope_base, rope_dtype)

@@ -21,7 +21,7 @@ def input_stats(values: Sequence[float], what: str = "mean") -> tuple[float, flo
     out = tuple(float(v) for v in values)
     if len(out) != 3:
         raise ValueError(f"{what} needs 3 values (R, G, B), got {list(values)}")
-    return out  # type: ignore[return-value]
+    return out
 
 
 def expected_input(
@@ -48,7 +48,7 @@ def _triple(values: Sequence[float]) -> str:
 def check_image_batch(
     x: Any,
     patch_size: int,
-    array_type: type,
+    array_type: type[Any],
     *,
     mean: Sequence[float] | None = None,
     std: Sequence[float] | None = None,

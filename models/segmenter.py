@@ -58,7 +58,7 @@ class Segmenter(nn.Module):
     @property
     def num_classes(self) -> int:
         """Number of output channels."""
-        return self.head.head[-1].out_channels
+        return self.head.num_classes
 
     def num_trainable_parameters(self) -> int:
         """Parameters that receive gradients (the head's)."""

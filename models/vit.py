@@ -174,7 +174,9 @@ class DinoVisionTransformer(nn.Module):
         self.cls_token = nn.Parameter(torch.zeros(1, 1, embed_dim))
         self.pos_embed = nn.Parameter(torch.zeros(1, 1 + grid * grid, embed_dim))
         if num_register_tokens:
-            self.register_tokens = nn.Parameter(torch.zeros(1, num_register_tokens, embed_dim))
+            self.register_tokens: nn.Parameter | None = nn.Parameter(
+                torch.zeros(1, num_register_tokens, embed_dim)
+            )
         else:
             self.register_tokens = None
         self.blocks = nn.ModuleList(
