@@ -257,6 +257,7 @@ def _run_merge(args: argparse.Namespace) -> int:
     from claravid.eval.reports import merge
 
     done = merge(args.merge, args.output, args.settings["report"], overwrite=args.overwrite)
+    assert done.report is not None  # only a torchrun rank other than 0 has none
     _print_done(done.output, done.report)
     return 0
 
@@ -299,6 +300,7 @@ def _run_scores(args: argparse.Namespace) -> int:
                          report=args.settings["report"], workers=args.workers,
                          overwrite=args.overwrite)  # fmt: skip
     # The bins and groups as report.md has them, less its warning lines: printed once, below.
+    assert done.report is not None  # only a torchrun rank other than 0 has none
     text = done.text.split("## Correlations")[0].rstrip()
     print("\n".join(ln for ln in text.splitlines() if not ln.startswith("**Warning:**")))
     for message in done.report["uncertainty"]["warnings"]:

@@ -119,13 +119,6 @@ def _palette_for(
     custom reduction may too), and a guess would colour the overlays with the wrong classes.
     """
     info = settings.palette_info
-    if settings.palette is None and info is None:
-        if not no_overlays:
-            raise UsageError(
-                "the model does not record its palette (a foreign ONNX file or a plain "
-                "checkpoint): pass --palette for the overlays, or --no-overlays for label maps only"
-            )
-        return None
     if info is not None:  # the ONNX file's own record: no palette file needed
         palette: Any = SimpleNamespace(
             name=info["name"],
@@ -133,8 +126,15 @@ def _palette_for(
             colors=np.asarray(info["colors"], dtype=np.uint8).reshape(-1, 3),
             num_classes=len(info["names"]),
         )
+    elif settings.palette is not None:
+        palette = load_palette(settings.palette)
     else:
-        palette = load_palette(settings.palette)  # type: ignore[arg-type]
+        if not no_overlays:
+            raise UsageError(
+                "the model does not record its palette (a foreign ONNX file or a plain "
+                "checkpoint): pass --palette for the overlays, or --no-overlays for label maps only"
+            )
+        return None
     if num_classes is not None and palette.num_classes != num_classes:
         raise UsageError(
             f"the model predicts {num_classes} classes but palette {palette.name} has "
@@ -193,8 +193,8 @@ def run(args: argparse.Namespace) -> int:
     loader = DataLoader(ImageList(paths, keys), batch_size=None, num_workers=args.workers)
     bar = tqdm(loader, total=len(paths), desc="predict", unit="img", disable=args.no_progress)
     for sample in bar:
-        ids = predict_labels(source.model, sample["image"].to(device), config)
-        ids = ids.to("cpu", torch.uint8).numpy()
+        pred = predict_labels(source.model, sample["image"].to(device), config)
+        ids = pred.to("cpu", torch.uint8).numpy()
         write_prediction(out, sample["key"], ids)
         if not args.no_overlays:
             rgb = sample["image"].permute(1, 2, 0).numpy()  # the decoded pixels, not a re-read

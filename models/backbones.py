@@ -135,7 +135,9 @@ _HUB_SIZES = {
 }
 
 
-def _dinov2(arch: str, dims: tuple[int, int, int], ffn: str, registers: bool, dpt: DPTDefaults):
+def _dinov2(
+    arch: str, dims: tuple[int, int, int], ffn: str, registers: bool, dpt: DPTDefaults
+) -> BackboneSpec:
     """A DINOv2 description: ViT-``arch``/14 trained at 518 (a 37x37 positional grid)."""
     embed_dim, depth, num_heads = dims
     base = f"dinov2_{arch}14"

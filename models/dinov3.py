@@ -89,7 +89,9 @@ class DinoV3VisionTransformer(VisionTransformer):
         )
         self.num_storage_tokens = num_storage_tokens
         if num_storage_tokens:
-            self.storage_tokens = nn.Parameter(torch.zeros(1, num_storage_tokens, embed_dim))
+            self.storage_tokens: nn.Parameter | None = nn.Parameter(
+                torch.zeros(1, num_storage_tokens, embed_dim)
+            )
         else:
             self.storage_tokens = None
         self.rope_embed = RopePositionEmbedding(embed_dim // num_heads, rope_base, rope_dtype)

@@ -21,7 +21,7 @@ import os
 import shutil
 import tempfile
 import warnings
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,7 +55,7 @@ class ExportCheckError(RuntimeError):
 
 
 @contextmanager
-def _export_mode(model: Segmenter, size: tuple[int, int] | None):
+def _export_mode(model: Segmenter, size: tuple[int, int] | None) -> Iterator[None]:
     """Eval mode, and for a fixed size a stored positional embedding; restored afterwards."""
     was_training = model.training
     model.eval()
@@ -227,13 +227,15 @@ def export_onnx(
 
 def _check_settings(model: Segmenter, height: object, width: object, tolerance: object) -> None:
     """Reject nonsense sizes and tolerances before the (slow) export."""
+    sizes = []
     for name, value in (("height", height), ("width", width)):
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value <= 0:
             raise ValueError(
                 f"{name} must be a positive multiple of the patch size {model.patch_size}, "
                 f"got {value!r}"
             )
-    model.backbone.check_input_size(int(height), int(width))  # type: ignore[arg-type]
+        sizes.append(int(value))
+    model.backbone.check_input_size(*sizes)
     if tolerance is not None and (
         not isinstance(tolerance, (int, float))
         or isinstance(tolerance, bool)

@@ -21,7 +21,7 @@ def input_stats(values: Sequence[float], what: str = "mean") -> tuple[float, flo
     out = tuple(float(v) for v in values)
     if len(out) != 3:
         raise ValueError(f"{what} needs 3 values (R, G, B), got {list(values)}")
-    return out  # type: ignore[return-value]
+    return out
 
 
 def expected_input(
@@ -115,7 +115,7 @@ def check_value_range(
 def check_image_batch(
     x: Any,
     patch_size: int | None,
-    array_type: type,
+    array_type: type[Any],
     *,
     mean: Sequence[float] | None = None,
     std: Sequence[float] | None = None,

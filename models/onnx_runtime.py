@@ -159,13 +159,13 @@ class OnnxSegmenter:
     def window(self) -> tuple[int, int] | None:
         """The validation window (H, W) of the training config."""
         size = self._meta("window", "size")
-        return tuple(size) if size else None  # type: ignore[return-value]
+        return tuple(size) if size else None
 
     @property
     def stride(self) -> tuple[int, int] | None:
         """The validation window step (H, W) of the training config."""
         stride = self._meta("window", "stride")
-        return tuple(stride) if stride else None  # type: ignore[return-value]
+        return tuple(stride) if stride else None
 
     @property
     def scale(self) -> float | None:

@@ -113,7 +113,9 @@ class DinoVisionTransformer(VisionTransformer):
         grid = img_size // patch_size
         self.pos_embed = nn.Parameter(torch.zeros(1, 1 + grid * grid, embed_dim))
         if num_register_tokens:
-            self.register_tokens = nn.Parameter(torch.zeros(1, num_register_tokens, embed_dim))
+            self.register_tokens: nn.Parameter | None = nn.Parameter(
+                torch.zeros(1, num_register_tokens, embed_dim)
+            )
         else:
             self.register_tokens = None
         if ffn == "mlp":

@@ -62,7 +62,8 @@ def test_wheel_installed_outside_checkout_loads_palettes_and_a_sample(tmp_path):
     source = shutil.copytree(
         ROOT, tmp_path / "source",
         ignore=shutil.ignore_patterns(".git", ".venv", "runs", "build", "*.egg-info", "*.so",
-                                      "__pycache__", ".pytest_cache", ".ruff_cache"),
+                                      "__pycache__", ".pytest_cache", ".ruff_cache",
+                                      ".mypy_cache"),
     )  # fmt: skip
     wheels = tmp_path / "wheels"
     build = subprocess.run(
@@ -78,6 +79,7 @@ def test_wheel_installed_outside_checkout_loads_palettes_and_a_sample(tmp_path):
     assert "claravid/models/vit.py" in names and "claravid/train/loop.py" in names
     assert "claravid/eval/cli.py" in names
     assert "claravid/configs/palettes/uavid.yaml" in names
+    assert {"claravid/py.typed", "claravid/dsp/_deldensity.pyi"} <= set(names)  # typed
     assert "claravid/configs/augment.yaml" in names
     assert "claravid/configs/demo.yaml" in names
     assert "claravid/configs/claravid_dpt_dinov3_vitl16.yaml" in names

@@ -32,7 +32,7 @@ class _IntermixedParser(argparse.ArgumentParser):
     """``key=value`` overrides before, between or after the flags (``--resume out_dir=x``):
     argparse alone takes positionals in one run only."""
 
-    def parse_args(self, args=None, namespace=None):  # type: ignore[override]
+    def parse_args(self, args=None, namespace=None):
         return self.parse_intermixed_args(args, namespace)
 
 

@@ -25,7 +25,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn, cast
 
 import yaml
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
@@ -210,8 +210,9 @@ def _read_text(path: Path) -> str:
         ) from None
 
 
-def _check_loaded(loaded: Any, source: str) -> None:
-    """The file is a mapping of sections, each section a mapping (as the schema has it)."""
+def _check_loaded(loaded: Any, source: str) -> DictConfig:
+    """The file is a mapping of sections, each section a mapping (as the schema has it): the
+    file's config, checked."""
     if not isinstance(loaded, DictConfig):
         kind = "a list" if isinstance(loaded, ListConfig) else "no mapping"
         raise ConfigError(
@@ -220,14 +221,16 @@ def _check_loaded(loaded: Any, source: str) -> None:
         )
     schema = OmegaConf.structured(Config)
     for key in loaded:
-        node = schema._get_node(str(key)) if str(key) in schema else None
+        section = str(key)
+        node = schema._get_node(section) if section in schema else None
         value = loaded._get_node(key)
         if isinstance(node, DictConfig) and not isinstance(value, DictConfig):
-            got = OmegaConf.to_container(loaded)[key]  # type: ignore[index]
+            got = to_plain(loaded, resolve=False)[section]
             raise ConfigError(
-                f"{source}: section {key!s} must be a mapping of keys, e.g. "
-                f"{key}: {{{next(iter(node))}: ...}}; got {got!r}"
+                f"{source}: section {section} must be a mapping of keys, e.g. "
+                f"{section}: {{{next(iter(node))!s}: ...}}; got {got!r}"
             )
+    return loaded
 
 
 def _merge(base: DictConfig, other: Any, source: str) -> DictConfig:
@@ -266,10 +269,10 @@ def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] | str =
                 "model:, train:, val:, log:)"
             ) from None
         raise ConfigError(f"cannot parse {source}: {exc}") from None
-    _check_loaded(loaded, source)
-    _check_statistics_given(loaded, source)
-    _one_item_lists(cfg, loaded)
-    cfg = _merge(cfg, loaded, source)
+    sections = _check_loaded(loaded, source)
+    _check_statistics_given(sections, source)
+    _one_item_lists(cfg, sections)
+    cfg = _merge(cfg, sections, source)
     if isinstance(overrides, str):  # "train.steps=5 val.every=0": one string, split on spaces
         overrides = overrides.split()
     bad = [o for o in overrides if "=" not in o or o.startswith("=")]
@@ -339,14 +342,18 @@ def _safe_load(text: str) -> Any:
 
 def _require(ok: bool, key: str, value: Any, rule: str) -> None:
     if not ok:
-        raise ConfigError(f"bad value for {key}: {value!r} ({rule})")
+        _refuse(key, value, rule)
+
+
+def _refuse(key: str, value: Any, rule: str) -> NoReturn:
+    raise ConfigError(f"bad value for {key}: {value!r} ({rule})")
 
 
 def _check_split(split: DictConfig) -> None:
     """``data.split`` as ``claravid.data.splits.SplitConfig`` checks it, named ``data.split.*``."""
     from claravid.data.splits import SplitConfigError, make_split_config
 
-    values = OmegaConf.to_container(split, resolve=True)
+    values = to_plain(split)
     try:
         make_split_config(values, "data.split.")
     except SplitConfigError as exc:
@@ -469,7 +476,8 @@ def resolve_backbone(cfg: DictConfig) -> None:
 
     m, a, v = cfg.model, cfg.data.augment, cfg.val
     spec = BACKBONES.get(m.backbone)
-    _require(spec is not None, "model.backbone", m.backbone, f"one of {', '.join(BACKBONE_NAMES)}")
+    if spec is None:
+        _refuse("model.backbone", m.backbone, f"one of {', '.join(BACKBONE_NAMES)}")
     _check_weights(cfg, spec)
     if _weights_path(m) is not None:
         m.weights = os.path.abspath(os.path.expanduser(m.weights))
@@ -575,9 +583,10 @@ def to_yaml(cfg: DictConfig) -> str:
     return OmegaConf.to_yaml(cfg)
 
 
-def to_plain(cfg: DictConfig) -> dict[str, Any]:
-    """Plain dict/list/str/number container (storable in a ``weights_only`` checkpoint)."""
-    return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+def to_plain(cfg: DictConfig, resolve: bool = True) -> dict[str, Any]:
+    """Plain dict/list/str/number container (storable in a ``weights_only`` checkpoint); the keys
+    of a config's sections are strings."""
+    return cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=resolve))
 
 
 def from_plain(data: dict[str, Any]) -> DictConfig:

@@ -27,6 +27,7 @@ import random
 import shlex
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,6 +44,7 @@ from claravid import models
 from claravid.data.masks import check_palette_fit
 from claravid.data.palettes import load_palette
 from claravid.data.samples import normalise
+from claravid.data.targets import UAVidSegmentation
 from claravid.eval import IGNORE_INDEX, WindowConfig
 from claravid.infra.cli import check_device
 from claravid.infra.distributed import DistInfo, barrier, init_distributed
@@ -167,7 +169,9 @@ class Run:
         )  # fmt: skip
 
 
-def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
+def train(
+    cfg: DictConfig, *, resume: bool = False, say: Callable[[str], object] = print
+) -> RunResult:
     """Run (or resume) the training a resolved config describes; rank 0 writes ``out_dir``.
 
     Args:
@@ -188,7 +192,7 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     run.tick = time.perf_counter()
     try:
         for step in range(run.start, run.total):
-            lr = run.scheduler.get_last_lr()[-1]
+            lr = float(run.scheduler.get_last_lr()[-1])
             loss, grad_norm = optimiser_step(run, step, lr)
             after_step(run, step + 1, loss, lr, grad_norm, bar)
     finally:
@@ -201,7 +205,9 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     return RunResult(run.out, run.total, run.total, run.best_miou, run.best_step, run.last_val)
 
 
-def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
+def build_run(
+    cfg: DictConfig, resume: bool, say: Callable[[str], object] = print
+) -> Run | RunResult:
     """Data, model, optimiser, checkpoint state and logs of a run, ready for its first step.
 
     Returns a :class:`RunResult` instead when ``out_dir`` holds a finished run (nothing to do).
@@ -218,7 +224,7 @@ def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
     total = int(cfg.train.steps)
     out, ckpt = _claim_out_dir(cfg, resume, info, say)
     start = int(ckpt["step"]) if ckpt else 0
-    if start >= total:
+    if ckpt is not None and start >= total:  # total >= 1: only a checkpoint gets there
         return _finished(out, ckpt, start, total, say)
     val_set, palette = _validation_data(cfg, train_set, say)
     if info.is_main:  # one process builds the label cache; the others wait and then read it
@@ -238,7 +244,8 @@ def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
     scaler = torch.amp.GradScaler(device.type, enabled=dtype == torch.float16)
     say(f"precision: {precision_name(dtype)} (train.amp={cfg.train.amp}, {device.type})")
     weights = _class_weights(cfg, train_set, palette.num_classes, info)
-    best_miou, best_step, last_val = None, None, {}
+    best_miou, best_step = None, None
+    last_val: dict[str, Any] = {}
     if ckpt:
         restore_model(model, ckpt)
         optimizer.load_state_dict(ckpt["optimizer"])
@@ -278,7 +285,7 @@ def _start_process(cfg: DictConfig, say: Any) -> tuple[DistInfo, Any]:
 def _training_data(cfg: DictConfig) -> Any:
     """The training split, its UAVid labels checked against ``data.palette``."""
     train_set = build_train_dataset(cfg)
-    if cfg.data.dataset == "uavid":  # label files in a palette: the right one?
+    if isinstance(train_set, UAVidSegmentation):  # label files in a palette: the right one?
         check_palette_fit([train_set.label_path(p) for p in train_set.images],
                           load_palette(cfg.data.palette), "data.palette")  # fmt: skip
     return train_set
@@ -311,7 +318,7 @@ def _validation_data(cfg: DictConfig, train_set: Any, say: Any) -> tuple[Any, An
     if (shares := split_table(train_set)) is not None:
         say(shares)
     palette = load_palette(cfg.data.palette)
-    if cfg.data.val_dataset == "uavid":  # UAVid val labels in data.palette: the right one?
+    if isinstance(val_set, UAVidSegmentation):  # UAVid val labels in data.palette: right one?
         check_palette_fit([val_set.label_path(p) for p in val_set.images], palette,
                           "data.palette")  # fmt: skip
     return val_set, palette
@@ -362,7 +369,8 @@ def _wrap(
             model = nn.SyncBatchNorm.convert_sync_batchnorm(model)
         module = ddp = nn.parallel.DistributedDataParallel(model, device_ids=ids)
     if cfg.train.compile:
-        module = torch.compile(module)
+        # A compiled Module is a Module (OptimizedModule); torch's stubs say a callable.
+        module = torch.compile(module)  # type: ignore[assignment]
     module.train()
     return module, ddp
 
@@ -420,11 +428,11 @@ def optimiser_step(run: Run, step: int, lr: float) -> tuple[float, float]:
 def after_step(run: Run, done: int, loss: float, lr: float, grad_norm: float, bar: Any) -> None:
     """What follows step ``done``: the log row, validation (and ``best.pt``), ``last.pt``."""
     cfg, main, out = run.cfg, run.info.is_main, run.out
-    if main and (done % cfg.train.log_every == 0 or done == run.total):
+    if run.log is not None and (done % cfg.train.log_every == 0 or done == run.total):
         now = time.perf_counter()
         rate = run.images * run.info.world_size / max(now - run.tick, 1e-9)
         run.tick, run.images = now, 0
-        run.log.write({"step": done, "loss": loss, "lr": lr, "images_per_s": rate,  # type: ignore[union-attr]
+        run.log.write({"step": done, "loss": loss, "lr": lr, "images_per_s": rate,
                        "grad_norm": grad_norm})  # fmt: skip
         bar.set_postfix(loss=f"{loss:.4f}", lr=f"{lr:.2e}", img_s=f"{rate:.1f}")
     bar.update(1)
@@ -444,8 +452,8 @@ def after_step(run: Run, done: int, loss: float, lr: float, grad_norm: float, ba
         began = time.perf_counter()
         run.last_val = {"step": done, **run.validator(run.model)}
         run.tick += time.perf_counter() - began  # images/s counts training time only
-        if main:
-            run.log.write(run.last_val)  # type: ignore[union-attr]
+        if run.log is not None:  # rank 0's
+            run.log.write(run.last_val)
             bins = " ".join(f"{k} {_fmt(x)}" for k, x in run.last_val["miou_bins"].items())
             bar.write(f"step {done}: val mIoU {_fmt(run.last_val['miou'])} (per bin: {bins})")
         miou = run.last_val["miou"]

@@ -14,11 +14,10 @@ from typing import Any
 import numpy as np
 import torch
 from torch import nn
-from torch.utils.data import Dataset
 
 from claravid.eval import WindowConfig, bin_mious, evaluate_model, stratify
 from claravid.infra.distributed import gather_in_order, shard_indices
-from claravid.train.data import image_paths
+from claravid.train.data import SegmentationSplit, image_paths
 from claravid.train.sampler import sharded_delentropy
 
 
@@ -36,14 +35,14 @@ class Validator:
 
     def __init__(
         self,
-        dataset: Dataset,
+        dataset: SegmentationSplit,
         classes: list[str],
         window: WindowConfig,
         bins: int = 3,
         limit: int | None = None,
         device: torch.device | str = "cpu",
     ) -> None:
-        n = len(dataset)  # type: ignore[arg-type]
+        n = len(dataset)
         self.dataset, self.classes, self.window, self.bins = dataset, classes, window, bins
         self.device = torch.device(device)
         if limit is not None and limit < n:

@@ -118,7 +118,12 @@ def _run(args: argparse.Namespace) -> int:
     if args.output is not None and args.output.exists() and not args.output.is_dir():
         raise UsageError(f"--cache-dir {args.output} is a file; give a folder")
     dataset = ClaraVidSegmentation(
-        args.root, split="all", label_cache=args.output or True, **selection
+        args.root,
+        split="all",
+        missions=selection.get("missions"),
+        altitude=selection.get("altitude"),
+        direction=selection.get("direction"),
+        label_cache=args.output or True,
     )
     try:
         summary = dataset.prepare_label_cache(
@@ -131,6 +136,7 @@ def _run(args: argparse.Namespace) -> int:
             f"free some space or choose a writable folder ({where})"
         ) from None
     cache = dataset.label_cache
+    assert cache is not None  # label_cache= was given
     failures = summary.failed + summary.unwritten
     order = {str(f.paths["pan_seg"]): i for i, f in enumerate(dataset.frames)}
     for pan, reason in sorted(failures, key=lambda failure: order[failure[0]]):

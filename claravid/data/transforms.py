@@ -29,7 +29,7 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")  # it phones home at import otherwise
 
@@ -37,7 +37,7 @@ import albumentations as A
 import cv2
 import numpy as np
 import torch
-from omegaconf import OmegaConf
+from omegaconf import Container, OmegaConf
 
 from claravid.io.headers import MAX_PIXELS
 from claravid.io.layout import UNLABELED_ID
@@ -144,6 +144,11 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
+def _fields(config: Container) -> dict[str, Any]:
+    """A structured config's values as plain Python, keyed by the dataclass's field names."""
+    return cast(dict[str, Any], OmegaConf.to_container(config))
+
+
 def augment_config(overrides: Any = None) -> AugmentConfig:
     """The default config merged with a dict, DictConfig, or YAML file path.
 
@@ -151,7 +156,7 @@ def augment_config(overrides: Any = None) -> AugmentConfig:
     """
     base = OmegaConf.structured(AugmentConfig)
     if overrides is None:
-        return AugmentConfig(**OmegaConf.to_container(base))
+        return AugmentConfig(**_fields(base))
     if isinstance(overrides, str | os.PathLike):
         try:  # the strict loader names the file, and a duplicate key with its lines
             overrides = load_yaml(overrides) or {}
@@ -161,7 +166,7 @@ def augment_config(overrides: Any = None) -> AugmentConfig:
         merged = OmegaConf.merge(base, overrides)
     except Exception as error:  # omegaconf raises several unrelated types
         raise ValueError(f"invalid augmentation config: {error}") from None
-    return AugmentConfig(**OmegaConf.to_container(merged))
+    return AugmentConfig(**_fields(merged))
 
 
 class CropWindow(NamedTuple):

@@ -160,8 +160,10 @@ def _run(args: argparse.Namespace) -> int:
     if args.merge:
         run = merge_runs([load_results(p) for p in args.merge])
     elif json_input:
+        assert args.input is not None  # json_input says so
         run = load_results(args.input)
     else:
+        assert args.input is not None  # refused above when absent
         paths = find_images(args.input, args.pattern)
         shard = None
         if args.shard is not None:

@@ -27,7 +27,7 @@ import sys
 import traceback
 import warnings
 from collections.abc import Callable, Iterator
-from typing import TypeVar
+from typing import Any, NoReturn, Protocol, TypeVar
 
 EXIT_OK = 0
 EXIT_PARTIAL = 1  # the work ran, some inputs could not be used (listed)
@@ -35,6 +35,12 @@ EXIT_FAILED = 1  # the work ran and its result failed a check (nothing written)
 EXIT_USAGE = 2
 
 T = TypeVar("T")
+
+
+class FlagGroup(Protocol):
+    """What flags are added to: a parser, or one of its argument groups."""
+
+    def add_argument(self, *name_or_flags: str, **kwargs: Any) -> argparse.Action: ...
 
 
 class UsageError(Exception):
@@ -53,7 +59,7 @@ def add_debug_flag(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def add_progress_flag(parser: argparse.ArgumentParser, help: str = "no progress bar") -> None:
+def add_progress_flag(parser: FlagGroup, help: str = "no progress bar") -> None:
     """``--no-progress``: no progress bar.
 
     Sets ``args.no_progress``; ``claravid-train``'s flag means ``log.progress=false``;
@@ -62,7 +68,7 @@ def add_progress_flag(parser: argparse.ArgumentParser, help: str = "no progress 
     parser.add_argument("--no-progress", action="store_true", help=help)
 
 
-def add_workers_flag(parser: argparse.ArgumentParser, work: str) -> None:
+def add_workers_flag(parser: FlagGroup, work: str) -> None:
     """``--workers N``: ``work`` in N worker processes; 0, the default, runs it in this one."""
     parser.add_argument(
         "--workers",
@@ -186,7 +192,7 @@ def _one_line_usage_errors(parser: argparse.ArgumentParser) -> None:
     """argparse's own errors (a bad number, a missing flag) as one line, not usage + error."""
     prog = parser.prog
 
-    def error(message: str):  # argparse's signature: never returns
+    def error(message: str) -> NoReturn:  # argparse's signature
         parser.exit(EXIT_USAGE, f"{prog}: error: {message} (see {prog} --help)\n")
 
     parser.error = error  # type: ignore[method-assign]

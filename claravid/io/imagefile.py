@@ -43,7 +43,8 @@ def read_bytes(path: str | Path) -> np.ndarray:
         size = stream.seek(0, 2)
         stream.seek(0)
         data = np.empty(size, np.uint8)
-        view, done = memoryview(data), 0
+        # An ndarray is a buffer too (numpy's stubs say so from Python 3.12 on).
+        view, done = memoryview(data), 0  # type: ignore[arg-type]
         while done < size:
             count = stream.readinto(view[done:])
             if not count:  # the file shrank while being read

@@ -45,7 +45,7 @@ from claravid.io.imagefile import decode_bytes, load
 try:  # the optional libjpeg window decoder (built at install when a compiler is there)
     from claravid.io import _jpeg_region as _native
 except ImportError:  # pragma: no cover - depends on the build
-    _native = None
+    _native = None  # type: ignore[assignment]  # mypy types a module name as never None
 
 REGION_DECODE = "libjpeg region decode"
 FULL_DECODE = "full decode (C extension not built)"

@@ -295,9 +295,11 @@ def read_window(fd: int, layout: TileLayout, x: int, y: int, width: int, height:
         chunk = memoryview(_pread(fd, span, start)) if span == sum(counts) else None
         top, bottom = max(y, row * th), min(y + height, (row + 1) * th)
         for index, offset, count in zip(range(first, last + 1), offsets, counts, strict=True):
-            data = chunk[offset - start : offset - start + count] if chunk else None
-            if data is None:
-                data = _pread(fd, count, offset)
+            data = (
+                chunk[offset - start : offset - start + count]
+                if chunk
+                else _pread(fd, count, offset)
+            )
             _check_crc(layout, index, data)
             try:
                 raw = zlib.decompress(data)

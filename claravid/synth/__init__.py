@@ -41,8 +41,9 @@ from claravid.io.layout import (
     frame_file,
     viewpoint_folder,
 )
-from claravid.synth.render import flight_poses, render
+from claravid.synth.render import Frame, flight_poses, render
 from claravid.synth.scenery import build_world
+from claravid.synth.world import World
 
 __all__ = [
     "MARKER",
@@ -205,7 +206,7 @@ def synthesize(
 
 
 @functools.lru_cache(maxsize=1)
-def _world(key: str, seed: int, res: float):
+def _world(key: str, seed: int, res: float) -> World:
     """One mission's world, kept for its next viewpoint (in this process or a worker)."""
     return build_world(key, seed, res)
 
@@ -228,7 +229,7 @@ def _render_viewpoint(
     return len(poses)
 
 
-def _write(mission_dir: Path, viewpoint: str, stem: str, frame, pose: np.ndarray) -> None:
+def _write(mission_dir: Path, viewpoint: str, stem: str, frame: Frame, pose: np.ndarray) -> None:
     def path(key: str) -> Path:
         return frame_file(mission_dir, viewpoint, stem, key)
 

@@ -108,7 +108,7 @@ def print_profiles(data: Path, out: Path, workers: int) -> None:
     """Profile each mission's RGB frames (delentropy), print the table and save the plots."""
     runs = {}
     for mission, folder in MISSIONS.items():
-        paths = sorted((data / folder / MODALITIES["rgb"].folder).glob("*/*.jpg"))
+        paths = sorted(MODALITIES["rgb"].folder_in(data / folder).glob("*/*.jpg"))
         if paths:
             runs[mission] = profile_images(paths, workers=workers)
             runs[mission].save(out / f"dsp_{mission}.json")
@@ -145,7 +145,7 @@ def run(
     print_summary(dataset, progress)
     # One frame per mission, in the UAVid taxonomy (moving and static cars apart).
     uavid = ClaraVidSegmentation(data, split="all", palette="uavid", altitude="mid", direction="h")
-    firsts = {}
+    firsts: dict[str, int] = {}
     for index, frame in enumerate(uavid.frames):
         firsts.setdefault(frame.mission, index)
     samples = [uavid[i] for i in firsts.values()]

@@ -130,16 +130,17 @@ def render(
     sky = None if ground.all() else ~ground
     down[~ground] = 1.0
 
-    warp = dict(dsize=(width, height), borderMode=cv2.BORDER_CONSTANT)
-    border = UNLABELED_ID * 65536.0
-    packed = cv2.warpPerspective(
-        world.packed, m, flags=cv2.INTER_NEAREST, borderValue=border, **warp
-    )
-    packed = packed.astype(np.int32)
+    def warp(layer: np.ndarray, flags: int, border: float | list[float]) -> np.ndarray:
+        out = cv2.warpPerspective(
+            layer, m, (width, height), flags=flags, borderMode=cv2.BORDER_CONSTANT,
+            borderValue=border,
+        )  # fmt: skip
+        return np.asarray(out)
+
+    packed = warp(world.packed, cv2.INTER_NEAREST, UNLABELED_ID * 65536.0).astype(np.int32)
     semantic, instance = (packed >> 16).astype(np.uint8), (packed & 0xFFFF).astype(np.uint16)
-    lift = cv2.warpPerspective(world.height, m, flags=cv2.INTER_NEAREST, borderValue=0.0, **warp)
-    rgb = cv2.warpPerspective(world.color, m, flags=cv2.INTER_LINEAR,
-                              borderValue=_SKY.tolist(), **warp)  # fmt: skip
+    lift = warp(world.height, cv2.INTER_NEAREST, 0.0)
+    rgb = warp(world.color, cv2.INTER_LINEAR, _SKY.tolist())
 
     # Depth along the optical axis: to the ground, shortened to where the ray meets the object top.
     lift *= np.float32(-1.0 / centre[2])
@@ -154,7 +155,8 @@ def render(
     haze = np.clip(depth * np.float32(1 / 1500), 0, 0.3)
     rgb = cv2.blendLinear(rgb, np.broadcast_to(_SKY, rgb.shape).copy(), 1 - haze, haze)
     grain = rng.integers(0, 5, (height, width), dtype=np.uint8)
-    rgb = cv2.subtract(cv2.add(rgb, cv2.merge([grain, grain, grain])), (2, 2, 2, 0))
+    # OpenCV takes a scalar for the second operand; its stubs know arrays only.
+    rgb = cv2.subtract(cv2.add(rgb, cv2.merge([grain, grain, grain])), (2, 2, 2, 0))  # type: ignore[call-overload]
 
     dynamic = world.dynamic[instance] if len(world.dynamic) else np.zeros_like(semantic, bool)
     mask = np.where(dynamic, DYNAMIC_MASK_DYNAMIC, DYNAMIC_MASK_STATIC).astype(np.uint8)

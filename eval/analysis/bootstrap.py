@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from claravid.eval.analysis.units import CLUSTER_UNITS
 
@@ -139,10 +140,10 @@ class Bootstrap:
 def cluster_ids(labels: Sequence[str]) -> np.ndarray:
     """Integer cluster ids (int64 [N]) of per-image cluster labels, numbered in sorted label
     order, so the ids never depend on the order images were listed in."""
-    labels = np.asarray([str(label) for label in labels], dtype=str)
-    if labels.size == 0:
+    names = np.asarray([str(label) for label in labels], dtype=str)
+    if names.size == 0:
         return np.zeros(0, dtype=np.int64)
-    _, inverse = np.unique(labels, return_inverse=True)
+    _, inverse = np.unique(names, return_inverse=True)
     return inverse.astype(np.int64).reshape(-1)
 
 
@@ -212,7 +213,7 @@ def check_resamples(resamples: int, num_clusters: int) -> None:
     )
 
 
-def _local_clusters(clusters: np.ndarray, members: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+def _local_clusters(clusters: np.ndarray, members: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Members' indices and their local cluster index 0..C-1 (sorted cluster-id order)."""
     members = np.asarray(members, dtype=np.int64).reshape(-1)
     labels = np.asarray(clusters)[members]
@@ -222,7 +223,7 @@ def _local_clusters(clusters: np.ndarray, members: Sequence[int]) -> tuple[np.nd
 
 def _set_clusters(
     clusters: np.ndarray,
-    members: Sequence[int],
+    members: ArrayLike,
     settings: Bootstrap,
     counts: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int, str | None]:
@@ -321,7 +322,7 @@ def _counts_for(
 def confusion_interval(
     confusions: np.ndarray,
     clusters: np.ndarray,
-    members: Sequence[int],
+    members: ArrayLike,
     settings: Bootstrap,
     counts: np.ndarray | None = None,
     *,
@@ -364,7 +365,7 @@ def confusion_interval(
 def mean_interval(
     values: np.ndarray,
     clusters: np.ndarray,
-    members: Sequence[int],
+    members: ArrayLike,
     settings: Bootstrap,
     counts: np.ndarray | None = None,
     *,
@@ -379,10 +380,10 @@ def mean_interval(
         ``{"mean": float | None, "ci": [lo, hi] | None, "ci_note": str | None}``.
     """
     values = np.asarray(values, dtype=np.float64)
-    members = np.asarray(members, dtype=np.int64).reshape(-1)
-    members = members[np.isfinite(values[members])]
-    mean = float(values[members].mean()) if members.size else None
-    members, local, num, note = _set_clusters(clusters, members, settings, counts)
+    finite = np.asarray(members, dtype=np.int64).reshape(-1)
+    finite = finite[np.isfinite(values[finite])]
+    mean = float(values[finite].mean()) if finite.size else None
+    members, local, num, note = _set_clusters(clusters, finite, settings, counts)
     if note is not None:
         return {"mean": mean, "ci": None, "ci_note": note}
     rows = np.stack([values[members], np.ones(len(members))], axis=1)
@@ -510,7 +511,7 @@ def paired_gap(
     conf_a: np.ndarray,
     conf_b: np.ndarray,
     clusters: np.ndarray,
-    members: Sequence[int],
+    members: ArrayLike,
     settings: Bootstrap,
     counts: np.ndarray | None = None,
     *,
@@ -555,10 +556,10 @@ def paired_gap(
 def unpaired_gap(
     conf_a: np.ndarray,
     clusters_a: np.ndarray,
-    members_a: Sequence[int],
+    members_a: ArrayLike,
     conf_b: np.ndarray,
     clusters_b: np.ndarray,
-    members_b: Sequence[int],
+    members_b: ArrayLike,
     settings: Bootstrap,
     *,
     stream: str = "",
@@ -583,7 +584,11 @@ def unpaired_gap(
             continue
         draws = draw_counts(num, settings.resamples, settings.rng(f"{stream}:{tag}"))
         per_cluster = _per_cluster(confusion_features(conf[members]), local, num)
-        values.append(_resampled(draws, per_cluster, lambda sums, k=k: _miou_acc(sums, k)[0]))
+
+        def miou_of(sums: np.ndarray, k: int = k) -> np.ndarray:
+            return _miou_acc(sums, k)[0]
+
+        values.append(_resampled(draws, per_cluster, miou_of))
     gap = point[1] - point[0]
     out: dict[str, Any] = {
         "gap": gap if np.isfinite(gap) else None,

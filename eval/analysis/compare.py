@@ -166,12 +166,12 @@ class _Pair:
         self.a, self.b, self.a_ids, self.settings = a, b, a_ids, settings
         # Images are known by their key below the data root, so two spellings of one root
         # (a symlink, ../s) still pair.
-        a_ids, b_ids = a.image_ids(), b.image_ids()
-        self.paired = sorted(b_ids) == sorted(a_ids) and b.classes == a.classes
+        a_keys, b_keys = a.image_ids(), b.image_ids()
+        self.paired = sorted(b_keys) == sorted(a_keys) and b.classes == a.classes
         if self.paired:
             # B's rows in A's image order; both resample A's clusters.
-            where = {p: i for i, p in enumerate(b_ids)}
-            order = np.asarray([where[p] for p in a_ids], dtype=np.int64)
+            where = {p: i for i, p in enumerate(b_keys)}
+            order = np.asarray([where[p] for p in a_keys], dtype=np.int64)
             self.b_conf = b.confusions[order]
             self.b_to_a = np.argsort(order)
         else:

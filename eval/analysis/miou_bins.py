@@ -17,6 +17,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from claravid.eval.analysis.bins import Bin, choose_bins
 from claravid.eval.analysis.bootstrap import (
@@ -60,7 +61,7 @@ def stratify(
     paths: Sequence[str],
     confusions: np.ndarray,
     classes: Sequence[str],
-    complexity: Mapping[str, Sequence[float]] | None = None,
+    complexity: Mapping[str, ArrayLike] | None = None,
     *,
     bins: int = 3,
     edges: Sequence[float] | None = None,
@@ -97,12 +98,12 @@ def stratify(
         raise ValueError("no image to report on")
     if bootstrap is not None:  # refused before anything is computed or allocated
         bootstrap.check_memory(list(paths) if clusters is None else clusters)
-    complexity = {k: np.asarray(v, dtype=np.float64) for k, v in (complexity or {}).items()}
-    for measure, values in complexity.items():
-        if len(values) != n:
-            raise ValueError(f"{len(values)} {measure} values for {n} images")
-    measure = PRIMARY_MEASURE if PRIMARY_MEASURE in complexity else next(iter(complexity), None)
-    values = complexity.get(measure) if measure else None
+    measures = {k: np.asarray(v, dtype=np.float64) for k, v in (complexity or {}).items()}
+    for name, column in measures.items():
+        if len(column) != n:
+            raise ValueError(f"{len(column)} {name} values for {n} images")
+    measure = PRIMARY_MEASURE if PRIMARY_MEASURE in measures else next(iter(measures), None)
+    values = measures.get(measure) if measure else None
 
     report: dict[str, Any] = {
         "overall": {"num_images": n, **confusion_scores(confusions.sum(axis=0), classes)},
@@ -112,7 +113,7 @@ def stratify(
     }
     bin_list: list[Bin] = []
     outside: list[int] = []
-    if values is not None:
+    if measure is not None and values is not None:
         bin_list, outside, binning = choose_bins(values, paths, measure, bins=bins, edges=edges)
         binning["outside"] = [paths[i] for i in outside]
         report["binning"] = binning
@@ -134,14 +135,14 @@ def stratify(
     images = []
     for i, path in enumerate(paths):
         row = {"path": path}
-        row.update({m: finite_or_none(float(v[i])) for m, v in complexity.items()})
+        row.update({m: finite_or_none(float(v[i])) for m, v in measures.items()})
         row["miou"] = finite_or_none(per_image_miou[i])
         row["pixel_acc"] = finite_or_none(pixel_accuracy(confusions[i]))
         images.append(row)
     report["images"] = images
-    report["correlation"] = {m: correlation(v, per_image_miou) for m, v in complexity.items()}
+    report["correlation"] = {m: correlation(v, per_image_miou) for m, v in measures.items()}
     if bootstrap is not None:
-        add_intervals(report, confusions, bin_list, groups or {}, complexity, per_image_miou,
+        add_intervals(report, confusions, bin_list, groups or {}, measures, per_image_miou,
                       list(paths) if clusters is None else clusters, bootstrap)  # fmt: skip
     return report
 
@@ -166,7 +167,7 @@ def add_intervals(
     ids = cluster_ids(clusters)
     features = confusion_features(confusions)  # once, not once per bin and group
 
-    def interval(members: Sequence[int], stream: str) -> dict[str, Any]:
+    def interval(members: ArrayLike, stream: str) -> dict[str, Any]:
         return confusion_interval(confusions, ids, members, settings, stream=stream,
                                   features=features)  # fmt: skip
 

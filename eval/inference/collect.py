@@ -182,6 +182,7 @@ def collect(
             confusions = [s.confusion for s in scores]
             tile_confs = [s.tiles for s in scores]
         else:
+            assert predictions is not None  # one of model and predictions, checked above
             threads = max(1, workers)
             scored = label_map_confusions(
                 data, predictions, mine, threads=threads, tile_size=tile_size, progress=s.progress
@@ -221,7 +222,7 @@ def collect(
         source={**(source or {}), "skipped": [data.paths[i] for i in skipped]},
         tiles=None
         if tile_size is None
-        else TileTable.from_images(tile_size, [r[2] for r in rows], k),
+        else TileTable.from_images(tile_size, [_tiles(r[2]) for r in rows], k),
     )
     # Table rows are positions in `present`; hardest predictions are keyed by those too.
     position = {index: pos for pos, index in enumerate(order)}
@@ -245,3 +246,11 @@ def _check_tile_grids(
                 f"{data.paths[index]}: the image gives a {got} tile grid and its labels a {want} "
                 "one: --tiles needs labels at the image's resolution"
             )
+
+
+def _tiles(
+    counted: tuple[np.ndarray | None, np.ndarray | None] | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """An image's (delentropy, confusions) per tile: counted for every image with a tile size."""
+    assert counted is not None and counted[0] is not None and counted[1] is not None
+    return counted[0], counted[1]

@@ -63,8 +63,8 @@ def save_confusions(path: str | Path, result: EvalResult, report_id: str | None 
         arrays["report_id"] = np.asarray(report_id, dtype=str)
     for measure, values in result.complexity.items():
         arrays[f"complexity_{measure}"] = np.asarray(values, dtype=np.float64)
-    for name, values in result.attributes.items():
-        arrays[f"attribute_{name}"] = np.asarray(values, dtype=str)
+    for name, labels in result.attributes.items():
+        arrays[f"attribute_{name}"] = np.asarray(labels, dtype=str)
     if result.tiles is not None:
         tiles = result.tiles
         arrays.update(
@@ -79,7 +79,8 @@ def save_confusions(path: str | Path, result: EvalResult, report_id: str | None 
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as f:
-            np.savez_compressed(f, **arrays)
+            # numpy types the names as possible values of its allow_pickle flag; none is.
+            np.savez_compressed(f, **arrays)  # type: ignore[arg-type]
 
     return atomic_save(path, write)
 
