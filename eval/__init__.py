@@ -3,7 +3,8 @@
 Three layers, imports pointing one way (inference → analysis ← report):
 
 - :mod:`claravid.eval.inference` (torch): the data an evaluation reads, model and label-map
-  sources, sliding windows, the confusion of an image and of its tiles, and the per-image
+  sources, sliding windows, the per-image sums (the confusion of an image and of its tiles,
+  Boundary IoU, calibration bins) and the per-pair cross-view sums, and the per-image
   collection with its background complexity job;
 - :mod:`claravid.eval.analysis` (numpy only, no torch, no files): the per-image table and its
   merging, metrics, bins, units, the cluster bootstrap, mIoU per bin, tiles' bins, paired
@@ -40,6 +41,15 @@ and step by step::
     report = build_report(collected.result, bins=3)
     write_outputs("report/", report, collected.result)
 
+Beyond mIoU, each measure is a sum per image (or per pair), like a confusion matrix::
+
+    from claravid.eval import boundary_iou, calibration_bins, cross_view
+
+    inter, union = boundary_iou(pred, gt, num_classes=8)            # int64 [K] each
+    count, conf_sum, correct = calibration_bins(probs, gt)          # 15 bins
+    sums = cross_view(depth_t, depth_s, c2w_t, c2w_s, K, pred_t, pred_s, gt_t, gt_s,
+                      dynamic_t, dynamic_s, num_classes=8)          # a CrossViewSums
+
 Every name below is imported on first use, so ``import claravid.eval`` (and the analysis and
 report layers) never loads torch unless a torch-side name is asked for.
 """
@@ -56,22 +66,30 @@ __all__ = [
     "Bin",
     "Bootstrap",
     "CollectSettings",
+    "CrossViewSums",
     "DataChoice",
     "EvalResult",
     "Evaluation",
+    "ImageMeasures",
     "ImageScore",
     "InferenceSettings",
+    "PairTable",
+    "QualityTable",
     "ReportSettings",
     "WindowConfig",
     "bin_mious",
     "bin_names",
+    "boundary_iou",
     "build_report",
+    "calibration_bins",
+    "calibration_errors",
     "collect",
     "compare",
     "compare_reports",
     "confusion_matrix",
     "confusion_scores",
     "correlation",
+    "cross_view",
     "evaluate",
     "evaluate_model",
     "fixed_bins",
@@ -97,6 +115,7 @@ __all__ = [
 if TYPE_CHECKING:
     from claravid.eval.analysis.bins import Bin, bin_names, fixed_bins, parse_edges, quantile_bins
     from claravid.eval.analysis.bootstrap import Bootstrap
+    from claravid.eval.analysis.calibration import calibration_errors
     from claravid.eval.analysis.metrics import (
         CONVENTION,
         IGNORE_INDEX,
@@ -106,11 +125,16 @@ if TYPE_CHECKING:
         pixel_accuracy,
     )
     from claravid.eval.analysis.miou_bins import bin_mious, stratify
+    from claravid.eval.analysis.quality_table import PairTable, QualityTable
     from claravid.eval.analysis.stats import correlation
     from claravid.eval.analysis.table import EvalResult, merge_results
+    from claravid.eval.inference.boundary import boundary_iou
+    from claravid.eval.inference.calibration import calibration_bins
     from claravid.eval.inference.collect import CollectSettings, collect
     from claravid.eval.inference.confusion import confusion_matrix
+    from claravid.eval.inference.cross_view import CrossViewSums, cross_view
     from claravid.eval.inference.data import open_data
+    from claravid.eval.inference.image_measures import ImageMeasures
     from claravid.eval.inference.run_model import ImageScore, evaluate_model, sample_key
     from claravid.eval.inference.sources import load_source
     from claravid.eval.inference.windows import (
@@ -175,5 +199,13 @@ else:
             "InferenceSettings": "claravid.eval.settings",
             "ReportSettings": "claravid.eval.settings",
             "Evaluation": "claravid.eval.settings",
+            "calibration_errors": "claravid.eval.analysis.calibration",
+            "QualityTable": "claravid.eval.analysis.quality_table",
+            "PairTable": "claravid.eval.analysis.quality_table",
+            "boundary_iou": "claravid.eval.inference.boundary",
+            "calibration_bins": "claravid.eval.inference.calibration",
+            "cross_view": "claravid.eval.inference.cross_view",
+            "CrossViewSums": "claravid.eval.inference.cross_view",
+            "ImageMeasures": "claravid.eval.inference.image_measures",
         },
     )

@@ -126,6 +126,11 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument(
         "--hardest", type=non_negative_int, help="overlays of the K hardest images (default 4)"
     )
+    for name, what in (("boundary", "Boundary IoU per class (default on)"),
+                       ("calibration", "ECE, MCE, reliability diagram (default on with scores)"),
+                       ("consistency", "cross-view consistency of consecutive frames (default on "
+                                       "with depth and poses)")):  # fmt: skip
+        rep.add_argument(f"--{name}", action=argparse.BooleanOptionalAction, help=what)
     rep.add_argument("--save-predictions", type=Path, metavar="DIR", help="write label maps")
     rep.add_argument("--allow-missing", action="store_true", help="skip images w/o prediction")
     add_workers_flag(rep, "complexity and image decoding")
@@ -187,12 +192,16 @@ _MODEL_ONLY = (
     "save_predictions",
 )
 _DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing", *SELECTION)
+#: The measures beyond mIoU: --name and --no-name (None: not given).
+QUALITY_FLAGS = ("boundary", "calibration", "consistency")
 IDLE = {
     "compare": (*_MODEL_ONLY, *_DATA, "bins", "edges", "group_by", "measures", "tiles",
-                "hardest", "provider", "workers"),
-    "merge": (*_MODEL_ONLY, *_DATA, "measures", "tiles", "hardest", "provider", "workers"),
+                "hardest", "provider", "workers", *QUALITY_FLAGS),
+    "merge": (*_MODEL_ONLY, *_DATA, "measures", "tiles", "hardest", "provider", "workers",
+              *QUALITY_FLAGS),
     # --scores reads images only: no labels (--masks), no label palette (--palette).
-    "scores": (*_MODEL_ONLY, "allow_missing", "tiles", "hardest", "provider", "masks", "palette"),
+    "scores": (*_MODEL_ONLY, "allow_missing", "tiles", "hardest", "provider", "masks", "palette",
+               *QUALITY_FLAGS),
     "checkpoint": ("provider",),
     # Label maps are read, not predicted: no precision (an ONNX file is refused it below).
     "predictions": ("provider", "precision"),
@@ -202,9 +211,13 @@ IDLE = {
 def _refuse_idle_options(args: argparse.Namespace, source: str) -> None:
     """Refuse an option that would silently do nothing with this source."""
     for name in IDLE.get(source, ()):
-        if getattr(args, name) not in (None, False):
-            flag = "--" + name.replace("_", "-")
-            raise UsageError(f"{flag} does nothing with --{source}; drop it")
+        value = getattr(args, name)
+        # 0 or False is a flag's default, except --no-boundary and the like (None is theirs).
+        if value is None or (value in (0, False) and name not in QUALITY_FLAGS):
+            continue
+        flag = ("--" if value is not False else "--no-") + name.replace("_", "-")
+        what = " (the reports carry their own measures)" if name in QUALITY_FLAGS else ""
+        raise UsageError(f"{flag} does nothing with --{source}{what}; drop it")
 
 
 def _data_choice(args: argparse.Namespace) -> DataChoice:
@@ -230,13 +243,19 @@ def _report_settings(args: argparse.Namespace) -> ReportSettings:
     return ReportSettings(bins=args.bins or 3, edges=args.edges, group_by=args.group_by,
                           measures=args.measures or "delent", tiles=args.tiles,
                           hardest=4 if args.hardest is None else args.hardest,
-                          bootstrap=intervals, cluster=args.cluster)  # fmt: skip
+                          bootstrap=intervals, cluster=args.cluster, boundary=args.boundary,
+                          calibration=args.calibration,
+                          consistency=args.consistency)  # fmt: skip
 
 
 def _print_done(out: Path, report: dict[str, Any], what: str = "plots and confusions") -> None:
     from claravid.eval.report.markdown import bin_table
+    from claravid.eval.report.quality_text import quality_table
 
     print(bin_table(report))
+    extra = quality_table(report)
+    if extra:
+        print(f"\n{extra}")
     for message in (report.get("uncertainty") or {}).get("warnings", []):
         print(f"{PROG}: warning: {message}", file=sys.stderr)
     print(f"\nreport: {out / 'report.md'} ({out / REPORT}, {what} beside)")

@@ -116,7 +116,8 @@ def evaluate(
         checkpoint, onnx, predictions: what to evaluate (exactly one).
         data: the images (default: what the checkpoint recorded).
         inference: windows, device, precision (models only).
-        report: bins, groups, measures, tiles, intervals.
+        report: bins, groups, measures, tiles, intervals, and the measures beyond mIoU
+            (boundary, calibration, consistency: each on where the source and data allow it).
         save_predictions: also write the model's label maps into this folder.
         allow_missing: skip images without a saved prediction (listed in ``skipped``).
         workers: processes for complexity and image decoding.
@@ -130,6 +131,8 @@ def evaluate(
     from claravid.eval.inference.collect import CollectSettings, collect
     from claravid.eval.inference.hardest import hardest_items
     from claravid.eval.inference.label_maps import MARKER, write_marker
+    from claravid.eval.inference.pass_frames import pairs_unavailable
+    from claravid.eval.inference.quality_plan import plan_quality
     from claravid.eval.report.build import build_report
     from claravid.eval.report.folder import write_outputs
     from claravid.infra import distributed
@@ -161,6 +164,11 @@ def evaluate(
     distributed.barrier()
     model, run, source = _model_and_source(checkpoint, onnx, predictions, data, inference, info)
     opened = _open(data, model, run, predictions)
+    # Refused now (calibration of label maps, consistency of data without depth), not after.
+    asked = {"boundary_iou": report.boundary, "calibration": report.calibration,
+             "consistency": report.consistency}  # fmt: skip
+    plan = plan_quality(asked, has_scores=model is not None,
+                        pairs_reason=pairs_unavailable(opened))  # fmt: skip
     if report.group_by is not None:
         opened.groups(report.group_by)  # fails now, not after the inference
     report.check_bins(len(opened))
@@ -181,6 +189,7 @@ def evaluate(
         save_predictions=save_predictions,
         allow_missing=allow_missing,
         progress=info.is_main and progress,
+        quality=plan,
     )
     collected = collect(opened, model=model, predictions=predictions, settings=settings,
                         source=source)  # fmt: skip
@@ -195,6 +204,7 @@ def evaluate(
         warn_outside_edges(numbers, result.complexity["delent"], len(result.paths))
         dirs = [Path(d) for d in (predictions, save_predictions) if d is not None]
         items = hardest_items(result, opened, report.hardest, collected.hardest, dirs)
+        items += collected.pairs  # the pairs of lowest consistency, below the hardest images
         write_outputs(output, numbers, result, items, opened.palette.colors)
         if save_predictions is not None:
             write_marker(save_predictions, opened.palette, source)

@@ -2,7 +2,8 @@
 
 - :class:`DataChoice`: which images (root, dataset kind, split, palette, ClaraVid selection);
 - :class:`InferenceSettings`: how a model runs (windows, batch, device, precision, provider);
-- :class:`ReportSettings`: how the report is made (bins, groups, measures, tiles, intervals);
+- :class:`ReportSettings`: how the report is made (bins, groups, measures, tiles, intervals,
+  and which measures beyond mIoU: boundaries, calibration, cross-view consistency);
 - :class:`Evaluation`: what a run returns.
 
 A field left None takes what the model file recorded, else the default, so
@@ -186,6 +187,13 @@ class ReportSettings:
         bootstrap: resamples, level and seed of the intervals (its ``cluster`` is replaced by
             ``cluster``).
         cluster: the resampled unit; None: the data's default.
+        boundary: Boundary IoU per class (None: on; False: off).
+        calibration: ECE, MCE and the reliability diagram (None: on where the source has
+            scores, a checkpoint or an ONNX file; True: required, refused for label maps;
+            False: off).
+        consistency: cross-view consistency between consecutive frames of a pass (None: on
+            where the data has depth and poses, ClaraVid; True: required, refused for other
+            data; False: off).
     """
 
     bins: int = 3
@@ -196,8 +204,17 @@ class ReportSettings:
     hardest: int = 4
     bootstrap: Bootstrap = field(default_factory=Bootstrap)
     cluster: str | None = None
+    boundary: bool | None = None
+    calibration: bool | None = None
+    consistency: bool | None = None
 
     def __post_init__(self) -> None:
+        for name in ("boundary", "calibration", "consistency"):
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, bool):
+                raise ValueError(
+                    f"{name} must be True, False or None (on where possible), got {value!r}"
+                )
         if not _is_int(self.bins) or self.bins < 1:
             raise ValueError(f"--bins must be at least 1, got {self.bins!r}")
         if self.edges is not None:

@@ -2,7 +2,8 @@
 
 ``metrics.jsonl`` holds one JSON object per line: training rows ``{"step", "loss", "lr",
 "images_per_s", "grad_norm"}`` every ``train.log_every`` steps, and validation rows ``{"step",
-"miou", "pixel_acc", "per_class_iou", "miou_bins"}``. A resumed run first drops the rows
+"miou", "pixel_acc", "per_class_iou", "miou_bins", "boundary_miou", "boundary_miou_bins"}``
+(mBoundaryIoU overall and per delentropy bin beside mIoU). A resumed run first drops the rows
 written after its checkpoint, so the file reads as if the run had never stopped.
 """
 
@@ -74,9 +75,10 @@ class RunLog:
             for key, value in row.items():
                 if key != "step" and isinstance(value, int | float) and value is not None:
                     self.writer.add_scalar(key, value, row["step"])
-            for name, value in (row.get("miou_bins") or {}).items():
-                if value is not None:
-                    self.writer.add_scalar(f"miou_bins/{name}", value, row["step"])
+            for group in ("miou_bins", "boundary_miou_bins"):
+                for name, value in (row.get(group) or {}).items():
+                    if value is not None:
+                        self.writer.add_scalar(f"{group}/{name}", value, row["step"])
             self.writer.flush()
 
     def close(self) -> None:

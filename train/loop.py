@@ -455,7 +455,12 @@ def after_step(run: Run, done: int, loss: float, lr: float, grad_norm: float, ba
         if run.log is not None:  # rank 0's
             run.log.write(run.last_val)
             bins = " ".join(f"{k} {_fmt(x)}" for k, x in run.last_val["miou_bins"].items())
-            bar.write(f"step {done}: val mIoU {_fmt(run.last_val['miou'])} (per bin: {bins})")
+            edges = " ".join(
+                f"{k} {_fmt(x)}" for k, x in run.last_val["boundary_miou_bins"].items()
+            )
+            bar.write(f"step {done}: val mIoU {_fmt(run.last_val['miou'])} (per bin: {bins}); "
+                      f"mBoundaryIoU {_fmt(run.last_val['boundary_miou'])} (per bin: "
+                      f"{edges})")  # fmt: skip
         miou = run.last_val["miou"]
         if miou is not None and (run.best_miou is None or miou > run.best_miou):
             run.best_miou, run.best_step = miou, done

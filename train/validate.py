@@ -1,5 +1,6 @@
 """Validation during training, through the evaluation core (``eval/``): sliding windows,
-per-image confusions, mIoU, per-class IoU, and mIoU per delentropy bin of the val images.
+per-image confusions, mIoU, per-class IoU, mIoU per delentropy bin of the val images, and beside
+them mBoundaryIoU (overall and per bin) from each image's boundary sums.
 
 The delentropy of each val image is computed once per run (read from the DSP cache when the
 files were profiled before), each rank measuring its own shard. Under DDP each rank evaluates
@@ -15,7 +16,14 @@ import numpy as np
 import torch
 from torch import nn
 
-from claravid.eval import WindowConfig, bin_mious, evaluate_model, stratify
+from claravid.eval import (
+    ImageMeasures,
+    QualityTable,
+    WindowConfig,
+    bin_mious,
+    evaluate_model,
+    stratify,
+)
 from claravid.infra.distributed import gather_in_order, shard_indices
 from claravid.train.data import SegmentationSplit, image_paths
 from claravid.train.sampler import sharded_delentropy
@@ -71,17 +79,22 @@ class Validator:
                 device=self.device,
                 indices=[self.indices[i] for i in mine],
                 progress=progress,
+                measures=ImageMeasures(boundary=True),
             )
         finally:
             model.train(was_training)
-        confusions = gather_in_order([s.confusion for s in scores], mine)
-        report = stratify(
-            self.paths, np.stack(confusions), self.classes, {"delent": self.delent}, bins=self.bins
+        rows = gather_in_order([(s.confusion, s.boundary) for s in scores], mine)
+        quality = QualityTable(
+            {"boundary_iou": "computed"}, boundary=np.stack([b for _, b in rows])
         )
+        report = stratify(self.paths, np.stack([c for c, _ in rows]), self.classes,
+                          {"delent": self.delent}, bins=self.bins, quality=quality)  # fmt: skip
         overall = report["overall"]
         return {
             "miou": overall["miou"],
             "pixel_acc": overall["pixel_acc"],
             "per_class_iou": overall["per_class_iou"],
             "miou_bins": bin_mious(report),
+            "boundary_miou": overall["boundary_iou"]["miou"],
+            "boundary_miou_bins": {r["name"]: r["boundary_iou"]["miou"] for r in report["bins"]},
         }

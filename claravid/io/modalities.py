@@ -33,7 +33,7 @@ from claravid.io.imagefile import (
 from claravid.io.imagefile import decode_image as decode_image  # re-exported: where callers look
 from claravid.io.imagefile import read_bytes as read_bytes
 from claravid.io.jpeg_region import read_rgb
-from claravid.io.layout import DEPTH_MAX_M, DEPTH_SCALE, INTRINSICS
+from claravid.io.layout import DEPTH_MAX_M, DEPTH_SCALE, INTRINSICS, rigid_error
 
 
 def _decode_png8(
@@ -70,9 +70,12 @@ def read_depth(path: str | Path) -> np.ndarray:
 
     Computed in float32 in the SDK's order (sum, divide, multiply) so values are bit-equal.
     """
-    bgr = _decode_png8(path, cv2.IMREAD_COLOR, _RGB_TYPES, _DEPTH).astype(np.int32)
-    code = bgr[..., 2] + (bgr[..., 1] << 8) + (bgr[..., 0] << 16)
-    depth = code.astype(np.float32)  # < 2^24: exact in float32, as the SDK's float32 sum
+    bgr = _decode_png8(path, cv2.IMREAD_COLOR, _RGB_TYPES, _DEPTH)
+    # R, G, B, 255 bytes read as one little-endian int32: code + 255·2^24 - 2^32 = code - 2^24,
+    # exact in float32 (|value| <= 2^24), and so is adding 2^24 back: the 24-bit code, exactly.
+    shifted = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGBA).view("<i4")[..., 0]
+    depth = np.empty(shifted.shape, np.float32)
+    np.add(shifted, np.float32(1 << 24), out=depth, dtype=np.float32, casting="unsafe")
     depth /= np.float32(DEPTH_SCALE)
     depth *= np.float32(DEPTH_MAX_M)
     return depth
@@ -113,7 +116,13 @@ def read_dynamic_mask(path: str | Path) -> np.ndarray:
 
 
 def read_extrinsics(path: str | Path) -> np.ndarray:
-    """The camera-to-world pose: float32 4×4."""
+    """The camera-to-world pose: float32 4×4, OpenGL camera axes (see :mod:`claravid.io.layout`).
+
+    Raises:
+        CorruptFileError: naming the file, when it is not a 4×4 list of numbers, or holds NaN or
+            infinities, or is not a rigid transform (scale, shear, a mirrored axis, a last row
+            other than 0, 0, 0, 1): such a pose would put every pixel of the frame elsewhere.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"file not found: {path}")
@@ -126,6 +135,9 @@ def read_extrinsics(path: str | Path) -> np.ndarray:
     # JSON readers accept NaN and Infinity; a pose with them would put frames nowhere.
     if not np.isfinite(pose).all():
         raise CorruptFileError(path, "the 4×4 pose holds NaN or infinite values")
+    problem = rigid_error(matrix)
+    if problem is not None:
+        raise CorruptFileError(path, f"not a camera pose: {problem}")
     return pose
 
 

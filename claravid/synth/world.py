@@ -24,6 +24,9 @@ Colour: TypeAlias = Sequence[float] | np.ndarray
 
 #: Half the side of every world square, in metres (the flight grid stays well inside it).
 WORLD_HALF_M: float = 300.0
+#: Object heights are whole multiples of this (metres): the renderer tests every ray at each
+#: multiple, so flat tops are hit exactly where they are.
+HEIGHT_STEP: float = 0.5
 _SHIFT = 4  # cv2 drawing with 4 fractional bits: sub-pixel placement at coarse resolutions
 _ONE = 1 << _SHIFT
 
@@ -122,7 +125,8 @@ class World:
     Attributes:
         res: metres per raster pixel.
         label: uint8 class ids. instance: uint16 ids (0 = none). height: float32 metres above
-        ground. color: uint8 RGB. dynamic: bool lookup, ``dynamic[instance]`` is True for
+        ground, a multiple of :data:`HEIGHT_STEP` (objects are upright prisms). color: uint8 RGB
+        of the top surfaces. dynamic: bool lookup, ``dynamic[instance]`` is True for
         moving vehicles and pedestrians.
     """
 
@@ -132,6 +136,11 @@ class World:
     height: np.ndarray
     color: np.ndarray
     dynamic: np.ndarray
+
+    @cached_property
+    def levels(self) -> np.ndarray:
+        """Heights in :data:`HEIGHT_STEP` units, uint8 (the renderer's occupancy test)."""
+        return np.clip(np.rint(self.height / HEIGHT_STEP), 0, 255).astype(np.uint8)
 
     @cached_property
     def packed(self) -> np.ndarray:
@@ -162,7 +171,7 @@ class _Canvas:
         return (
             (self.label, ID[cls]),
             (self.instance, inst),
-            (self.height, float(height)),
+            (self.height, HEIGHT_STEP * round(height / HEIGHT_STEP)),
             (self.color, tuple(float(c) for c in color)),
         )
 

@@ -221,21 +221,22 @@ def _local_clusters(clusters: np.ndarray, members: ArrayLike) -> tuple[np.ndarra
     return members, local.reshape(-1).astype(np.int64)
 
 
-def _set_clusters(
+def set_clusters(
     clusters: np.ndarray,
     members: ArrayLike,
     settings: Bootstrap,
     counts: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int, str | None]:
-    """A set's members, their local clusters, the number of clusters, and why the set gets no
-    interval (None: it gets one). Fixed ``counts`` (tests) need 2 clusters but no settings."""
+    """A set's members, their local clusters (0..C-1), the number of clusters C, and why the set
+    gets no interval (None: it gets one). Fixed ``counts`` (tests) need 2 clusters but no
+    settings."""
     members, local = _local_clusters(clusters, members)
     num = count_clusters(local)
     note = _note(settings, num) if counts is None or num < 2 else None
     return members, local, num, note
 
 
-def _per_cluster(rows: np.ndarray, local: np.ndarray, num_clusters: int) -> np.ndarray:
+def per_cluster_sums(rows: np.ndarray, local: np.ndarray, num_clusters: int) -> np.ndarray:
     """Sum of ``rows`` ([M, D]) per local cluster -> float64 [C, D] (sort + reduceat)."""
     order = np.argsort(local, kind="stable")
     sorted_local = local[order]
@@ -245,7 +246,7 @@ def _per_cluster(rows: np.ndarray, local: np.ndarray, num_clusters: int) -> np.n
     return out
 
 
-def _resampled(
+def resampled(
     counts: np.ndarray, per_cluster: np.ndarray, statistic: Callable[[np.ndarray], np.ndarray]
 ) -> np.ndarray:
     """``statistic(counts @ per_cluster)``, :data:`_CHUNK` resamples at a time: the resampled
@@ -308,9 +309,11 @@ def _note(settings: Bootstrap, num_clusters: int) -> str | None:
     return None
 
 
-def _counts_for(
+def draws_for(
     num_clusters: int, settings: Bootstrap, counts: np.ndarray | None, stream: str
 ) -> np.ndarray:
+    """The draw counts [R, C] of one set: ``counts`` when given (tests, checked), else drawn
+    from the set's own generator ``stream``."""
     if counts is None:
         return draw_counts(num_clusters, settings.resamples, settings.rng(stream))
     counts = np.asarray(counts)
@@ -346,14 +349,14 @@ def confusion_interval(
         ``{"miou_ci": [lo, hi] | None, "pixel_acc_ci": [lo, hi] | None, "ci_note": str | None}``.
     """
     confusions = np.asarray(confusions)
-    members, local, num, note = _set_clusters(clusters, members, settings, counts)
+    members, local, num, note = set_clusters(clusters, members, settings, counts)
     if note is not None:
         return {"miou_ci": None, "pixel_acc_ci": None, "ci_note": note}
     k = confusions.shape[-1]
     rows = features[members] if features is not None else confusion_features(confusions[members])
-    per_cluster = _per_cluster(rows, local, num)
-    draws = _counts_for(num, settings, counts, stream)
-    both = _resampled(draws, per_cluster, lambda sums: np.stack(_miou_acc(sums, k), axis=1))
+    per_cluster = per_cluster_sums(rows, local, num)
+    draws = draws_for(num, settings, counts, stream)
+    both = resampled(draws, per_cluster, lambda sums: np.stack(_miou_acc(sums, k), axis=1))
     miou, acc = both[:, 0], both[:, 1]
     return {
         "miou_ci": percentile_interval(miou, settings.level),
@@ -383,12 +386,12 @@ def mean_interval(
     finite = np.asarray(members, dtype=np.int64).reshape(-1)
     finite = finite[np.isfinite(values[finite])]
     mean = float(values[finite].mean()) if finite.size else None
-    members, local, num, note = _set_clusters(clusters, finite, settings, counts)
+    members, local, num, note = set_clusters(clusters, finite, settings, counts)
     if note is not None:
         return {"mean": mean, "ci": None, "ci_note": note}
     rows = np.stack([values[members], np.ones(len(members))], axis=1)
-    per_cluster = _per_cluster(rows, local, num)
-    means = _resampled(_counts_for(num, settings, counts, stream), per_cluster,
+    per_cluster = per_cluster_sums(rows, local, num)
+    means = resampled(draws_for(num, settings, counts, stream), per_cluster,
                        lambda sums: sums[:, 0] / sums[:, 1])  # fmt: skip
     return {
         "mean": mean,
@@ -446,7 +449,7 @@ def correlation_interval(
     """
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     keep = np.flatnonzero(np.isfinite(x) & np.isfinite(y))
-    members, local, num, note = _set_clusters(clusters, keep, settings, counts)
+    members, local, num, note = set_clusters(clusters, keep, settings, counts)
     if note is None and min(len(members), num) < MIN_CORRELATION:
         note = (
             f"{len(members)} image pairs in {num} {settings.cluster} clusters: a correlation "
@@ -454,7 +457,7 @@ def correlation_interval(
         )
     if note is not None:
         return {"pearson_ci": None, "spearman_ci": None, "ci_note": note}
-    draws = _counts_for(num, settings, counts, stream)
+    draws = draws_for(num, settings, counts, stream)
     xs, ys = x[members], y[members]
     pearson, spearman = [], []
     for start in range(0, draws.shape[0], _CHUNK):
@@ -526,7 +529,7 @@ def paired_gap(
     conf_a, conf_b = np.asarray(conf_a), np.asarray(conf_b)
     if conf_a.shape != conf_b.shape:
         raise ValueError(f"paired confusions differ in shape: {conf_a.shape} vs {conf_b.shape}")
-    members, local, num, note = _set_clusters(clusters, members, settings, counts)
+    members, local, num, note = set_clusters(clusters, members, settings, counts)
     gap = _point_miou(conf_b, members) - _point_miou(conf_a, members)
     out: dict[str, Any] = {
         "gap": gap if np.isfinite(gap) else None,
@@ -537,7 +540,7 @@ def paired_gap(
     if note is not None:
         return {**out, "ci_note": note}
     k = conf_a.shape[-1]
-    draws = _counts_for(num, settings, counts, stream)
+    draws = draws_for(num, settings, counts, stream)
     flat = np.concatenate(
         [confusion_features(conf_a[members]), confusion_features(conf_b[members])], axis=1
     )
@@ -545,7 +548,7 @@ def paired_gap(
     def gap_of(sums: np.ndarray) -> np.ndarray:
         return _miou_acc(sums[:, 3 * k :], k)[0] - _miou_acc(sums[:, : 3 * k], k)[0]
 
-    gaps = _resampled(draws, _per_cluster(flat, local, num), gap_of)
+    gaps = resampled(draws, per_cluster_sums(flat, local, num), gap_of)
     return {
         **out,
         "gap_ci": percentile_interval(gaps, settings.level),
@@ -576,19 +579,19 @@ def unpaired_gap(
         ("a", conf_a, clusters_a, members_a),
         ("b", conf_b, clusters_b, members_b),
     ):
-        members, local, num, note = _set_clusters(clusters, members, settings)
+        members, local, num, note = set_clusters(clusters, members, settings)
         k = conf.shape[-1]
         point.append(_point_miou(conf, members))
         if note is not None:
             notes.append(note)
             continue
         draws = draw_counts(num, settings.resamples, settings.rng(f"{stream}:{tag}"))
-        per_cluster = _per_cluster(confusion_features(conf[members]), local, num)
+        per_cluster = per_cluster_sums(confusion_features(conf[members]), local, num)
 
         def miou_of(sums: np.ndarray, k: int = k) -> np.ndarray:
             return _miou_acc(sums, k)[0]
 
-        values.append(_resampled(draws, per_cluster, miou_of))
+        values.append(resampled(draws, per_cluster, miou_of))
     gap = point[1] - point[0]
     out: dict[str, Any] = {
         "gap": gap if np.isfinite(gap) else None,

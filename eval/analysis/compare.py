@@ -13,6 +13,12 @@ a report against its own re-binning or merge (or a copy of it): reports that sha
 gap is 0 by construction and any "significance" an artefact of the binning. Two *runs* that
 agree everywhere (a checkpoint and its ONNX export, two seeds that converged alike) are a fair
 comparison: a paired gap of 0, interval [0, 0], p = 1.
+
+The measures beyond mIoU (mBoundaryIoU; ECE and MCE; cross-view consistency and TC) get their
+gaps the same way, per bin, each from its own per-image sums
+(:mod:`claravid.eval.analysis.sum_intervals`), under ``quality``; a measure that one of the
+two reports lacks (switched off, no scores, a report written before it existed) is compared
+nowhere and named under ``missing``.
 """
 
 from __future__ import annotations
@@ -31,8 +37,19 @@ from claravid.eval.analysis.bootstrap import (
     paired_gap,
     unpaired_gap,
 )
+from claravid.eval.analysis.quality import STATISTICS, measure_rows
+from claravid.eval.analysis.quality_table import COMPUTED, QUALITY, QualityTable
+from claravid.eval.analysis.sum_intervals import paired_sums_gap, unpaired_sums_gap
 from claravid.eval.analysis.table import EvalResult
 from claravid.infra.cli import UsageError
+
+#: The statistics of each measure beyond mIoU that comparisons give gaps of (the ground truth's
+#: own consistency is the same for two models on the same images: not compared).
+COMPARED: dict[str, tuple[str, ...]] = {
+    "boundary_iou": ("miou",),
+    "calibration": ("ece", "mce"),
+    "consistency": ("agreement", "tc"),
+}
 
 
 def _edges(report: dict[str, Any]) -> list[tuple[Any, Any]]:
@@ -146,6 +163,22 @@ def gap_analysis(
         for a, b in zip(base_bins, other_bins, strict=False):
             row = pair.gap(a.indices, b.indices, f"compare:{j}:bin:{a.name}")
             entry["bins"].append({"name": a.name, **row})
+        entry["quality"], entry["missing"] = {}, {}
+        for measure in QUALITY:
+            why = _missing(base.quality, result.quality, measure, names[0], name)
+            if why is not None:
+                entry["missing"][measure] = why
+                continue
+            sets = [("overall", range(len(base.paths)), range(len(result.paths)))]
+            sets += [(a.name, a.indices, b.indices)
+                     for a, b in zip(base_bins, other_bins, strict=False)]  # fmt: skip
+            rows = [pair.quality_gap(measure, ma, mb, f"compare:{j}:{where}:{measure}")
+                    for where, ma, mb in sets]  # fmt: skip
+            entry["quality"][measure] = {
+                "overall": rows[0],
+                "bins": [{"name": where, **row} for (where, _, _), row in zip(sets[1:], rows[1:],
+                                                                              strict=True)],
+            }  # fmt: skip
         if not pair.paired:
             entry["note"] = (
                 f"{name} and {names[0]} cover different images: unpaired comparison, each "
@@ -157,6 +190,25 @@ def gap_analysis(
         "comparisons": comparisons,
         "uncertainty": settings.describe(count_clusters(base_ids)),
     }
+
+
+def _missing(
+    a: QualityTable | None, b: QualityTable | None, measure: str, name_a: str, name_b: str
+) -> str | None:
+    """Why ``measure`` cannot be compared between A and B (None: both computed it alike)."""
+    lacking = []
+    for table, name in ((a, name_a), (b, name_b)):
+        status = COMPUTED if table is None else table.status[measure]
+        if table is None or status != COMPUTED:
+            reason = None if table is None else table.reasons.get(measure)
+            state = "not measured" if table is None else status
+            lacking.append(f"{state} in {name}" + (f" ({reason})" if reason else ""))
+    if lacking:
+        return "; ".join(lacking)
+    if a.settings.get(measure, {}) != b.settings.get(measure, {}):
+        return (f"computed with other settings: {name_a} {a.settings.get(measure)}, {name_b} "
+                f"{b.settings.get(measure)}")  # fmt: skip
+    return None
 
 
 class _Pair:
@@ -172,15 +224,40 @@ class _Pair:
             # B's rows in A's image order; both resample A's clusters.
             where = {p: i for i, p in enumerate(b_keys)}
             order = np.asarray([where[p] for p in a_keys], dtype=np.int64)
+            self.order = order
             self.b_conf = b.confusions[order]
             self.b_to_a = np.argsort(order)
         else:
             self.b_ids = _ids(b, settings.cluster)
 
+    def _same_images(self, members_a: Sequence[int], members_b: Sequence[int]) -> bool:
+        return self.paired and sorted(members_a) == sorted(int(self.b_to_a[i]) for i in members_b)
+
+    def quality_gap(
+        self, measure: str, members_a: Sequence[int], members_b: Sequence[int], stream: str
+    ) -> dict[str, Any]:
+        """The gaps B − A of ``measure``'s compared statistics (:data:`COMPARED`): paired over
+        the same images, else each report resampled on its own."""
+        statistic, all_names = STATISTICS[measure]
+        names = COMPARED[measure]
+        picked = [all_names.index(n) for n in names]
+
+        def chosen(sums: np.ndarray) -> np.ndarray:
+            return np.asarray(statistic(sums)).reshape(len(sums), -1)[:, picked]
+
+        rows_a = measure_rows(self.a.quality, measure)
+        rows_b = measure_rows(self.b.quality, measure)
+        if self._same_images(members_a, members_b):
+            return paired_sums_gap(rows_a, rows_b[self.order], self.a_ids, members_a,
+                                   self.settings, chosen, names, stream=stream)  # fmt: skip
+        b_ids = _ids(self.b, self.settings.cluster) if self.paired else self.b_ids
+        return unpaired_sums_gap(rows_a, self.a_ids, members_a, rows_b, b_ids, members_b,
+                                 self.settings, chosen, names, stream=stream)  # fmt: skip
+
     def gap(self, members_a: Sequence[int], members_b: Sequence[int], stream: str) -> dict:
         """The gap B − A of A's ``members_a`` and B's ``members_b``; paired when the two
         reports cover the same images and the two sets are the same images."""
-        if self.paired and sorted(members_a) == sorted(int(self.b_to_a[i]) for i in members_b):
+        if self._same_images(members_a, members_b):
             out = paired_gap(self.a.confusions, self.b_conf, self.a_ids, members_a,
                              self.settings, stream=stream)  # fmt: skip
             return {"paired": True, **out}

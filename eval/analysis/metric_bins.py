@@ -24,6 +24,7 @@ from claravid.eval.analysis.bootstrap import (
     mean_interval,
 )
 from claravid.eval.analysis.measures import PRIMARY_MEASURE
+from claravid.eval.analysis.metrics import finite_or_none
 from claravid.eval.analysis.stats import correlation, group_profile, order_warnings
 
 CONVENTION = (
@@ -99,8 +100,8 @@ def metric_report(
         row["scores"] = _metric_row(members, metrics, ids, settings, f"group:{name}")
         report["groups"].append(row)
     report["images"] = [
-        {"path": p, **{m: float(v[i]) for m, v in complexity.items()},
-         **{m: float(v[i]) for m, v in metrics.items()}}
+        {"path": p, **{m: finite_or_none(float(v[i])) for m, v in complexity.items()},
+         **{m: finite_or_none(float(v[i])) for m, v in metrics.items()}}
         for i, p in enumerate(paths)
     ]  # fmt: skip
     report["correlation"] = {}

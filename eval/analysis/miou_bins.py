@@ -6,7 +6,9 @@ docs/report-format.md); per image: its own mIoU and pixel accuracy; Pearson and 
 correlations between each complexity measure and per-image mIoU, with n. With a
 :class:`~claravid.eval.analysis.bootstrap.Bootstrap` and a cluster label per image, every mIoU,
 pixel accuracy and correlation also gets its cluster percentile bootstrap interval (``miou_ci``,
-``pixel_acc_ci``, ``pearson_ci``, ``spearman_ci``; ``ci_note`` says why one is null). Everything
+``pixel_acc_ci``, ``pearson_ci``, ``spearman_ci``; ``ci_note`` says why one is null). With the
+sums of the measures beyond mIoU (:mod:`claravid.eval.analysis.quality`), every row also carries
+its mBoundaryIoU, ECE and MCE, and cross-view consistency, each with its interval. Everything
 here is numpy on finished results, so a report can be re-binned or merged from saved confusions
 without running a model.
 """
@@ -37,6 +39,8 @@ from claravid.eval.analysis.metrics import (
     mean_iou,
     pixel_accuracy,
 )
+from claravid.eval.analysis.quality import image_values, quality_entries, quality_summary
+from claravid.eval.analysis.quality_table import QualityTable
 from claravid.eval.analysis.stats import correlation, group_profile, order_warnings
 
 
@@ -68,6 +72,7 @@ def stratify(
     groups: Mapping[str, Sequence[int]] | None = None,
     clusters: Sequence[str] | None = None,
     bootstrap: Bootstrap | None = None,
+    quality: QualityTable | None = None,
 ) -> dict[str, Any]:
     """The report's numbers (everything but the ``source`` and palette name).
 
@@ -83,10 +88,13 @@ def stratify(
             DSP profile (μ, σ, α, β) of its complexity values.
         clusters: the bootstrap cluster label of each image (default: each image its own).
         bootstrap: interval settings; None: no intervals and no ``uncertainty`` entry.
+        quality: the per-image sums of the measures beyond mIoU, in the order of
+            ``confusions``; each row gets an entry per computed measure
+            (:func:`~claravid.eval.analysis.quality.quality_entries`), each image its values.
 
     Returns:
         ``{"overall", "bins", "groups", "images", "correlation", "classes", "ignore_index",
-        "convention", "binning"}``, and ``"uncertainty"`` with ``bootstrap``.
+        "convention", "binning", "quality"}``, and ``"uncertainty"`` with ``bootstrap``.
     """
     confusions = np.asarray(confusions, dtype=np.int64)
     n = len(paths)
@@ -132,19 +140,54 @@ def stratify(
         report["groups"].append(row)
 
     per_image_miou = np.array([mean_iou(c) for c in confusions])
+    own = image_values(quality)
+    for name, values in own.items():
+        if len(values) != n:
+            raise ValueError(f"{len(values)} {name} values for {n} images")
     images = []
     for i, path in enumerate(paths):
         row = {"path": path}
         row.update({m: finite_or_none(float(v[i])) for m, v in measures.items()})
         row["miou"] = finite_or_none(per_image_miou[i])
         row["pixel_acc"] = finite_or_none(pixel_accuracy(confusions[i]))
+        row.update({name: finite_or_none(float(v[i])) for name, v in own.items()})
         images.append(row)
     report["images"] = images
     report["correlation"] = {m: correlation(v, per_image_miou) for m, v in measures.items()}
     if bootstrap is not None:
         add_intervals(report, confusions, bin_list, groups or {}, measures, per_image_miou,
                       list(paths) if clusters is None else clusters, bootstrap)  # fmt: skip
+    add_quality(report, quality, classes, bin_list, groups or {},
+                list(paths) if clusters is None else clusters, bootstrap)  # fmt: skip
     return report
+
+
+def add_quality(
+    report: dict[str, Any],
+    quality: QualityTable | None,
+    classes: Sequence[str],
+    bin_list: Sequence[Bin],
+    groups: Mapping[str, Sequence[int]],
+    clusters: Sequence[str],
+    bootstrap: Bootstrap | None,
+) -> None:
+    """Add each row's measures beyond mIoU and the top-level ``quality`` entry in place.
+
+    A row's measure draws from the generator ``<row stream>:<measure>`` (``overall``,
+    ``bin:<name>``, ``group:<name>``), so its interval depends on its own images only.
+    """
+    report["quality"] = quality_summary(quality, "not measured")
+    if quality is None:
+        return
+    ids = cluster_ids(clusters) if bootstrap is not None else None
+    sets = [(report["overall"], np.arange(len(clusters)), "overall")]
+    sets += [(row, b.indices, f"bin:{b.name}")
+             for b, row in zip(bin_list, report["bins"], strict=True)]  # fmt: skip
+    for (name, members), row in zip(groups.items(), report["groups"], strict=True):
+        sets.append((row, members, f"group:{name}"))
+    for row, members, stream in sets:
+        row.update(quality_entries(quality, members, classes, clusters=ids, bootstrap=bootstrap,
+                                   stream=stream))  # fmt: skip
 
 
 def add_intervals(

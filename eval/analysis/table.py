@@ -1,8 +1,9 @@
 """The per-image table every report is made of, and joining several of them.
 
 One row per image: its path, the name its prediction is saved under, its confusion, its
-complexity values, its units (mission, viewpoint, block, sequence, folder) and, with tiles,
-every tile's delentropy and confusion. An evaluation builds it
+complexity values, its units (mission, viewpoint, block, sequence, folder), the sums of the
+measures beyond mIoU (boundaries, calibration, its cross-view pair) and, with tiles, every
+tile's delentropy and confusion. An evaluation builds it
 (:func:`claravid.eval.inference.collect.collect`), a report folder stores it
 (:mod:`claravid.eval.report.files`), and every number of a report is computed from it.
 """
@@ -16,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from claravid.eval.analysis.quality_table import QualityTable, concat_quality
 from claravid.eval.analysis.tile_bins import TileTable, concat_tables
 from claravid.eval.analysis.units import (
     available_units,
@@ -48,6 +50,8 @@ class EvalResult:
         lineage: the ``report_id`` of every report these rows were read from, and of every
             report those were merged or re-binned from (empty for a fresh evaluation): two
             tables sharing one are one run seen twice.
+        quality: the per-image sums of Boundary IoU, calibration and cross-view consistency
+            (:class:`~claravid.eval.analysis.quality_table.QualityTable`); None: none measured.
     """
 
     paths: list[str]
@@ -61,6 +65,7 @@ class EvalResult:
     tiles: TileTable | None = None
     identity: list[str] | None = None
     lineage: tuple[str, ...] = ()
+    quality: QualityTable | None = None
 
     def groups(self, by: str | None) -> dict[str, list[int]] | None:
         """Image indices per unit (:func:`~claravid.eval.analysis.units.group_indices`), or None."""
@@ -134,4 +139,7 @@ def merge_results(results: Sequence[EvalResult], names: Sequence[str]) -> EvalRe
         tiles=concat_tables([r.tiles for r in results], [len(r.paths) for r in results], order),
         identity=cat([r.image_ids() for r in results]),
         lineage=lineage,
+        quality=concat_quality(
+            [r.quality or QualityTable.absent("not measured") for r in results], names, order
+        ),
     )

@@ -1,18 +1,22 @@
-"""One evaluation's per-image table: images -> per-image confusions and complexity.
+"""One evaluation's per-image table: images -> per-image confusions, complexity and the
+measures beyond mIoU.
 
 :func:`collect` produces the per-image table (:class:`~claravid.eval.analysis.table.EvalResult`)
 from a model or from saved label maps, on one process or sharded over ``torchrun`` ranks (each rank
 evaluates every ``world_size``-th image and measures its complexity meanwhile; rank 0 gathers
-everything in dataset order, so the table is the same as one process's). The report folder is
-then :func:`claravid.eval.report.folder.write_outputs`; the command line
-(:mod:`claravid.eval.cli`) is a thin layer over both.
+everything in dataset order, so the table is the same as one process's). With cross-view pairs
+each rank takes a contiguous run of images instead, so consecutive frames of a pass meet on one
+rank; a pair whose next frame another rank evaluates is still measured by its own frame's rank
+(:mod:`claravid.eval.inference.pair_stream`): counted once. The report folder is then
+:func:`claravid.eval.report.folder.write_outputs`; the command line (:mod:`claravid.eval.cli`)
+is a thin layer over both.
 """
 
 from __future__ import annotations
 
 import heapq
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -21,16 +25,38 @@ import torch
 
 from claravid.dsp.tiles import check_tile_count, check_tile_size
 from claravid.eval.analysis.metrics import mean_iou
+from claravid.eval.analysis.quality_table import (
+    BOUNDARY,
+    CALIBRATION,
+    CONSISTENCY,
+    PairTable,
+    QualityTable,
+)
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.tile_bins import TileTable
 from claravid.eval.inference.complexity_job import ComplexityJob
 from claravid.eval.inference.data import EvalData
-from claravid.eval.inference.hardest import Hardest
-from claravid.eval.inference.label_maps import check_missing, label_map_confusions, write_marker
+from claravid.eval.inference.hardest import Hardest, thumbnail
+from claravid.eval.inference.image_measures import image_measures
+from claravid.eval.inference.label_maps import (
+    check_missing,
+    label_map_confusions,
+    prediction_file,
+    read_prediction,
+    write_marker,
+)
 from claravid.eval.inference.label_maps import write_prediction as save_label_map
+from claravid.eval.inference.pair_stream import PairKeeper, PairStream
+from claravid.eval.inference.pass_frames import (
+    PairResult,
+    PassFrames,
+    measure_pair,
+    pairs_unavailable,
+)
+from claravid.eval.inference.quality_plan import QualityPlan, plan_quality
 from claravid.eval.inference.run_model import ImageScore, evaluate_model
 from claravid.eval.inference.sources import ModelSource
-from claravid.eval.inference.windows import WindowConfig
+from claravid.eval.inference.windows import WindowConfig, predict_labels
 from claravid.infra import distributed
 from claravid.infra.cli import USER_ERRORS, UsageError
 from claravid.io.jpeg_region import image_size
@@ -38,11 +64,13 @@ from claravid.io.jpeg_region import image_size
 
 @dataclass
 class Collected:
-    """What :func:`collect` returns: the table, the skipped images, kept hardest predictions."""
+    """What :func:`collect` returns: the table, the skipped images, kept hardest predictions
+    and the pairs of lowest consistency (thumbnails, :class:`PairKeeper` items), lowest first."""
 
     result: EvalResult
     skipped: list[str]
     hardest: dict[int, np.ndarray]
+    pairs: list[dict[str, Any]] = field(default_factory=list)
 
 
 def _from_worker(exc: Exception) -> Exception:
@@ -90,6 +118,9 @@ class CollectSettings:
         save_predictions: also write the model's label maps here.
         allow_missing: skip images without a prediction instead of failing.
         progress: show a progress bar.
+        quality: the measures beyond mIoU
+            (:func:`~claravid.eval.inference.quality_plan.plan_quality`); None: each one on
+            where the source and data allow it.
     """
 
     window: WindowConfig | None = None
@@ -101,6 +132,13 @@ class CollectSettings:
     save_predictions: str | Path | None = None
     allow_missing: bool = False
     progress: bool = False
+    quality: QualityPlan | None = None
+
+
+def contiguous_shard(n: int) -> list[int]:
+    """This rank's contiguous run of ``range(n)`` (ranks in order, sizes within one)."""
+    info = distributed.current()
+    return list(range(info.rank * n // info.world_size, (info.rank + 1) * n // info.world_size))
 
 
 def collect(
@@ -130,11 +168,19 @@ def collect(
     if (model is None) == (predictions is None):
         raise ValueError("give exactly one of a model and a predictions folder")
     k = data.palette.num_classes
+    plan = s.quality or plan_quality({}, has_scores=model is not None,
+                                     pairs_reason=pairs_unavailable(data))  # fmt: skip
     skipped: list[int] = []
     present = list(range(len(data)))
     if predictions is not None:
         present, skipped = check_missing(predictions, data, s.allow_missing)
-    mine = [present[i] for i in distributed.shard_indices(len(present))]
+    # Pairs: consecutive frames on one rank (a rank's last frame predicts its next one).
+    shard = contiguous_shard if plan.on(CONSISTENCY) else distributed.shard_indices
+    mine = [present[i] for i in shard(len(present))]
+    frames = PassFrames(data) if plan.on(CONSISTENCY) else None
+    pair_keeper = PairKeeper(hardest if frames is not None else 0)
+    extras: list[tuple[Any, Any]] = []
+    pairs: dict[str, PairResult] = {}
     if tile_size is not None and mine:  # before any work: a grid too fine for the first image
         check_tile_size(tile_size)
         width, height = image_size(data.paths[mine[0]])
@@ -161,11 +207,24 @@ def collect(
             tile_size=tile_size,
         )
         if model is not None:
+            stream = None
+            if frames is not None:
+                window = (s.window or WindowConfig()).for_model(model.model)
+
+                def predict_other(key: str) -> np.ndarray:
+                    image = frames.image(key).to(s.device)
+                    return predict_labels(model.model, image, window).to("cpu", torch.uint8).numpy()
+
+                stream = PairStream(frames, [data.keys[i] for i in mine], k, predict_other,
+                                    pair_keeper, mine)  # fmt: skip
 
             def on_score(sample: dict[str, Any], pred: torch.Tensor, score: ImageScore) -> None:
+                ids = pred.to("cpu", torch.uint8).numpy() if save_predictions or stream else None
                 if save_predictions is not None:
-                    save_label_map(save_predictions, score.key, pred.to("cpu", torch.uint8).numpy())
+                    save_label_map(save_predictions, score.key, ids)
                 keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
+                if stream is not None:
+                    stream.add(score.key, ids, np.asarray(sample["mask"], dtype=np.uint8))
 
             scores = evaluate_model(
                 model.model,
@@ -178,16 +237,24 @@ def collect(
                 tile_size=tile_size,
                 progress=s.progress,
                 on_score=on_score,
+                measures=plan.image_measures(),
             )
             confusions = [s.confusion for s in scores]
             tile_confs = [s.tiles for s in scores]
+            extras = [(s.boundary, s.calibration) for s in scores]
+            if stream is not None:
+                pairs = stream.finish()
         else:
             assert predictions is not None  # one of model and predictions, checked above
             threads = max(1, workers)
-            scored = label_map_confusions(
-                data, predictions, mine, threads=threads, tile_size=tile_size, progress=s.progress
-            )
-            confusions, tile_confs = [c for c, _ in scored], [t for _, t in scored]
+            measure = _label_map_measure(data, predictions, plan, frames, pair_keeper)
+            scored = label_map_confusions(data, predictions, mine, threads=threads,
+                                          tile_size=tile_size, progress=s.progress,
+                                          measure=measure)  # fmt: skip
+            confusions, tile_confs = [c for c, _, _ in scored], [t for _, t, _ in scored]
+            extras = [(None if e is None else e[0], None) for _, _, e in scored]
+            pairs = {data.keys[i]: e[1] for i, (_, _, e) in zip(mine, scored, strict=True)
+                     if e is not None and e[1] is not None}  # fmt: skip
         values = job.result()
         tile_values = job.tiles()
         if tile_size is not None:
@@ -202,11 +269,13 @@ def collect(
 
     rows = [
         (confusions[j], {m: values[m][j] for m in values},
-         (tile_values[j], tile_confs[j]) if tile_size is not None else None)
+         (tile_values[j], tile_confs[j]) if tile_size is not None else None,
+         extras[j], pairs.get(data.keys[mine[j]]))
         for j in range(len(mine))
     ]  # fmt: skip
     rows = distributed.gather_in_order(rows, mine)
     kept = distributed.gather_in_order([keeper.heap], [distributed.current().rank])
+    kept_pairs = distributed.gather_in_order([pair_keeper.heap], [distributed.current().rank])
     order = sorted(present)
     # Entries are (-mIoU, -index, prediction): the hardest are the largest.
     entries = [e for part in kept for e in part]
@@ -223,12 +292,88 @@ def collect(
         tiles=None
         if tile_size is None
         else TileTable.from_images(tile_size, [_tiles(r[2]) for r in rows], k),
+        quality=_quality_table(plan, rows, k),
     )
     # Table rows are positions in `present`; hardest predictions are keyed by those too.
     position = {index: pos for pos, index in enumerate(order)}
+    worst = heapq.nlargest(max(0, hardest), [e for part in kept_pairs for e in part],
+                           key=lambda e: e[:2])  # fmt: skip
+    sheet = []
+    if frames is not None and distributed.current().is_main:
+        sheet = [_pair_item(frames, item) for _, _, item in worst]
     return Collected(
-        result, [data.paths[i] for i in skipped], {position[-i]: p for _, i, p in heap}
+        result,
+        [data.paths[i] for i in skipped],
+        {position[-i]: p for _, i, p in heap},
+        sheet,
     )
+
+
+def _pair_item(frames: PassFrames, item: dict[str, Any]) -> dict[str, Any]:
+    """A kept pair with the thumbnails of its two frames' images, for ``hardest.png``."""
+
+    def rgb(key: str) -> np.ndarray:
+        return thumbnail(frames.image(key).permute(1, 2, 0).numpy(), nearest=False)
+
+    stem = item["next"].rsplit("/", 1)[-1]
+    title = (f"{item['key']}\nconsistency {item['consistency']:.3f} with {stem} (kept pixels: "
+             "green agree, red disagree)")  # fmt: skip
+    return {**item, "image": rgb(item["key"]), "next_image": rgb(item["next"]), "title": title}
+
+
+def _label_map_measure(
+    data: EvalData,
+    predictions: str | Path | None,
+    plan: QualityPlan,
+    frames: PassFrames | None,
+    keeper: PairKeeper,
+) -> Any:
+    """What a label map's reading thread measures beside the confusion: the boundary sums, and
+    the image's pair with the next frame (whose label map is read from the same folder),
+    offered to ``keeper`` there (the full-size maps go no further)."""
+    measures = plan.image_measures()
+    k = data.palette.num_classes
+    if not measures.boundary and frames is None:
+        return None
+    folder = Path(str(predictions))
+
+    def pred_s(key: str) -> np.ndarray | str:
+        file = prediction_file(folder, key)
+        if not file.is_file():
+            return f"no label map of the next frame ({file})"
+        return read_prediction(file, frames.mask(key).shape, k)
+
+    def measure(index: int, ids: np.ndarray, mask: np.ndarray) -> tuple[Any, Any]:
+        boundary, _ = image_measures(ids, mask, k, measures)
+        if frames is None:
+            return boundary, None
+        key = data.keys[index]
+        after = frames.next_of(key)
+        other = pred_s(after) if after else ""
+        result = measure_pair(frames, key, ids, mask, lambda _key: other, k,
+                              keep_geometry=keeper.k > 0)  # fmt: skip
+        if result.geometry is not None:
+            keeper.offer(index, key, result, (ids, mask, other, frames.mask(after)))
+        result.geometry = None  # full-size depth maps are not kept past the sheet
+        return boundary, result
+
+    return measure
+
+
+def _quality_table(plan: QualityPlan, rows: list[tuple[Any, ...]], k: int) -> QualityTable:
+    """The gathered rows' measures beyond mIoU as a table (status and reasons from ``plan``)."""
+    boundary = calibration = pairs = None
+    if plan.on(BOUNDARY):
+        boundary = np.stack([r[3][0] for r in rows]).astype(np.int64)
+    if plan.on(CALIBRATION):
+        calibration = np.stack([r[3][1] for r in rows]).astype(np.float64)
+    if plan.on(CONSISTENCY):
+        results: list[PairResult] = [r[4] for r in rows]
+        pairs = PairTable([p.next for p in results], [p.status for p in results],
+                          [p.reason for p in results],
+                          np.stack([p.sums for p in results]))  # fmt: skip
+    return QualityTable(dict(plan.status), dict(plan.reasons), boundary, calibration, pairs,
+                        {n: dict(v) for n, v in plan.settings.items()})  # fmt: skip
 
 
 def _check_tile_grids(

@@ -10,7 +10,7 @@ evaluated this way: write its label maps in this layout.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -217,13 +217,19 @@ def check_missing(
     return present, missing
 
 
+#: What else is measured of an image from its index, prediction and labels (in the thread
+#: that read them): its boundary sums, its pair with the next frame...
+Measure = Callable[[int, np.ndarray, np.ndarray], Any]
+
+
 def _score_one(
-    data: EvalData, directory: Path, index: int, tile_size: int | None
-) -> tuple[np.ndarray, np.ndarray | None]:
+    data: EvalData, directory: Path, index: int, tile_size: int | None, measure: Measure | None
+) -> tuple[np.ndarray, np.ndarray | None, Any]:
     mask = data.read_mask(index)
     k = data.palette.num_classes
     ids = read_prediction(prediction_file(directory, data.keys[index]), mask.shape, k)
-    return image_confusion(ids, mask, k, tile_size)
+    conf, tiles = image_confusion(ids, mask, k, tile_size)
+    return conf, tiles, None if measure is None else measure(index, ids, mask)
 
 
 def label_map_confusions(
@@ -234,9 +240,11 @@ def label_map_confusions(
     threads: int = 1,
     tile_size: int | None = None,
     progress: bool = False,
-) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    measure: Measure | None = None,
+) -> list[tuple[np.ndarray, np.ndarray | None, Any]]:
     """Per-image confusions (int64 [K,K]) of saved predictions against the labels, each with
-    its tiles' confusions (int64 [rows, cols, K, K]) when ``tile_size`` is given, else None.
+    its tiles' confusions (int64 [rows, cols, K, K]) when ``tile_size`` is given, else None,
+    and what ``measure`` returns of the image (None without it).
 
     Only the labels and the prediction PNGs are decoded. Decoding and counting release the GIL,
     so ``threads`` > 1 reads several images at once.
@@ -245,15 +253,17 @@ def label_map_confusions(
 
     directory = Path(directory)
     bar = tqdm(total=len(indices), desc="evaluate", unit="img", disable=not progress)
-    out: list[tuple[np.ndarray, np.ndarray | None]] = []
+    out: list[tuple[np.ndarray, np.ndarray | None, Any]] = []
     try:
         if threads <= 1:
             for index in indices:
-                out.append(_score_one(data, directory, index, tile_size))
+                out.append(_score_one(data, directory, index, tile_size, measure))
                 bar.update(1)
         else:
             with ThreadPoolExecutor(threads) as pool:
-                scored = pool.map(lambda i: _score_one(data, directory, i, tile_size), indices)
+                scored = pool.map(
+                    lambda i: _score_one(data, directory, i, tile_size, measure), indices
+                )
                 for item in scored:
                     out.append(item)
                     bar.update(1)

@@ -1,9 +1,11 @@
 """Per-image metrics from a CSV file: the input of ``claravid-eval --scores FILE.csv``.
 
 The CSV holds a ``path`` column (relative to the data root, or absolute) and one or more numeric
-columns (PSNR, SSIM, a depth error...). Rows are numbered as a spreadsheet numbers them, by the
-file's lines: the header is row 1 and blank lines count (a record after two blank lines below the
-header is row 4). Every error names the rows it is about.
+columns (PSNR, SSIM, a depth error, or the ``images.csv`` of a report: mIoU, mBoundaryIoU, ECE,
+cross-view consistency). An empty cell is an image without that value (a frame without a pair):
+it is left out of that column's means and correlations. Rows are numbered as a spreadsheet
+numbers them, by the file's lines: the header is row 1 and blank lines count (a record after two
+blank lines below the header is row 4). Every error names the rows it is about.
 """
 
 from __future__ import annotations
@@ -71,7 +73,8 @@ def read_metrics_csv(path: str | Path, root: str | Path) -> MetricsCSV:
 
     Raises:
         UsageError: unreadable file, no ``path`` column, no metric column, an empty path,
-            a non-numeric or non-finite value, or a path listed twice (the rows are named).
+            a non-numeric or non-finite value, a column without any value, or a path listed
+            twice (the rows are named).
     """
     path, root = Path(path), Path(root).absolute()
     try:
@@ -120,10 +123,10 @@ def read_metrics_csv(path: str | Path, root: str | Path) -> MetricsCSV:
         for j, name in columns:
             given = cell(record, j)
             try:
-                value = float(given)
+                value = float(given) if given else math.nan  # empty: no value for this image
             except ValueError:
                 value = math.nan
-            if not math.isfinite(value):
+            if given and not math.isfinite(value):
                 bad.append(f"row {row} {name}={given!r}")
             metrics[name][i] = value
     if extra:
@@ -135,6 +138,9 @@ def read_metrics_csv(path: str | Path, root: str | Path) -> MetricsCSV:
         raise UsageError(
             f"{path}: values that are not finite numbers: {', '.join(bad[:_SHOWN])}{more}"
         )
+    blank = [name for name, values in metrics.items() if not np.isfinite(values).any()]
+    if blank:
+        raise UsageError(f"{path}: column {blank[0]!r} has no value in any row; drop it")
     seen: dict[str, int] = {}
     duplicates = []
     for i, p in enumerate(paths):

@@ -1,4 +1,5 @@
-"""Run a model over a dataset: one confusion matrix per image (the input of every report).
+"""Run a model over a dataset: one confusion matrix per image (the input of every report), and
+with it the image's boundary and calibration sums when asked for.
 
 Training validates through this function and ``claravid-eval`` reports from it, so windows,
 confusions and mIoU have one implementation. Under DDP each rank passes its own ``indices``
@@ -17,19 +18,28 @@ from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm.auto import tqdm
 
 from claravid.eval.inference.confusion import image_confusion
+from claravid.eval.inference.image_measures import (
+    ImageMeasures,
+    image_measures,
+    predict_with_confidence,
+)
 from claravid.eval.inference.label_maps import image_key
-from claravid.eval.inference.windows import Model, WindowConfig, predict_labels
+from claravid.eval.inference.windows import Model, WindowConfig
 
 
 @dataclass
 class ImageScore:
-    """One image's result: where it came from, its confusion (int64 [K,K]) and, with a tile
-    size, the confusion of each tile (int64 [rows, cols, K, K], summing to ``confusion``)."""
+    """One image's result: where it came from, its confusion (int64 [K,K]); with a tile size,
+    the confusion of each tile (int64 [rows, cols, K, K], summing to ``confusion``); when asked
+    for, its boundary sums (int64 [2, K]: intersections, unions) and calibration sums (float64
+    [3, B]: count, confidence sum, correct)."""
 
     path: str
     key: str
     confusion: np.ndarray
     tiles: np.ndarray | None = None
+    boundary: np.ndarray | None = None
+    calibration: np.ndarray | None = None
 
 
 def sample_key(sample: dict[str, Any]) -> str:
@@ -51,6 +61,7 @@ def evaluate_model(
     tile_size: int | None = None,
     progress: bool = False,
     on_score: Callable[[dict[str, Any], torch.Tensor, ImageScore], None] | None = None,
+    measures: ImageMeasures | None = None,
 ) -> list[ImageScore]:
     """Predict every image of ``dataset`` with sliding windows and count its confusion.
 
@@ -67,13 +78,16 @@ def evaluate_model(
         tile_size: also count each tile's confusion (:mod:`claravid.eval.analysis.tile_bins`).
         progress: show a progress bar.
         on_score: called with each sample, its predicted ids [H,W] and its `ImageScore` (to
-            save the prediction, or keep the hardest images' for a report).
+            save the prediction, keep the hardest images', or pair it with the next frame).
+        measures: also each image's Boundary IoU and calibration sums
+            (:class:`~claravid.eval.inference.image_measures.ImageMeasures`).
 
     Returns:
         One `ImageScore` per image, in dataset order.
     """
     # The window and statistics the config leaves unset are the model's; checked once here.
     config = (config or WindowConfig()).for_model(model)
+    measures = measures or ImageMeasures()
     device = torch.device(device)
     subset = Subset(dataset, list(indices)) if indices is not None else dataset
     loader = DataLoader(subset, batch_size=None, num_workers=num_workers)
@@ -83,13 +97,18 @@ def evaluate_model(
     for sample in tqdm(loader, total=total, desc="evaluate", unit="img", disable=not progress):
         if "mask" not in sample:
             raise ValueError(f"{sample['path']} has no ground truth: evaluation needs labels")
-        prediction = predict_labels(model, sample["image"].to(device), config)
+        prediction, confidence = predict_with_confidence(
+            model, sample["image"].to(device), config, measures.calibration
+        )
         target = torch.as_tensor(sample["mask"]).to(device)
         if prediction.device.type == "cpu" and num_classes <= 255:
             # Byte ids take metrics' fast CPU path (an int64 map would be checked and cast).
             prediction = prediction.to(torch.uint8)
         conf, tiles = image_confusion(prediction, target, num_classes, tile_size)
-        score = ImageScore(str(sample["path"]), sample_key(sample), conf, tiles)
+        boundary, calibration = image_measures(prediction, target, num_classes, measures,
+                                               confidence)  # fmt: skip
+        score = ImageScore(str(sample["path"]), sample_key(sample), conf, tiles, boundary,
+                           calibration)  # fmt: skip
         results.append(score)
         if on_score is not None:
             on_score(sample, prediction, score)

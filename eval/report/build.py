@@ -42,6 +42,7 @@ def build_report(
         groups=result.groups(group_by),
         clusters=clusters,
         bootstrap=settings,
+        quality=result.quality,
     )
     if result.tiles is not None and len(result.tiles):
         numbers["tiles"] = tile_report(

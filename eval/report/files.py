@@ -6,7 +6,8 @@
   when computed;
 - ``confusions.npz`` (compressed, no pickles): per-image confusions with their paths, keys,
   complexity values and units (mission, viewpoint, block, sequence, folder), and with
-  ``--tiles`` every tile's image, place, delentropy and confusion (``tile_*``): everything
+  ``--tiles`` every tile's image, place, delentropy and confusion (``tile_*``), and the sums of
+  the measures beyond mIoU (``boundary_sums``, ``calibration_sums``, ``pair_*``): everything
   needed to re-bin, merge or bootstrap (any ``--cluster`` unit stored there) without the data.
 
 :func:`load_result` reads a folder back into the per-image table
@@ -23,6 +24,16 @@ from typing import Any
 
 import numpy as np
 
+from claravid.eval.analysis.quality_table import (
+    BOUNDARY,
+    CALIBRATION,
+    COMPUTED,
+    CONSISTENCY,
+    QUALITY,
+    PairTable,
+    QualityTable,
+    pair_columns,
+)
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.tile_bins import TileTable
 from claravid.infra.cli import UsageError
@@ -43,10 +54,13 @@ KEYS = (
     "source",
     "uncertainty",
     "tiles",
+    "quality",
 )
 #: Keys every report of this tool has (``uncertainty`` came with intervals; ``tiles`` is there
-#: with ``--tiles``).
-REQUIRED_KEYS = KEYS[:-2]
+#: with ``--tiles``; ``quality`` came with the measures beyond mIoU).
+REQUIRED_KEYS = KEYS[:-3]
+#: Why a report has no measure beyond mIoU: written before they existed.
+BEFORE_QUALITY = "the report was written before Boundary IoU, calibration and consistency existed"
 
 
 def save_confusions(path: str | Path, result: EvalResult, report_id: str | None = None) -> Path:
@@ -76,6 +90,7 @@ def save_confusions(path: str | Path, result: EvalResult, report_id: str | None 
             # A tile holds far fewer than 2**31 pixels: int32 halves the file and the memory.
             tile_confusions=tiles.confusions.astype(np.int32),
         )
+    arrays.update(_quality_arrays(result.quality))
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as f:
@@ -128,6 +143,7 @@ def load_result(path: str | Path) -> EvalResult:
             # is the same image (merge refuses it twice, compare pairs it).
             identity=[os.path.realpath(str(p)) for p in data["paths"]],
             lineage=_lineage(report["source"]),
+            quality=_load_quality(data, report, len(data["paths"]), len(classes)),
         )
     except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise UsageError(
@@ -162,6 +178,66 @@ def load_result(path: str | Path) -> EvalResult:
                 f"{where[0][0]}), so it was damaged or edited: evaluate again"
             )
     return result
+
+
+def _quality_arrays(quality: QualityTable | None) -> dict[str, np.ndarray]:
+    """The npz arrays of the measures beyond mIoU (none for a measure not computed)."""
+    if quality is None:
+        return {}
+    out = {}
+    if quality.boundary is not None:
+        out["boundary_sums"] = np.asarray(quality.boundary, dtype=np.int64)
+    if quality.calibration is not None:
+        out["calibration_sums"] = np.asarray(quality.calibration, dtype=np.float64)
+    if quality.pairs is not None:
+        pairs = quality.pairs
+        out.update(
+            pair_next=np.asarray(pairs.next, dtype=str),
+            pair_status=np.asarray(pairs.status, dtype=str),
+            pair_reason=np.asarray(pairs.reason, dtype=str),
+            pair_sums=np.asarray(pairs.sums, dtype=np.int64),
+        )
+    return out
+
+
+def _load_quality(
+    data: dict[str, np.ndarray], report: dict[str, Any], n: int, k: int
+) -> QualityTable:
+    """The measures beyond mIoU of a report folder: status from ``report.json``, sums from the
+    npz; a report written before them has none (every measure absent)."""
+    summary = report.get("quality")
+    if not isinstance(summary, dict):
+        return QualityTable.absent(BEFORE_QUALITY)
+    status = {m: str((summary.get(m) or {}).get("status", "absent")) for m in QUALITY}
+    reasons = {m: str(summary[m]["reason"]) for m in QUALITY
+               if isinstance(summary.get(m), dict) and summary[m].get("reason")}  # fmt: skip
+    settings = {m: dict((summary.get(m) or {}).get("settings") or {}) for m in QUALITY}
+    keys = {BOUNDARY: "boundary_sums", CALIBRATION: "calibration_sums", CONSISTENCY: "pair_sums"}
+    for name, key in keys.items():
+        if (status[name] == COMPUTED) != (key in data):
+            raise ValueError(f"report.json says {name} is {status[name]} but the archive "
+                             f"{'lacks' if key not in data else 'holds'} {key}")  # fmt: skip
+    boundary = data["boundary_sums"].astype(np.int64) if "boundary_sums" in data else None
+    calibration = data.get("calibration_sums")
+    pairs = None
+    if "pair_sums" in data:
+        pairs = PairTable([str(x) for x in data["pair_next"]],
+                          [str(x) for x in data["pair_status"]],
+                          [str(x) for x in data["pair_reason"]],
+                          data["pair_sums"].astype(np.int64))  # fmt: skip
+    shapes = [("boundary_sums", boundary, (n, 2, k))]
+    if pairs is not None:
+        shapes.append(("pair_sums", pairs.sums, (n, pair_columns(k))))
+    if calibration is not None:
+        calibration = calibration.astype(np.float64)
+        bins = calibration.shape[-1] if calibration.ndim == 3 else -1
+        shapes.append(("calibration_sums", calibration, (n, 3, bins)))
+    for key, array, shape in shapes:
+        if array is not None and array.shape != shape:
+            raise ValueError(f"{key} is {array.shape}, expected {shape}")
+        if array is not None and array.size and array.min() < 0:
+            raise ValueError(f"{key} holds negative sums")
+    return QualityTable(status, reasons, boundary, calibration, pairs, settings)
 
 
 def _lineage(source: dict[str, Any]) -> tuple[str, ...]:

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from claravid.dsp.measures import METRICS
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.report.files import CONFUSIONS, REPORT, save_confusions, write_json
 from claravid.eval.report.markdown import metric_markdown, report_markdown
@@ -33,10 +34,16 @@ from claravid.eval.report.plots import (
     plot_scatter,
     plot_tiles,
 )
+from claravid.eval.report.quality_plots import QUALITY_PLOTS, plot_consistency, plot_reliability
 from claravid.infra.files import atomic_write_text, current_umask
 
+#: The per-image table as CSV: path, mIoU, pixel accuracy and the measures beyond mIoU, the
+#: columns ``claravid-eval --scores`` correlates with scene complexity.
+IMAGES_CSV = "images.csv"
 #: Files every report folder of this tool may hold: replaced with the folder.
-_OURS = frozenset({REPORT, CONFUSIONS, "report.md", *PLOTS.values()})
+_OURS = frozenset(
+    {REPORT, CONFUSIONS, "report.md", IMAGES_CSV, *PLOTS.values(), *QUALITY_PLOTS.values()}
+)
 
 
 def report_files(folder: str | Path) -> set[str]:
@@ -132,11 +139,42 @@ def _write_report(
     tiled = [item for item in hardest if "tiles" in item]
     if tiled:
         written["tiles"] = plot_tiles(tiled, out / PLOTS["tiles"])
-    plots = {name: PLOTS[name] for name in ("bins", "scatter", "heatmap", "hardest", "tiles")
-             if name in written}  # fmt: skip
+    quality = report.get("quality") or {}
+    computed = {n for n, e in quality.items() if e.get("status") == "computed"}
+    if "calibration" in computed:
+        written["reliability"] = plot_reliability(report, out / QUALITY_PLOTS["reliability"])
+    if "consistency" in computed and report["bins"]:
+        written["consistency"] = plot_consistency(report, out / QUALITY_PLOTS["consistency"])
+    names = {**PLOTS, **QUALITY_PLOTS}
+    order = ("bins", "scatter", "heatmap", "hardest", "tiles", "reliability", "consistency")
+    plots = {name: names[name] for name in order if name in written}
+    written["images"] = atomic_write_text(out / IMAGES_CSV, images_csv(report))
     written["markdown"] = atomic_write_text(out / "report.md", report_markdown(report, plots))
     written["report"] = write_json(out / REPORT, report)
     return written
+
+
+def images_csv(report: dict[str, Any]) -> str:
+    """``images.csv``: one row per image, its path and every per-image score of the report
+    (mIoU, pixel accuracy, mBoundaryIoU, ECE, consistency of its pair; not the complexity,
+    which ``--scores`` measures itself); an empty cell where an image has no value (no pair,
+    no class present)."""
+    rows = report["images"]
+    skip = {"path", *METRICS}
+    columns = list(dict.fromkeys(k for row in rows for k in row if k not in skip))
+    lines = [",".join(["path", *columns])]
+    for row in rows:
+        cells = [_csv_cell(row["path"])]
+        cells += ["" if row.get(c) is None else repr(float(row[c])) for c in columns]
+        lines.append(",".join(cells))
+    return "\n".join(lines) + "\n"
+
+
+def _csv_cell(text: str) -> str:
+    """A CSV cell, quoted when it holds a comma, a quote or a line break."""
+    if any(c in text for c in ',"\n\r'):
+        return '"' + text.replace('"', '""') + '"'
+    return text
 
 
 def _slug(name: str) -> str:

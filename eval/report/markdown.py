@@ -9,14 +9,15 @@ from typing import Any
 HARDEST_TABLE = 10
 
 
-def _f(value: float | None, digits: int = 3) -> str:
+def number(value: float | None, digits: int = 3) -> str:
+    """``0.357``; ``–`` for a missing value."""
     return "–" if value is None else f"{value:.{digits}f}"
 
 
 def with_ci(value: float | None, ci: Sequence[float] | None, digits: int = 3) -> str:
     """``0.357 [0.331, 0.384]``; the value alone when there is no interval."""
     if value is None or not ci:
-        return _f(value, digits)
+        return number(value, digits)
     return f"{value:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
 
 
@@ -32,11 +33,13 @@ def uncertainty_line(unc: dict[str, Any] | None) -> str | None:
     )
 
 
-def _range(row: dict[str, Any]) -> str:
-    return f"[{_f(row.get('lo'), 2)}, {_f(row.get('hi'), 2)}]"
+def bin_range(row: dict[str, Any]) -> str:
+    """A bin's delentropy range, ``[3.10, 4.20]``."""
+    return f"[{number(row.get('lo'), 2)}, {number(row.get('hi'), 2)}]"
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+def md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    """A Markdown table's lines, then a blank line."""
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     return [*lines, *("| " + " | ".join(row) + " |" for row in rows), ""]
 
@@ -46,18 +49,18 @@ def bin_table(report: dict[str, Any]) -> str:
     tiles, the tile bins below."""
     lines = [f"{'bin':<16}{'delentropy':>18}{'images':>8}{'mIoU':>24}{'pix acc':>9}"]
     for row in [*report["bins"], {"name": "overall", **report["overall"]}]:
-        span = _range(row) if row["name"] != "overall" else ""
+        span = bin_range(row) if row["name"] != "overall" else ""
         miou = with_ci(row["miou"], row.get("miou_ci"))
         lines.append(
-            f"{row['name']:<16}{span:>18}{row['num_images']:>8}{miou:>24}{_f(row['pixel_acc']):>9}"
+            f"{row['name']:<16}{span:>18}{row['num_images']:>8}{miou:>24}{number(row['pixel_acc']):>9}"
         )
     tiles = report.get("tiles")
     if tiles:
         lines += ["", f"{'tile bin':<16}{'delentropy':>18}{'tiles':>8}{'mIoU':>24}{'pix acc':>9}"]
         for row in tiles["bins"]:
             miou = with_ci(row["miou"], row.get("miou_ci"))
-            lines.append(f"{row['name']:<16}{_range(row):>18}{row['num_tiles']:>8}{miou:>24}"
-                         f"{_f(row['pixel_acc']):>9}")  # fmt: skip
+            lines.append(f"{row['name']:<16}{bin_range(row):>18}{row['num_tiles']:>8}{miou:>24}"
+                         f"{number(row['pixel_acc']):>9}")  # fmt: skip
         c = tiles["correlation"]["delent"]
         rho = with_ci(c["spearman"], c.get("spearman_ci"))
         lines.append(f"tiles of about {tiles['size']} px: Spearman ρ (tile delentropy, tile "
@@ -66,7 +69,11 @@ def bin_table(report: dict[str, Any]) -> str:
 
 
 def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
-    """``report.md``: source, conventions, bins, groups, per-class IoU, correlations, plots."""
+    """``report.md``: source, conventions, bins, groups, per-class IoU, correlations, the
+    measures beyond mIoU, the hardest images, plots."""
+    # The measures' sections format with this module's helpers: imported here, not at the top.
+    from claravid.eval.report.quality_text import quality_sections
+
     source, classes = report["source"], report["classes"]
     binning = source.get("binning", {})
     lines = ["# Evaluation report", ""]
@@ -112,10 +119,10 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
               "per-image mIoU.", ""]  # fmt: skip
 
     lines += ["## mIoU per complexity bin", ""]
-    rows = [[r["name"], _range(r), str(r["num_images"]), *_scores(r)] for r in report["bins"]]
+    rows = [[r["name"], bin_range(r), str(r["num_images"]), *_scores(r)] for r in report["bins"]]
     overall = report["overall"]
     rows.append(["**overall**", "", str(overall["num_images"]), *_scores(overall)])
-    lines += _table(["bin", "delentropy", "images", "mIoU", "pixel acc"], rows)
+    lines += md_table(["bin", "delentropy", "images", "mIoU", "pixel acc"], rows)
     lines += _warnings(report)
 
     if report["groups"]:
@@ -123,33 +130,35 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         rows = []
         for g in report["groups"]:
             p = g.get("profile") or {}
-            rows.append([g["name"], str(g["num_images"]), _f(p.get("mu")), _shape(p, "alpha", 2),
-                         _shape(p, "beta", 2), *_scores(g)])  # fmt: skip
-        lines += _table(["group", "images", "DSP μ", "α", "β", "mIoU", "pixel acc"], rows)
+            rows.append([g["name"], str(g["num_images"]), number(p.get("mu")),
+                         _shape(p, "alpha", 2), _shape(p, "beta", 2), *_scores(g)])  # fmt: skip
+        lines += md_table(["group", "images", "DSP μ", "α", "β", "mIoU", "pixel acc"], rows)
         lines += _profile_notes(report["groups"])
 
     lines += ["## IoU per class", ""]
     header = ["class", "overall", *[r["name"] for r in report["bins"]]]
-    rows = [[c, _f(overall["per_class_iou"][c]),
-             *[_f(r["per_class_iou"][c]) for r in report["bins"]]] for c in classes]  # fmt: skip
-    lines += _table(header, rows)
+    rows = [[c, number(overall["per_class_iou"][c]),
+             *[number(r["per_class_iou"][c]) for r in report["bins"]]]
+            for c in classes]  # fmt: skip
+    lines += md_table(header, rows)
 
     lines += ["## Complexity vs accuracy", ""]
     rows = [[m, with_ci(c["pearson"], c.get("pearson_ci")),
              with_ci(c["spearman"], c.get("spearman_ci")), str(c["n"])]
             for m, c in report["correlation"].items()]  # fmt: skip
-    lines += _table(["measure", "Pearson r", "Spearman ρ", "n"], rows)
+    lines += md_table(["measure", "Pearson r", "Spearman ρ", "n"], rows)
 
     lines += tile_section(report.get("tiles"))
+    lines += quality_sections(report)
 
     hardest = sorted(
         (r for r in report["images"] if r["miou"] is not None), key=lambda r: r["miou"]
     )[:HARDEST_TABLE]
     if hardest:
         lines += ["## Hardest images", ""]
-        rows = [[f"`{r['path']}`", _f(r.get("delent")), _f(r["miou"]), _f(r["pixel_acc"])]
-                for r in hardest]  # fmt: skip
-        lines += _table(["image", "delentropy", "mIoU", "pixel acc"], rows)
+        rows = [[f"`{r['path']}`", number(r.get("delent")), number(r["miou"]),
+                 number(r["pixel_acc"])] for r in hardest]  # fmt: skip
+        lines += md_table(["image", "delentropy", "mIoU", "pixel acc"], rows)
 
     if plots:
         lines += ["## Plots", ""]
@@ -170,8 +179,8 @@ def tile_section(tiles: dict[str, Any] | None) -> list[str]:
            "correlation." if tiles.get("num_without_labels") else "")
     )  # fmt: skip
     lines.append("")
-    rows = [[r["name"], _range(r), str(r["num_tiles"]), *_scores(r)] for r in tiles["bins"]]
-    lines += _table(["tile bin", "delentropy", "tiles", "mIoU", "pixel acc"], rows)
+    rows = [[r["name"], bin_range(r), str(r["num_tiles"]), *_scores(r)] for r in tiles["bins"]]
+    lines += md_table(["tile bin", "delentropy", "tiles", "mIoU", "pixel acc"], rows)
     c = tiles["correlation"]["delent"]
     lines += [
         f"Tile delentropy vs the tile's own mIoU: Pearson r "
@@ -185,7 +194,7 @@ def tile_section(tiles: dict[str, Any] | None) -> list[str]:
 def _shape(profile: dict[str, Any], key: str, digits: int = 3) -> str:
     """α or β of a group's profile: "n/a" where the Beta fit says nothing (see its note)."""
     value = profile.get(key)
-    return "n/a" if value is None and profile.get("mu") is not None else _f(value, digits)
+    return "n/a" if value is None and profile.get("mu") is not None else number(value, digits)
 
 
 def _profile_notes(groups: Sequence[dict[str, Any]]) -> list[str]:
@@ -233,16 +242,20 @@ def compare_markdown(
         for report in reports:
             if i < len(report["bins"]):
                 b = report["bins"][i]
-                row += [_range(b), str(b["num_images"]), _f(b["miou"])]
+                row += [bin_range(b), str(b["num_images"]), number(b["miou"])]
             else:
                 row += ["", "", ""]
         rows.append(row)
     overall = ["**overall**"]
     for report in reports:
-        overall += ["", str(report["overall"]["num_images"]), _f(report["overall"]["miou"])]
-    lines += _table(header, [*rows, overall])
+        overall += ["", str(report["overall"]["num_images"]), number(report["overall"]["miou"])]
+    lines += md_table(header, [*rows, overall])
     if analysis is not None:
         return "\n".join(lines + _gap_tables(analysis))
+    from claravid.eval.report.quality_text import missing_everywhere
+
+    lacking = missing_everywhere(reports, names)
+    lines += [f"- {line}" for line in lacking] + ([""] if lacking else [])
     if len(reports) >= 2:
         lines += [f"Gap {names[1]} − {names[0]} per bin (mIoU points):", ""]
         gaps = []
@@ -250,8 +263,8 @@ def compare_markdown(
             a = reports[0]["bins"][i]["miou"] if i < len(reports[0]["bins"]) else None
             b = reports[1]["bins"][i]["miou"] if i < len(reports[1]["bins"]) else None
             gap = None if a is None or b is None else 100 * (b - a)
-            gaps.append([rows[i][0], _f(gap, _points_digits([gap]))])
-        lines += _table(["bin", "gap"], gaps)
+            gaps.append([rows[i][0], number(gap, _points_digits([gap]))])
+        lines += md_table(["bin", "gap"], gaps)
     return "\n".join(lines)
 
 
@@ -290,7 +303,10 @@ def _gap_cell(row: dict[str, Any], resamples: int) -> list[str]:
 
 
 def _gap_tables(analysis: dict[str, Any]) -> list[str]:
-    """One table per compared report: gap B − A overall and per bin, interval, p-value."""
+    """One table per compared report: gap B − A overall and per bin, interval, p-value; then
+    the gaps of the measures beyond mIoU."""
+    from claravid.eval.report.quality_text import quality_gap_lines
+
     unc = analysis["uncertainty"]
     lines = [uncertainty_line(unc) or "", ""]
     for comp in analysis["comparisons"]:
@@ -305,7 +321,8 @@ def _gap_tables(analysis: dict[str, Any]) -> list[str]:
         r = unc["resamples"]
         rows = [[b["name"], *_gap_cell(b, r)] for b in comp["bins"]]
         rows.append(["**overall**", *_gap_cell(comp["overall"], r)])
-        lines += _table(["bin", "gap [interval]", "p-value", "interval excludes 0"], rows)
+        lines += md_table(["bin", "gap [interval]", "p-value", "interval excludes 0"], rows)
+        lines += quality_gap_lines(comp, analysis["baseline"])
     return lines
 
 
@@ -331,10 +348,10 @@ def metric_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         return [with_ci(row["scores"][m]["mean"], row["scores"][m]["ci"]) for m in metrics]
 
     lines += ["## Mean per complexity bin", ""]
-    rows = [[r["name"], _range(r), str(r["num_images"]), *cells(r)] for r in report["bins"]]
+    rows = [[r["name"], bin_range(r), str(r["num_images"]), *cells(r)] for r in report["bins"]]
     rows.append(["**overall**", "", str(report["overall"]["num_images"]),
                  *cells(report["overall"])])  # fmt: skip
-    lines += _table(["bin", "delentropy", "images", *metrics], rows)
+    lines += md_table(["bin", "delentropy", "images", *metrics], rows)
     warnings = (report.get("uncertainty") or {}).get("warnings", [])
     lines += [f"**Warning:** {m}." for m in warnings] + ([""] if warnings else [])
 
@@ -346,9 +363,10 @@ def metric_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         rows = []
         for g in groups:
             p = g.get("profile") or {}
-            rows.append([g["name"], str(g["num_images"]), _f(p.get("mu")), _f(p.get("sigma")),
-                         _shape(p, "alpha"), _shape(p, "beta"), *cells(g)])  # fmt: skip
-        lines += _table(["group", "images", "DSP μ", "σ", "α", "β", *metrics], rows)
+            rows.append([g["name"], str(g["num_images"]), number(p.get("mu")),
+                         number(p.get("sigma")), _shape(p, "alpha"), _shape(p, "beta"),
+                         *cells(g)])  # fmt: skip
+        lines += md_table(["group", "images", "DSP μ", "σ", "α", "β", *metrics], rows)
         lines += _profile_notes(groups)
 
     lines += ["## Correlations", ""]
@@ -357,7 +375,7 @@ def metric_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         for metric, c in by_metric.items():
             rows.append([measure, metric, with_ci(c["pearson"], c.get("pearson_ci")),
                          with_ci(c["spearman"], c.get("spearman_ci")), str(c["n"])])  # fmt: skip
-    lines += _table(["measure", "metric", "Pearson r", "Spearman ρ", "n"], rows)
+    lines += md_table(["measure", "metric", "Pearson r", "Spearman ρ", "n"], rows)
     if plots:
         lines += ["## Plots", ""]
         lines += [f"![{name}]({file})" for name, file in plots.items()] + [""]

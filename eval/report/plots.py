@@ -4,7 +4,9 @@
   error bars = the bootstrap intervals;
 - ``miou_vs_delent.png``: per-image mIoU against delentropy, with a least-squares line;
 - ``class_iou_per_bin.png``: per-class IoU per bin as a heat map (blank: class absent);
-- ``hardest.png``: the k images of lowest mIoU, image | ground truth | prediction;
+- ``hardest.png``: the k images of lowest mIoU, image | ground truth | prediction; then the k
+  cross-view pairs of lowest consistency, frame t with its kept pixels marked (green: the
+  predictions of t and s agree, red: they disagree) | frame s | the prediction of t;
 - ``tiles.png`` (``--tiles``): the same images, image | delentropy per tile (one colour scale
   for all) | error pixels: where the model fails next to where the scene is complex;
 - ``compare.png`` (``--compare``): the mIoU per bin of several reports side by side, with
@@ -25,6 +27,9 @@ from matplotlib.patches import Patch
 
 from claravid.infra.files import atomic_save
 
+#: Colours of a pair's marks: kept and agreeing (green), kept and disagreeing (red).
+AGREE, DISAGREE = np.array([44, 160, 44], np.uint8), np.array([214, 39, 40], np.uint8)
+
 PLOTS = {
     "bins": "miou_per_bin.png",
     "scatter": "miou_vs_delent.png",
@@ -34,7 +39,8 @@ PLOTS = {
 }
 
 
-def _save(fig: Figure, path: str | Path, dpi: int = 100) -> Path:
+def save_figure(fig: Figure, path: str | Path, dpi: int = 100) -> Path:
+    """Save ``fig`` as ``path`` atomically."""
     return atomic_save(path, lambda tmp: fig.savefig(tmp, dpi=dpi))
 
 
@@ -76,7 +82,7 @@ def plot_bins(report: dict[str, Any], path: str | Path) -> Path:
     ax.set_ylabel("mIoU")
     ax.set_xlabel("delentropy bin")
     ax.set_title("mIoU per complexity bin")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _scatter(
@@ -110,7 +116,7 @@ def plot_scatter(report: dict[str, Any], path: str | Path, measure: str = "delen
     fig = _scatter(x, y, report["correlation"].get(measure, {}), f"per-image mIoU vs {measure}",
                    f"{measure} (bits)", "mIoU", "+.3f")  # fmt: skip
     fig.axes[0].set_ylim(-0.02, 1.02)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_heatmap(report: dict[str, Any], path: str | Path) -> Path:
@@ -135,7 +141,7 @@ def plot_heatmap(report: dict[str, Any], path: str | Path) -> Path:
     ax.set_yticks(range(len(classes)), classes)
     fig.colorbar(image, ax=ax, label="IoU")
     ax.set_title("IoU per class and complexity bin")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_hardest(
@@ -154,7 +160,7 @@ def plot_hardest(
         path: the PNG to write.
         names: the K class names: a legend of the colours below the rows.
     """
-    return _save(hardest_figure(items, colors, names), path, dpi=80)
+    return save_figure(hardest_figure(items, colors, names), path, dpi=80)
 
 
 def hardest_figure(
@@ -166,13 +172,17 @@ def hardest_figure(
     fig = Figure(figsize=(12, 3.2 * len(items)), layout="constrained")
     axes = fig.subplots(len(items), 3, squeeze=False)
     for row, item in zip(axes, items, strict=True):
-        panels = (item["image"], table[item["mask"]], table[item["prediction"]])
-        for ax, panel, name in zip(
-            row, panels, ("image", "ground truth", "prediction"), strict=True
-        ):
+        if "agree" in item:  # a cross-view pair of low consistency
+            panels = (mark_pair(item["image"], item["kept"], item["agree"]), item["next_image"],
+                      table[item["prediction"]])  # fmt: skip
+            titles = (item["title"], "next frame s", "prediction of t")
+        else:
+            panels = (item["image"], table[item["mask"]], table[item["prediction"]])
+            titles = (item["title"], "ground truth", "prediction")
+        for ax, panel, name in zip(row, panels, titles, strict=True):
             ax.imshow(panel, interpolation="nearest")
             ax.set_axis_off()
-            ax.set_title(name if name != "image" else item["title"], fontsize=9)
+            ax.set_title(name, fontsize=9)
     if names is not None:
         shown = np.unique(np.concatenate([
             np.concatenate([i["mask"].ravel(), i["prediction"].ravel()]) for i in items
@@ -187,6 +197,15 @@ def hardest_figure(
         fig.legend(handles=handles, loc="outside lower center", ncol=min(6, len(handles)),
                    fontsize=9, frameon=False)  # fmt: skip
     return fig
+
+
+def mark_pair(image: np.ndarray, kept: np.ndarray, agree: np.ndarray) -> np.ndarray:
+    """Frame t's thumbnail (uint8 H×W×3) with its kept pixels tinted: green where the
+    predictions of t and s agree, red where they disagree; other pixels unchanged."""
+    out = image.astype(np.float32)
+    for mask, colour in ((kept & agree, AGREE), (kept & ~agree, DISAGREE)):
+        out[mask] = 0.45 * out[mask] + 0.55 * colour
+    return out.round().astype(np.uint8)
 
 
 def plot_tiles(items: Sequence[dict[str, Any]], path: str | Path) -> Path:
@@ -221,7 +240,7 @@ def plot_tiles(items: Sequence[dict[str, Any]], path: str | Path) -> Path:
     if shown is not None:
         fig.colorbar(shown, ax=axes[:, 1].tolist(), location="bottom", shrink=0.8,
                      label="tile delentropy (bits)")  # fmt: skip
-    return _save(fig, path, dpi=80)
+    return save_figure(fig, path, dpi=80)
 
 
 def plot_compare(
@@ -253,7 +272,7 @@ def plot_compare(
     ax.legend()
     if analysis is not None:
         _plot_gaps(axes[1], analysis, [bin_label(r) for r in first["bins"]])
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _plot_gaps(ax: Any, analysis: dict[str, Any], labels: Sequence[str]) -> None:
@@ -300,15 +319,15 @@ def plot_metric_bins(report: dict[str, Any], metric: str, path: str | Path) -> P
     ax.set_ylabel(f"mean {metric}")
     ax.set_xlabel("delentropy bin")
     ax.set_title(f"{metric} per complexity bin")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_metric_scatter(
     report: dict[str, Any], metric: str, path: str | Path, measure: str = "delent"
 ) -> Path:
     """A ``--scores`` metric per image against ``measure``, with the least-squares line."""
-    x = np.array([r.get(measure, np.nan) for r in report["images"]], dtype=np.float64)
-    y = np.array([r.get(metric, np.nan) for r in report["images"]], dtype=np.float64)
+    x = np.array([np.nan if r.get(measure) is None else r[measure] for r in report["images"]])
+    y = np.array([np.nan if r.get(metric) is None else r[metric] for r in report["images"]])
     corr = report["correlation"].get(measure, {}).get(metric, {})
     fig = _scatter(x, y, corr, f"{metric} vs {measure}", f"{measure} (bits)", metric, "+.3g")
-    return _save(fig, path)
+    return save_figure(fig, path)

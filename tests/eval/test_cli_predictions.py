@@ -95,7 +95,7 @@ def test_per_image_and_per_bin_miou_by_hand(case, tmp_path, capsys):
     assert report["palette"] == "uavid" and report["ignore_index"] == 255
     assert set(report) == {"overall", "bins", "groups", "images", "correlation", "classes",
                            "palette", "ignore_index", "convention", "source",
-                           "uncertainty"}  # fmt: skip
+                           "uncertainty", "quality"}  # fmt: skip
     assert report["correlation"]["delent"]["n"] == 3
     printed = capsys.readouterr().out
     assert "low" in printed and "report.md" in printed

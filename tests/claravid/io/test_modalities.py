@@ -103,8 +103,16 @@ def test_dynamic_mask_grey_and_colour_like_pil(tmp_path, rng):
     np.testing.assert_array_equal(modalities.read_dynamic_mask(tmp_path / "c.png"), pil)
 
 
+def _rotation(yaw: float, pitch: float) -> np.ndarray:
+    cy, sy, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
+    return np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]]) @ np.array(
+        [[1, 0, 0], [0, cp, -sp], [0, sp, cp]]
+    )
+
+
 def test_extrinsics_and_intrinsics(tmp_path):
-    pose = np.arange(16, dtype=np.float64).reshape(4, 4) / 3
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = _rotation(0.3, 0.8), (187.25, -41.5, 52.125)
     modalities.write_extrinsics(tmp_path / "e.json", pose)
     got = modalities.read_extrinsics(tmp_path / "e.json")
     assert got.dtype == np.float32
@@ -202,6 +210,43 @@ def test_dynamic_mask_must_be_an_8bit_png(tmp_path):
     (tmp_path / "dj.png").write_bytes(cv2.imencode(".jpg", mask)[1].tobytes())
     with pytest.raises(CorruptFileError, match=r"dj\.png: expected an 8-bit PNG mask.*JPEG data"):
         modalities.read_dynamic_mask(tmp_path / "dj.png")
+
+
+_SHEAR = np.eye(4)
+_SHEAR[0, 1] = 0.05
+_PROJECTIVE = np.eye(4)
+_PROJECTIVE[3] = (0, 0, 1, 0)  # moves the pose's third row into its last one
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        (np.diag([1.01, 1.01, 1.01, 1]), r"not orthonormal .*column lengths \[1\.01, 1\.01"),
+        (np.diag([1, -1, 1, 1]), r"reflection \(determinant −1\): one camera axis is flipped"),
+        (_SHEAR, r"not orthonormal"),
+        (_PROJECTIVE, r"last row is \[0\.0, -?0\.\d+, 0\.\d+, 55\.0\], not \[0, 0, 0, 1\]"),
+    ],
+    ids=["scale", "mirror", "shear", "projective"],
+)
+def test_extrinsics_that_are_not_a_rigid_pose_are_refused_naming_the_file(tmp_path, change, match):
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = _rotation(-1.2, 0.4), (10.0, 20.0, 55.0)
+    modalities.read_extrinsics(_written(tmp_path / "ok.json", pose))  # rigid: fine
+    with pytest.raises(CorruptFileError, match=r"bad\.json: not a camera pose: .*" + match):
+        modalities.read_extrinsics(_written(tmp_path / "bad.json", change @ pose))
+
+
+def _written(path, pose):
+    modalities.write_extrinsics(path, pose)
+    return path
+
+
+def test_rounding_in_a_pose_file_is_accepted(tmp_path):
+    """Poses written with 6 decimals, as JSON exporters often do, are still rigid enough."""
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = _rotation(2.0, 0.9), (1.0, 2.0, 3.0)
+    (tmp_path / "e.json").write_text(json.dumps(np.round(pose, 6).tolist()))
+    np.testing.assert_allclose(modalities.read_extrinsics(tmp_path / "e.json"), pose, atol=1e-6)
 
 
 @pytest.mark.parametrize("bad", ["NaN", "Infinity", "1e300"])

@@ -87,11 +87,10 @@ def test_every_frame_is_consistent(tiny):
     palette = np.zeros((256, 3), np.uint8)
     for c in CLASSES:
         palette[c.id] = c.color
-    k = INTRINSICS.astype(np.float64).copy()
-    k[0] *= TINY[0] / 4032
-    k[1] *= TINY[1] / 3024
-    rays = np.stack([*np.meshgrid(np.arange(TINY[0]), np.arange(TINY[1])), np.ones(TINY[::-1])], -1)
-    rays = rays @ np.linalg.inv(k).T
+    # Pixel centres at integer + 0.5; camera axes x right, y up, looking along -z (OpenGL).
+    fx, fy = INTRINSICS[0, 0] * TINY[0] / 4032, INTRINSICS[1, 1] * TINY[1] / 3024
+    u, v = np.meshgrid(np.arange(TINY[0]) + 0.5, np.arange(TINY[1]) + 0.5)
+    rays = np.stack([(u - TINY[0] / 2) / fx, -(v - TINY[1] / 2) / fy, -np.ones(u.shape)], -1)
     instance_class: dict[tuple[str, int], int] = {}
     frames = list(_frames(tiny))
     assert len(frames) == 2 * 6 * 2  # missions x viewpoints x frames: the loop below checks all
@@ -113,12 +112,15 @@ def test_every_frame_is_consistent(tiny):
         assert set(np.unique(semantic[f["dynamic_mask"] == 0])) <= DYNAMIC_CLASSES
         depth, pose = f["depth"], f["extrinsics"].astype(np.float64)
         assert depth.min() > 0 and depth.max() <= DEPTH_MAX_M
-        # Camera: a rotation, at the altitude's height, pitched as the folder name says.
+        # Camera: a rotation, at the altitude's height, pitched as the folder name says: the
+        # optical axis (-z, OpenGL axes) points down, the image's up (+y) points up or ahead.
         rot, centre = pose[:3, :3], pose[:3, 3]
         np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-6)
         assert np.linalg.det(rot) == pytest.approx(1.0, abs=1e-6)
         assert HEIGHTS[alt][0] <= centre[2] <= HEIGHTS[alt][1]
-        assert np.degrees(np.arcsin(-rot[2, 2])) == pytest.approx(PITCH[alt], abs=1e-3)
+        assert np.degrees(np.arcsin(-(-rot[:, 2])[2])) == pytest.approx(PITCH[alt], abs=1e-3)
+        assert rot[2, 1] >= -1e-9  # camera y has no downward world component
+        assert abs(rot[2, 0]) < 1e-9  # no roll: camera x stays horizontal
         # Ground pixels: depth is where the pixel's ray meets the plane z = 0.
         expected = centre[2] / -(rays @ rot[2])
         ground = np.isin(semantic, list(GROUND_CLASSES))
@@ -150,8 +152,8 @@ def test_depth_grows_towards_the_top_of_oblique_images(urban):
         top, bottom = np.median(depth[:10]), np.median(depth[-10:])
         if alt == "high":  # nadir: the ground is as far at the top as at the bottom
             assert top == pytest.approx(bottom, rel=0.25)
-        else:
-            assert top > 2 * bottom
+        else:  # flat ground: 3.7x at 45 degrees; the towers in front of the far ground: less
+            assert top > 1.5 * bottom
 
 
 def test_flight_grid_spreads_positions(tmp_path):

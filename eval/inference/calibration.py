@@ -1,0 +1,182 @@
+"""Calibration sums of one image: per confidence bin, pixels, summed confidence, correct pixels.
+
+As ``torchmetrics``' ``MulticlassCalibrationError`` (``norm="l1"`` for ECE, ``"max"`` for MCE,
+15 equal-width bins) sees a pixel: its confidence is its largest class probability, its
+prediction the class of that probability, and it is correct when that class is the ground
+truth's. Pixels whose ground truth is the ignore index (255) do not count. Bins are
+torchmetrics' too: the edges are ``torch.linspace(0, 1, n_bins + 1)`` in float32 and a
+confidence falls in the bin whose left edge it reaches (``[e_i, e_{i+1})``); a confidence of
+exactly 1 falls in the last bin, which is therefore closed (torchmetrics keeps such pixels in a
+bin of their own past the last one, which only matters for saturated probabilities).
+
+An image stores the three sums per bin, so a group's ECE = Σ_b |correct_b − conf_sum_b| / N and
+its reliability diagram (accuracy against confidence per bin) come from summed images, as mIoU
+comes from a summed confusion (:mod:`claravid.eval.analysis.calibration`).
+
+The sums are one pass in C when the optional module ``_calibration`` was built at install, and
+numpy otherwise; both give the same numbers to the bit.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import numpy as np
+import torch
+
+from claravid.eval.analysis.metrics import IGNORE_INDEX
+from claravid.eval.inference.label_ids import as_numpy, check_ids, label_image
+
+try:  # the optional C pass (built at install when a compiler is there)
+    from claravid.eval.inference import _calibration as _native
+except ImportError:  # pragma: no cover - depends on the build
+    _native = None
+
+#: torchmetrics' default and the report's.
+N_BINS = 15
+
+
+def bin_edges(n_bins: int = N_BINS) -> np.ndarray:
+    """The float32 bin edges, ``torch.linspace(0, 1, n_bins + 1)`` (torchmetrics' own)."""
+    if isinstance(n_bins, bool) or not isinstance(n_bins, (int, np.integer)) or n_bins < 1:
+        raise ValueError(f"n_bins must be a positive integer, got {n_bins!r}")
+    return torch.linspace(0, 1, int(n_bins) + 1, dtype=torch.float32).numpy()
+
+
+def calibration_bins(
+    probs: Any, gt: Any, n_bins: int = N_BINS
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-bin pixel count, sum of confidences and count of correct pixels of one image.
+
+    Args:
+        probs: class probabilities [K, H, W] (the softmax of the logits, after window
+            averaging), numpy or torch on any device; reduced where they are, then counted on
+            the CPU in float32.
+        gt: ground-truth class ids [H, W]; 255 is ignored.
+        n_bins: equal-width confidence bins over [0, 1].
+
+    Returns:
+        ``(count, conf_sum, correct)``: int64, float64 and int64 arrays of ``n_bins``.
+
+    Raises:
+        ValueError: shapes that do not fit, ground-truth ids outside ``[0, K)`` (other than 255),
+            or confidences outside [0, 1] (logits passed instead of probabilities).
+    """
+    confidence, prediction = confidence_and_prediction(probs)
+    return calibration_sums(confidence, prediction, gt, n_bins, num_classes=int(probs.shape[0]))
+
+
+def confidence_and_prediction(probs: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The largest probability (float32 H×W) and its class (uint8 H×W) of [K, H, W] scores.
+
+    One reduction over the classes, on the tensor's device; ties go to the lowest class, as
+    ``torch.max`` (and torchmetrics) has it.
+    """
+    scores = probs if isinstance(probs, torch.Tensor) else torch.from_numpy(np.asarray(probs))
+    if scores.ndim != 3 or scores.shape[0] < 1:
+        raise ValueError(f"probs must be [K, H, W] class probabilities, got {tuple(scores.shape)}")
+    if not scores.is_floating_point():
+        raise ValueError(f"probs must be floating point probabilities, got {scores.dtype}")
+    if scores.shape[0] > IGNORE_INDEX:
+        raise ValueError(f"at most {IGNORE_INDEX} classes, got {scores.shape[0]}")
+    with torch.no_grad():
+        confidence, prediction = scores.max(dim=0)
+    return (
+        confidence.to(torch.float32).cpu().numpy(),
+        prediction.to(torch.uint8).cpu().numpy(),
+    )
+
+
+def calibration_sums(
+    confidence: Any,
+    prediction: Any,
+    gt: Any,
+    n_bins: int = N_BINS,
+    num_classes: int | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`calibration_bins` from each pixel's confidence and predicted class.
+
+    For a caller that already has them (the evaluator takes the prediction from the same
+    reduction as the confidence). ``num_classes`` checks the ground truth's ids when given.
+    """
+    edges = bin_edges(n_bins)
+    conf = as_numpy(confidence)
+    if conf.ndim != 2:
+        raise ValueError(f"confidence must be H×W, got shape {conf.shape}")
+    conf = np.ascontiguousarray(conf, dtype=np.float32)
+    pred = label_image(prediction, "prediction")
+    truth = label_image(gt, "ground truth")
+    if not conf.shape == pred.shape == truth.shape:
+        raise ValueError(
+            f"confidence {conf.shape}, prediction {pred.shape} and ground truth {truth.shape} "
+            "differ in shape"
+        )
+    if num_classes is not None:
+        check_ids(truth, None, num_classes, "")
+    bins = len(edges) - 1
+    if _native is not None and bins < _AMBIGUOUS:
+        count, conf_sum, correct = (
+            np.zeros(bins, np.int64),
+            np.zeros(bins),
+            np.zeros(bins, np.int64),
+        )
+        try:
+            _native.sums(conf, pred, truth, edges, _bin_table(bins), count, conf_sum, correct)
+        except ValueError as error:
+            raise ValueError(f"{error}: pass probabilities (the softmax of the logits)") from None
+        return count, conf_sum, correct
+    return _numpy_sums(conf, pred, truth, edges)
+
+
+@functools.lru_cache(maxsize=8)
+def _bin_table(n_bins: int) -> np.ndarray:
+    """The C pass's bin of every float32 bit pattern's top 16 bits (uint8 [65536]).
+
+    A pattern whose whole range ``[key << 16, key << 16 | 0xFFFF]`` lies in one bin (and in
+    [0, 1]) gets that bin; one whose range holds an edge, 1.0 or -0.0 gets ``_AMBIGUOUS`` (the C
+    pass compares with the edges); one that can only be outside [0, 1] gets ``_OUTSIDE``.
+    """
+    edges = bin_edges(n_bins)
+    keys = np.arange(1 << 16, dtype=np.uint32) << 16
+    low, high = keys.view(np.float32), (keys | 0xFFFF).view(np.float32)
+    with np.errstate(invalid="ignore"):
+        inside = (low >= 0) & (high <= 1)  # NaN patterns compare False
+        maybe = (low >= 0) & (low <= 1)  # e.g. the pattern of 1.0, or of -0.0 (checked below)
+    bin_low = np.searchsorted(edges[1:-1], low, side="right")
+    bin_high = np.searchsorted(edges[1:-1], high, side="right")
+    table = np.where(maybe, _AMBIGUOUS, _OUTSIDE).astype(np.uint8)
+    table[inside & (bin_low == bin_high)] = bin_low[inside & (bin_low == bin_high)]
+    table[0x8000] = _AMBIGUOUS  # -0.0 >= 0 holds: bin 0 (the rest of its range is negative)
+    table.setflags(write=False)
+    return table
+
+
+_AMBIGUOUS, _OUTSIDE = 254, 255  # as in _calibration.c
+
+
+def _numpy_sums(
+    conf: np.ndarray, pred: np.ndarray, truth: np.ndarray, edges: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The same sums with numpy (the C module's reference and fallback)."""
+    bins = len(edges) - 1
+    valid = truth != IGNORE_INDEX
+    c = conf[valid]
+    outside = ~((c >= 0) & (c <= 1))  # NaN too
+    if outside.any():
+        i = int(np.flatnonzero(valid.ravel())[np.argmax(outside)])
+        raise ValueError(
+            f"confidence {float(conf.ravel()[i])!r} at pixel {i} is not in [0, 1]: pass "
+            "probabilities (the softmax of the logits)"
+        )
+    k = np.searchsorted(edges[1:-1], c, side="right")  # [e_i, e_i+1); 1.0 in the last bin
+    count = np.bincount(k, minlength=bins).astype(np.int64)
+    correct = np.bincount(k[pred[valid] == truth[valid]], minlength=bins).astype(np.int64)
+    # The C pass's summation order: _LANES interleaved partial sums, added lane by lane.
+    conf_sum = np.zeros(bins)
+    for lane in range(_LANES):
+        conf_sum += np.bincount(k[lane::_LANES], c[lane::_LANES].astype(np.float64), bins)
+    return count, conf_sum, correct
+
+
+_LANES = 4  # as LANES in _calibration.c
