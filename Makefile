@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml constraints.txt claravid/dsp/_deldensity.c claravid/io/
 # The evaluation is the one claravid-train suggests: the checkpoint's data, split and palette,
 # into the run folder's report/ (tests/claravid/test_demo.py checks they agree).
 demo: $(STAMP)
-	$(BIN)/claravid-demo runs/demo
+	$(BIN)/claravid-demo -o runs/demo
 	$(BIN)/claravid-train --config demo --resume
 	$(BIN)/claravid-eval --checkpoint runs/demo/train/best.pt --output runs/demo/train/report
 

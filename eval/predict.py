@@ -41,13 +41,16 @@ from claravid.eval.inference.sources import RunSettings
 from claravid.eval.inference.windows import predict_labels
 from claravid.infra.cli import (
     UsageError,
+    add_checkpoint_flag,
     add_debug_flag,
+    add_device_flag,
+    add_output_flag,
+    add_precision_flag,
     add_progress_flag,
+    add_window_flags,
     add_workers_flag,
     check_device,
-    positive_int,
     run_cli,
-    window_size,
 )
 from claravid.infra.files import check_output_dir
 from claravid.infra.precision import flag_precision
@@ -145,23 +148,19 @@ def _palette_for(
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``claravid-predict`` arguments."""
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n")[0].strip("`: "))
-    p.add_argument("images", nargs="+", type=Path, help="a folder of images, or image files")
-    p.add_argument("--checkpoint", type=Path, help="PyTorch checkpoint")
-    p.add_argument("--onnx", type=Path, help="ONNX model")
-    p.add_argument("--output", "-o", type=Path, required=True, help="output folder")
-    p.add_argument("--palette", help="palette for the colours (default: the checkpoint's)")
-    p.add_argument("--window", type=window_size, metavar="WxH",
-                   help="window, width x height or N (default: the model's, else its "
-                   "natural size: 630 for patches of 14, 640 for 16)")  # fmt: skip
-    p.add_argument("--stride", type=window_size, metavar="WxH",
-                   help="window step, WxH or N (default: the model's, or 2/3 window)")  # fmt: skip
-    p.add_argument("--scale", type=float, help="resize images first (default: the model's, or 1)")
-    p.add_argument("--batch-size", type=positive_int, help="windows per forward pass (default 4)")
-    p.add_argument("--device", help="cpu or cuda (default: cuda when available)")
-    p.add_argument(
-        "--precision", help="PyTorch model: fp32 or bf16 (default: fp32 on CPU, bf16/fp16 on CUDA)"
+    p = argparse.ArgumentParser(
+        prog=PROG,
+        description="Label maps and colour overlays for unlabeled images (e.g. a real flight), "
+        "written into the -o/--output folder; the model is --checkpoint or --onnx.",
     )
+    p.add_argument("images", nargs="+", type=Path, help="a folder of images, or image files")
+    add_checkpoint_flag(p)
+    p.add_argument("--onnx", type=Path, help="ONNX model")
+    add_output_flag(p, required=True)
+    p.add_argument("--palette", help="palette for the colours (default: the checkpoint's)")
+    add_window_flags(p)
+    add_device_flag(p)
+    add_precision_flag(p)
     p.add_argument("--provider", choices=PROVIDERS, help="ONNX Runtime provider (--onnx)")
     add_workers_flag(p, "image decoding")
     p.add_argument("--no-overlays", action="store_true", help="label maps only")

@@ -32,6 +32,7 @@ from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
 
 from claravid.data.transforms import AugmentConfig, statistics_problem
+from claravid.infra.precision import PRECISIONS
 from claravid.infra.resources import shipped_file, shipped_names
 from claravid.models.grid import natural_size, nearest_multiples
 
@@ -39,7 +40,6 @@ CLASS_WEIGHTS = ("none", "inverse", "median_frequency", "log_inverse")
 SCHEDULES = ("poly", "cosine")
 DATASETS = ("claravid", "uavid")
 SAMPLERS = ("uniform", "complexity_balanced")
-AMP_MODES = ("auto", "bf16", "fp16", "off")
 
 
 class ConfigError(ValueError):
@@ -118,8 +118,8 @@ class TrainConfig:
     min_lr_ratio: float = 0.0  # the decay ends at lr × min_lr_ratio
     grad_clip: float = 1.0  # max global gradient norm (0: off)
     # auto: bf16 on GPUs that support it, else fp16 + GradScaler, float32 on CPU;
-    # bf16 | fp16 (+ GradScaler) on any device; off: float32 (old configs: true=auto, false=off)
-    amp: str = "auto"
+    # bf16 | fp16 (+ GradScaler) on any device; fp32: no autocast (claravid-train --precision)
+    precision: str = "auto"
     compile: bool = False  # torch.compile the trained module
     device: str | None = None  # null: cuda when available, else cpu
     threads: int | None = None  # intra-op CPU threads of each process (null: PyTorch's default)
@@ -242,9 +242,6 @@ def _merge(base: DictConfig, other: Any, source: str) -> DictConfig:
         key = getattr(exc, "full_key", None)
         msg = str(exc).splitlines()[0]
         raise ConfigError(f"bad value for {key} ({source}): {msg}") from None
-    # YAML 1.1 reads `off` (like `no` and `false`) as a boolean: the str field then holds "False".
-    if str(merged.train.amp) == "False":
-        merged.train.amp = "off"
     return merged  # type: ignore[return-value]
 
 
@@ -412,7 +409,10 @@ def check_config(cfg: DictConfig) -> None:
         list(t.betas),
         "two numbers in [0, 1)",
     )
-    _require(t.amp in AMP_MODES, "train.amp", t.amp, f"one of {', '.join(AMP_MODES)}")
+    # YAML reads off, no and false (on, yes, true) as a boolean: "False" here.
+    boolean = " (YAML read a boolean)" if t.precision in ("True", "False") else ""
+    _require(t.precision in PRECISIONS, "train.precision", t.precision,
+             f"one of {', '.join(PRECISIONS)}{boolean}")  # fmt: skip
     _require(t.warmup_steps >= 0, "train.warmup_steps", t.warmup_steps, ">= 0")
     _require(0 <= t.min_lr_ratio <= 1, "train.min_lr_ratio", t.min_lr_ratio, "in [0, 1]")
     _require(t.grad_clip >= 0, "train.grad_clip", t.grad_clip, ">= 0 (0: off)")

@@ -169,7 +169,7 @@ def prepare_label_caches(datasets: list[Dataset], workers: int, say: Any = print
         others = f"; and {len(unreadable) - 1} more" if len(unreadable) > 1 else ""
         raise UnreadableLabelsError(
             f"the label files of {len(unreadable)} frame(s) cannot be read, and training would "
-            f"stop at them: {first}{others} (claravid-cache {roots[0]} lists them all)"
+            f"stop at them: {first}{others} (claravid-cache --data {roots[0]} lists them all)"
         )
 
 

@@ -4,14 +4,14 @@
 
     claravid-train --config demo                                  # one process
     torchrun --nproc_per_node=8 -m claravid.train --config claravid_dpt_vitl14 \
-        data.root=/data/claravid
+        --data /data/claravid
 
 One optimiser step takes ``train.batch_size`` crops over all ranks and ``train.grad_accum``
 micro-batches; its loss is the mean of the micro-batches' losses (each the pixel mean of
 weighted cross-entropy over non-ignored pixels), so W ranks × A micro-batches compute the same
-gradient as one process with W·A micro-batches. Precision (``train.amp``): ``auto`` is bf16
-autocast where the GPU supports it, else fp16 with a GradScaler, float32 on CPU; ``bf16`` and
-``fp16`` (with a GradScaler) autocast on any device, CPU included; ``off`` is float32.
+gradient as one process with W·A micro-batches. Precision (``train.precision``): ``auto`` is
+bf16 autocast where the GPU supports it, else fp16 with a GradScaler, float32 on CPU; ``bf16``
+and ``fp16`` (with a GradScaler) autocast on any device, CPU included; ``fp32`` is float32.
 Validation runs at the training precision. A NaN/inf loss stops the run before the step is
 applied.
 
@@ -98,11 +98,6 @@ def segmentation_loss(
     """Cross-entropy in float32, (weighted) mean over the pixels whose train id is not
     ``IGNORE_INDEX``: a crop's padding and the classes a palette ignores never train."""
     return F.cross_entropy(logits.float(), target, weight=weights, ignore_index=IGNORE_INDEX)
-
-
-def amp_dtype(amp: str, device: torch.device) -> torch.dtype | None:
-    """The autocast type ``train.amp`` means on ``device`` (None: float32, no autocast)."""
-    return autocast_dtype("fp32" if amp == "off" else amp, device)
 
 
 def _seed_everything(seed: int) -> None:
@@ -232,7 +227,7 @@ def build_run(
         say(f"RGB crops: {jpeg_region.decoder()}")
     barrier()
     model = _build_model(cfg, palette.num_classes)
-    dtype = amp_dtype(cfg.train.amp, device)
+    dtype = autocast_dtype(cfg.train.precision, device)
     # Checked before the first step, not at the first validation.
     window = _val_window(cfg, model.patch_size, precision_name(dtype))
     if not cfg.model.freeze_backbone:
@@ -242,7 +237,9 @@ def build_run(
     scheduler = build_scheduler(optimizer, cfg, total)
     # fp16 overflows without loss scaling; bf16 has float32's range and needs none.
     scaler = torch.amp.GradScaler(device.type, enabled=dtype == torch.float16)
-    say(f"precision: {precision_name(dtype)} (train.amp={cfg.train.amp}, {device.type})")
+    say(
+        f"precision: {precision_name(dtype)} (train.precision={cfg.train.precision}, {device.type})"
+    )
     weights = _class_weights(cfg, train_set, palette.num_classes, info)
     best_miou, best_step = None, None
     last_val: dict[str, Any] = {}

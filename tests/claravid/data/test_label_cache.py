@@ -410,8 +410,8 @@ def test_prepare_lists_unreadable_frames_and_goes_on(writable_root, tmp_path):
 
 
 def test_cli_prepares_then_has_nothing_to_do(claravid_root, tmp_path, capsys):
-    argv = [str(claravid_root), "--missions", "urban_1", "--altitude", "low,mid",
-            "--cache-dir", str(tmp_path), "--no-progress"]  # fmt: skip
+    argv = ["--data", str(claravid_root), "--missions", "urban_1", "--altitude", "low,mid",
+            "-o", str(tmp_path), "--no-progress"]  # fmt: skip
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert "built 12 entries" in out and f"in {tmp_path / 'label_codes'}" in out
@@ -434,12 +434,13 @@ def test_cli_prepares_then_has_nothing_to_do(claravid_root, tmp_path, capsys):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["{missing}"], "ClaraVid root not found"),
-        (["{tmp}"], "ClaraVid mission folders not found"),
-        (["{root}", "--shard", "2/2"], "out of range"),
-        (["{root}", "--shard", "x"], "k/n"),
-        (["{root}", "--missions", "nowhere"], "unknown ClaraVid mission"),
-        (["{root}", "--workers", "-1"], "integer >= 0"),
+        (["--data", "{missing}"], "ClaraVid root not found"),
+        (["--data", "{tmp}"], "ClaraVid mission folders not found"),
+        (["--data", "{root}", "--shard", "2/2"], "out of range"),
+        (["--data", "{root}", "--shard", "x"], "k/n"),
+        (["--data", "{root}", "--missions", "nowhere"], "unknown ClaraVid mission"),
+        (["--data", "{root}", "--workers", "-1"], "integer >= 0"),
+        (["{root}"], "the following arguments are required: --data"),  # no positional root
     ],
 )
 def test_cli_user_errors_are_one_line_exit_2(claravid_root, tmp_path, capsys, argv, message):
@@ -447,7 +448,7 @@ def test_cli_user_errors_are_one_line_exit_2(claravid_root, tmp_path, capsys, ar
     argv = [a.format(**names) for a in argv]
     code = 2
     try:
-        code = main([*argv, "--cache-dir", str(tmp_path / "c")])
+        code = main([*argv, "-o", str(tmp_path / "c")])
     except SystemExit as exc:  # argparse's own errors
         code = exc.code
     assert code == 2
@@ -460,7 +461,7 @@ def test_cli_full_disk_is_a_one_line_error(
     claravid_root, tmp_path, capsys, monkeypatch, code, words
 ):
     monkeypatch.setattr(os, "write", lambda fd, data: (_ for _ in ()).throw(OSError(code, "full")))
-    argv = [str(claravid_root), "--missions", "urban_1", "--cache-dir", str(tmp_path)]
+    argv = ["--data", str(claravid_root), "--missions", "urban_1", "-o", str(tmp_path)]
     assert main([*argv, "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0] and str(tmp_path) in err[0]
