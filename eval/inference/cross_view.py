@@ -52,8 +52,6 @@ MIN_KEPT = 0.10
 SAME_POSE = 1e-6
 
 _BAND_PIXELS = 1 << 16  # rows carried at a time: the band's arrays stay in the CPU's cache
-_HIT_LOW = float(np.nextafter(np.float32(0), np.float32(1)))  # depth > 0 ...
-_HIT_HIGH = float(np.nextafter(np.float32(DEPTH_MAX_M), np.float32(0)))  # ... and < 1000 m
 
 
 @dataclass(frozen=True)
@@ -177,20 +175,19 @@ def cross_view(
         )  # fmt: skip
 
     # Pixels of t that can be kept: a depth hit, static, not ignored.
-    valid_t = cv2.bitwise_and(valid_t, cv2.inRange(depth_t, _HIT_LOW, _HIT_HIGH))
+    valid_t = cv2.bitwise_and(valid_t, _hits(depth_t))
     if static_t is not None:
         valid_t = cv2.bitwise_and(valid_t, static_t)
     # Pixels of s that can be looked up: the same, folded into its depth (0: never visible).
-    usable_s = cv2.bitwise_and(valid_s, cv2.inRange(depth_s, _HIT_LOW, _HIT_HIGH))
+    usable_s = cv2.bitwise_and(valid_s, _hits(depth_s))
     if static_s is not None:
         usable_s = cv2.bitwise_and(usable_s, static_s)
-    depth_s = np.where(usable_s > 0, depth_s, np.float32(0))
+    depth_s = cv2.bitwise_and(depth_s, depth_s, mask=usable_s)  # 0.0 where not usable
     labels_s = cv2.merge([labels["pred_s"], labels["gt_s"]])
     pred_joint, gt_joint = _carry(
         _transfer(c2w_t, c2w_s, intrinsics), depth_t, valid_t, depth_s, labels_s,
-        labels["pred_t"], labels["gt_t"], np.float32(tolerance),
+        labels["pred_t"], labels["gt_t"], np.float32(tolerance), k,
     )  # fmt: skip
-    pred_joint, gt_joint = pred_joint[:k, :k], gt_joint[:k, :k]
     kept = int(gt_joint.sum())
     inter, gt_inter = np.diagonal(pred_joint).copy(), np.diagonal(gt_joint).copy()
     sums = dict(
@@ -238,44 +235,63 @@ def _carry(
     pred_t: np.ndarray,
     gt_t: np.ndarray,
     tolerance: np.float32,
+    num_classes: int,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Joint counts (int64 256×256) of (t, carried s) for predictions and ground truth.
-
-    Only kept pixels have a row below 255 (the others are moved to row 255).
-    """
+    """Joint counts (int64 K×K) over the kept pixels of (t, carried s): predictions, truth."""
     height, width = depth_t.shape
     rows_per_band = max(1, _BAND_PIXELS // width)
     m = transfer.astype(np.float32)
     cols = np.arange(width, dtype=np.float32)
-    pred_joint = np.zeros((256, 256), np.int64)
-    gt_joint = np.zeros((256, 256), np.int64)
-    low, high = np.float32(1) - tolerance, np.float32(1) + tolerance
+    along = [m[i, 0] * cols for i in range(3)]  # the column part of M · (u, v, 1)
+    # Each band writes its keys into whole-frame images, counted once at the end.
+    keys = np.empty((2, height, width), np.uint8)  # t's prediction and truth, 255 unless kept
+    carried = np.empty((height, width, 2), np.uint8)  # s's prediction and truth, carried back
     for r0 in range(0, height, rows_per_band):
         band = slice(r0, min(height, r0 + rows_per_band))
         d = depth_t[band]
         rows = np.arange(band.start, band.stop, dtype=np.float32)[:, None]
-        # q = d · (M · (u, v, 1)) + h, row by row of M; q2 is the depth in s.
-        q = [d * (m[i, 0] * cols + (m[i, 1] * rows + m[i, 2])) + m[i, 3] for i in range(3)]
+        # q = d · (M · (u, v, 1)) + h, row by row of M; q[2] is the depth in s.
+        q = []
+        for i in range(3):
+            qi = along[i] + (m[i, 1] * rows + m[i, 2])
+            qi *= d
+            qi += m[i, 3]
+            q.append(qi)
         with np.errstate(divide="ignore", invalid="ignore"):
-            inverse = np.float32(1) / q[2]
-            x, y = q[0] * inverse, q[1] * inverse  # NaN or far outside: remap's border
-            looked = cv2.remap(depth_s, x, y, cv2.INTER_NEAREST,
+            inverse = np.divide(np.float32(1), q[2], out=q[2])
+            x, y = np.multiply(q[0], inverse, out=q[0]), np.multiply(q[1], inverse, out=q[1])
+            # Nearest pixel of s (NaN or far outside: remap's border), looked up twice.
+            near, _ = cv2.convertMaps(x, y, cv2.CV_16SC2, nninterpolation=True)
+            looked = cv2.remap(depth_s, near, None, cv2.INTER_NEAREST,
                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)  # fmt: skip
-            # Visible: |depth_s − d_s| <= τ·d_s, i.e. depth_s / d_s in [1 − τ, 1 + τ], d_s > 0.
-            ratio = looked * inverse
-        kept = cv2.inRange(ratio, float(low), float(high))
-        kept = cv2.bitwise_and(kept, cv2.compare(inverse, 0, cv2.CMP_GT))
-        kept = cv2.bitwise_and(kept, cv2.compare(looked, 0, cv2.CMP_GT))
+            # Visible: |depth_s − d_s| <= τ·d_s, i.e. |depth_s / d_s − 1| <= τ; this also needs
+            # d_s > 0 and a depth hit of s there (its unusable pixels hold depth 0).
+            looked *= inverse
+        kept = cv2.compare(cv2.absdiff(looked, 1.0), float(tolerance), cv2.CMP_LE)
         kept = cv2.bitwise_and(kept, valid_t[band])
-        carried = cv2.remap(labels_s, x, y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
-                            borderValue=(255, 255, 0, 0))  # fmt: skip
+        cv2.remap(labels_s, near, None, cv2.INTER_NEAREST, dst=carried[band],
+                  borderMode=cv2.BORDER_CONSTANT, borderValue=(255, 255, 0, 0))  # fmt: skip
         dropped = cv2.bitwise_not(kept)
-        for joint, ids, channel in ((pred_joint, pred_t, 0), (gt_joint, gt_t, 1)):
-            key = cv2.bitwise_or(ids[band], dropped)
-            hist = cv2.calcHist([key, carried], [0, channel + 1], None, [256, 256],
-                                [0, 256, 0, 256])  # fmt: skip
-            joint += hist.astype(np.int64)
-    return pred_joint, gt_joint
+        cv2.bitwise_or(pred_t[band], dropped, dst=keys[0, band])  # kept ids are < K
+        cv2.bitwise_or(gt_t[band], dropped, dst=keys[1, band])
+    return _joint(keys[0], carried, 0, num_classes), _joint(keys[1], carried, 1, num_classes)
+
+
+def _joint(key: np.ndarray, carried: np.ndarray, channel: int, k: int) -> np.ndarray:
+    """int64 K×K counts of (key, carried channel) pairs whose key is a class (< K)."""
+    if key.size < 1 << 24:  # float32 histogram counts are exact below 2^24
+        # The full 256×256 byte histogram: OpenCV's fast path (narrower ranges are slower).
+        hist = cv2.calcHist([key, carried], [0, 1 + channel], None, [256, 256], [0, 256, 0, 256])
+        return hist[:k, :k].astype(np.int64)
+    index = key.astype(np.int64) * 256 + carried[..., channel]
+    return np.bincount(index.ravel(), minlength=1 << 16).reshape(256, 256)[:k, :k]
+
+
+def _hits(depth: np.ndarray) -> np.ndarray:
+    """255 where the depth is a hit: 0 < d < 1000 m (0 and 1000 m are nothing and sky)."""
+    return cv2.bitwise_and(
+        cv2.compare(depth, 0.0, cv2.CMP_GT), cv2.compare(depth, DEPTH_MAX_M, cv2.CMP_LT)
+    )
 
 
 def _depth(array: Any, name: str) -> np.ndarray:

@@ -3,7 +3,10 @@
 A frame pairs with the next frame of its pass (same mission and viewpoint folder, stems in
 order). Carrying its pixels needs its depth PNG, its extrinsics and its dynamic mask; a partial
 download may lack some, and the pair is then *unavailable*, with the missing file named, while
-everything else of an evaluation goes on (:func:`pair_sums`).
+everything else of an evaluation goes on (:func:`pair_sums`). Each frame of a pass but the
+first and last belongs to two pairs: an evaluation walking a pass can read each frame's geometry
+once (:func:`read_geometry`) and hand it to :func:`~claravid.eval.inference.cross_view.cross_view`
+for both.
 """
 
 from __future__ import annotations

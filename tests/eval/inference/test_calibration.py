@@ -41,7 +41,10 @@ def torchmetrics_errors(probs, gt, n_bins):
     ("k", "shape", "n_bins", "sharpness"),
     [(8, (37, 53), 15, 6.0), (19, (24, 40), 15, 7.0), (3, (31, 17), 10, 3.0), (5, (9, 64), 1, 4.0)],
 )
-def test_ece_and_mce_match_torchmetrics(k, shape, n_bins, sharpness):
+@pytest.mark.parametrize("native", [True, False], ids=["C", "numpy"])
+def test_ece_and_mce_match_torchmetrics(monkeypatch, native, k, shape, n_bins, sharpness):
+    if not native:
+        monkeypatch.setattr(calibration, "_native", None)
     rng = np.random.default_rng(k * 100 + n_bins)
     probs = softmax_scores(rng, k, shape, sharpness)
     assert probs.max() < 1.0  # exactly 1.0 is binned differently by torchmetrics (see below)
@@ -78,8 +81,11 @@ def test_sums_are_the_definition_counted_here():
     np.testing.assert_array_equal(got[2], correct)
 
 
-def test_edges_and_exact_one_go_where_the_docs_say():
+@pytest.mark.parametrize("native", [True, False], ids=["C", "numpy"])
+def test_edges_and_exact_one_go_where_the_docs_say(monkeypatch, native):
     """A confidence on an edge starts that bin ([e_i, e_i+1)); exactly 1.0 is in the last bin."""
+    if not native:
+        monkeypatch.setattr(calibration, "_native", None)
     edges = bin_edges(5)
     conf = np.array([[0.0, edges[1], np.nextafter(edges[1], 0), edges[4], 1.0, 0.5]], np.float32)
     pred = np.zeros(conf.shape, np.uint8)
