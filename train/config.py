@@ -242,7 +242,7 @@ def _merge(base: DictConfig, other: Any, source: str) -> DictConfig:
     # YAML 1.1 reads `off` (like `no` and `false`) as a boolean: the str field then holds "False".
     if str(merged.train.amp) == "False":
         merged.train.amp = "off"
-    return merged  # type: ignore[return-value]
+    return merged  # type: ignore[return-value]  # a structured config merges into a DictConfig
 
 
 def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] | str = ()) -> DictConfig:
