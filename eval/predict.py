@@ -197,10 +197,12 @@ def run(args: argparse.Namespace) -> int:
         write_prediction(out, sample["key"], ids)
         if not args.no_overlays:
             rgb = sample["image"].permute(1, 2, 0).numpy()  # the decoded pixels, not a re-read
+            # Overlays are refused without a palette.
             blend = cv2.cvtColor(overlay(rgb, ids, palette.colors), cv2.COLOR_RGB2BGR)  # type: ignore[union-attr]
             target = out / "overlays" / f"{sample['key']}.jpg"
             write_image(target, blend, [cv2.IMWRITE_JPEG_QUALITY, 90])
     described = {**source.describe(), "settings": settings.describe()}
+    # An ONNX file's palette: its names and colours.
     write_marker(out, palette, described, images=len(paths))  # type: ignore[arg-type]
     print(f"{len(paths)} label maps: {out}/<name>.png" + ("" if args.no_overlays else
           f"; overlays: {out / 'overlays'}"))  # fmt: skip

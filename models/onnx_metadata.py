@@ -165,7 +165,7 @@ def build_metadata(
         raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     training: dict[str, Any] = {}
     if _positive_int(step) or step == 0:
-        training["step"] = int(step)  # type: ignore[arg-type]
+        training["step"] = int(step)  # type: ignore[arg-type]  # an int, checked just above
     digest = config_hash(config)
     if digest is not None:
         training["config_sha256"] = digest

@@ -242,7 +242,7 @@ def _merge(base: DictConfig, other: Any, source: str) -> DictConfig:
         key = getattr(exc, "full_key", None)
         msg = str(exc).splitlines()[0]
         raise ConfigError(f"bad value for {key} ({source}): {msg}") from None
-    return merged  # type: ignore[return-value]
+    return merged  # type: ignore[return-value]  # a structured config merges into a DictConfig
 
 
 def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] | str = ()) -> DictConfig:

@@ -229,6 +229,7 @@ class CropDataset(Dataset):
 
     def __getitem__(self, item: tuple[int, int]) -> dict[str, torch.Tensor]:
         index, seed = item
+        # By_window: a dataset that reads windows.
         size = self.base.frame_size(index) if self.by_window else None  # type: ignore[attr-defined]
         frame = {} if self.by_window else self.base[index]
         images, masks = [], []
@@ -237,6 +238,7 @@ class CropDataset(Dataset):
             self.transform.pipeline.set_random_seed((seed + j) % 2**32)
             if size is not None:
                 window = self.transform.draw_window(*size)
+                # By_window: a dataset that reads windows.
                 sample = self.base.read_window(index, window)  # type: ignore[attr-defined]
             else:
                 sample = {"image": frame["image"], "mask": frame["mask"]}

@@ -348,6 +348,7 @@ def _class_weights(
     barrier()
     if not info.is_main:
         counts = class_frequencies(train_set, num_classes)
+    # None only for `none`, returned above.
     return class_weights(counts, cfg.data.class_weights).to(info.device)  # type: ignore[union-attr]
 
 

@@ -148,6 +148,7 @@ class Photo:
             return self._full
         full = None
         if self._by_window():
+            # _by_window() needs a header.
             full = self._native_window(0, 0, *self.header.size)  # type: ignore[union-attr]
         elif _native is not None and self.header is not None and self.header.progressive:
             # Decoding one pixel makes libjpeg read every scan first: refuses data that ends

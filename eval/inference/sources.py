@@ -311,6 +311,7 @@ def load_source(
     if provider is None and device.type != "cuda":
         provider = "cpu"
     providers = resolve_providers(provider)  # one line naming what is missing, before loading
+    # No checkpoint: an ONNX file is given.
     segmenter = OnnxSegmenter(onnx, providers=providers, threads=threads)  # type: ignore[arg-type]
     defaults = onnx_defaults(segmenter.metadata)
     return ModelSource(
