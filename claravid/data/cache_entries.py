@@ -19,6 +19,7 @@ import errno
 import os
 import re
 import socket
+import stat
 import struct
 import threading
 import uuid
@@ -37,6 +38,38 @@ _FOLDER_ERRNOS = {errno.EROFS, *_FULL_ERRNOS}
 
 class LabelCacheWarning(UserWarning):
     """The label cache could not be written (labels decoded instead) or an entry was rebuilt."""
+
+
+class NotAnEntry(OSError):
+    """Something other than a file or folder (a FIFO, socket or device) where an entry should
+    be: never opened for reading (a FIFO would block forever) nor replaced; its frame is decoded
+    from the sources instead."""
+
+
+_KINDS = {stat.S_IFIFO: "a FIFO", stat.S_IFSOCK: "a socket", stat.S_IFCHR: "a character device",
+          stat.S_IFBLK: "a block device"}  # fmt: skip
+
+
+def open_entry(path: Path) -> int:
+    """A read-only descriptor on the entry file ``path``, opened without blocking.
+
+    Raises:
+        OSError: no entry there (missing, or a folder in its place).
+        NotAnEntry: a FIFO, socket or device in its place, naming it and what to do.
+    """
+    flags = os.O_RDONLY | getattr(os, "O_BINARY", 0) | getattr(os, "O_NONBLOCK", 0)
+    fd = os.open(path, flags)
+    mode = os.fstat(fd).st_mode
+    if stat.S_ISREG(mode):
+        return fd
+    os.close(fd)
+    if stat.S_ISDIR(mode):  # a folder in its place: no entry there (its write fails alone)
+        raise IsADirectoryError(errno.EISDIR, "not a file", str(path))
+    kind = _KINDS.get(stat.S_IFMT(mode), "not a regular file")
+    raise NotAnEntry(
+        f"the label cache entry {path} is {kind}, not a file, and is left alone; remove it to "
+        "cache this frame"
+    )
 
 
 class CacheWriteError(OSError):

@@ -24,9 +24,7 @@ behind.
 
 from __future__ import annotations
 
-import errno
 import os
-import stat
 import threading
 import warnings
 from collections import OrderedDict
@@ -38,10 +36,12 @@ import numpy as np
 from claravid.data.cache_entries import (
     CacheWriteError,
     LabelCacheWarning,
+    NotAnEntry,
     entry_error,
     entry_path,
     entry_path_of,
     folder_refuses,
+    open_entry,
     png_shape,
     write_atomic,
     write_error,
@@ -189,14 +189,13 @@ class LabelCache:
             verify: check every tile's CRC too (nothing inflated).
 
         Raises:
-            OSError: no entry there (or not a file).
+            OSError: no entry there (or a folder in its place).
+            NotAnEntry: a FIFO, socket or device in its place (never read: a FIFO would block).
             InvalidEntry: an entry that must not be served.
         """
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_BINARY", 0))
+        fd = open_entry(path)
         try:
             st = os.fstat(fd)
-            if not stat.S_ISREG(st.st_mode):  # a folder in its place: no entry there
-                raise IsADirectoryError(errno.EISDIR, "not a file", str(path))
             file_id = (st.st_ino, st.st_size, st.st_mtime_ns)
             key = str(path)
             with self._lock:
@@ -233,6 +232,9 @@ class LabelCache:
         problem = None
         try:
             fd, layout = self.open_valid(path, pan_seg, identity)
+        except NotAnEntry as exc:  # left alone: decoded, never written over
+            self._warn_not_an_entry(path, exc)
+            return _window_of(read_label_codes(pan_seg, dyn), window)
         except OSError:  # missing, or a cache folder we cannot even read: decode instead
             pass
         except InvalidEntry as exc:
@@ -252,11 +254,7 @@ class LabelCache:
         stored = self._store(path, codes, identity)
         if problem is not None:
             self._warn_invalid(path, problem, stored)
-        if window is None:
-            return codes
-        x, y, w, h = window
-        _check_window(x, y, w, h, codes.shape[1], codes.shape[0])
-        return codes[y : y + h, x : x + w].copy()
+        return _window_of(codes, window)
 
     def _store(self, path: Path, codes: np.ndarray, identity: SourceIdentity) -> bool:
         """Write the entry unless its folder or itself refused a write before; True if written."""
@@ -291,6 +289,17 @@ class LabelCache:
             stacklevel=5,
         )
 
+    def _warn_not_an_entry(self, path: Path, exc: NotAnEntry) -> None:
+        # Once per entry and process, like an entry that cannot be written.
+        if str(path) in _unwritable_entries:
+            return
+        _unwritable_entries.add(str(path))
+        warnings.warn(
+            f"{exc}; its labels are decoded from the sources meanwhile (slower)",
+            LabelCacheWarning,
+            stacklevel=5,
+        )
+
     def _warn_entry(self, path: Path, exc: OSError) -> None:
         # Once per entry and process; the frame is decoded, the other entries still written.
         if str(path) in _unwritable_entries:
@@ -314,6 +323,19 @@ class LabelCache:
             LabelCacheWarning,
             stacklevel=5,
         )
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def _window_of(codes: np.ndarray, window: tuple[int, int, int, int] | None) -> np.ndarray:
+    """The whole codes, or a copy of their window (checked to lie inside)."""
+    if window is None:
+        return codes
+    x, y, w, h = window
+    _check_window(x, y, w, h, codes.shape[1], codes.shape[0])
+    return codes[y : y + h, x : x + w].copy()
 
 
 def _check_window(x: int, y: int, width: int, height: int, frame_w: int, frame_h: int) -> None:

