@@ -146,7 +146,7 @@ def folder_refuses(exc: OSError, directory: Path) -> bool:
     (a folder where one entry should be, one sub-folder without permission, a transient I/O
     error) concerns that entry alone.
     """
-    if exc.errno in _FOLDER_ERRNOS:
+    if exc.errno in _FOLDER_ERRNOS or broken_link(directory) is not None:
         return True
     anchor = Path(directory)
     while not anchor.exists() and anchor != anchor.parent:
@@ -154,11 +154,30 @@ def folder_refuses(exc: OSError, directory: Path) -> bool:
     return not anchor.is_dir() or not os.access(anchor, os.W_OK | os.X_OK)
 
 
+def broken_link(directory: Path) -> Path | None:
+    """The symbolic link on the way to ``directory`` (itself or a folder above it) that leads
+    nowhere, dangling or in a loop; None when there is none. Nothing can be written below it."""
+    path = Path(directory)
+    while not path.exists():  # False for a dangling link and for a loop (ELOOP)
+        if path.is_symlink():
+            return path
+        if path == path.parent:
+            return None
+        path = path.parent
+    return None
+
+
 def write_error(exc: OSError, directory: Path) -> str:
     """Why writing the cache failed, in words, naming the folder."""
     if exc.errno in _FULL_ERRNOS:
         full = "disk quota is exceeded" if exc.errno == _EDQUOT else "disk is full"
         return f"the {full} (no space left for the label cache in {directory})"
+    link = broken_link(directory)
+    if link is not None:
+        return (
+            f"the label cache folder {directory} cannot be made: {link} is a symbolic link "
+            "that leads nowhere (dangling, or a loop)"
+        )
     if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
         return f"the label cache folder {directory} is not writable ({exc.strerror})"
     return f"cannot write the label cache in {directory} ({exc.strerror or exc})"

@@ -49,7 +49,7 @@ from claravid.data.cache_entries import (
 from claravid.data.cache_prepare import PrepareSummary, Sources, prepare_entries
 from claravid.infra.cachedir import cache_dir
 from claravid.io import label_tiff
-from claravid.io.label_tiff import InvalidEntry, SourceIdentity, TileLayout
+from claravid.io.label_tiff import InvalidEntry, OtherVersion, SourceIdentity, TileLayout
 from claravid.io.labels import read_label_codes, source_identity
 
 __all__ = [
@@ -68,10 +68,11 @@ __all__ = [
 LAYOUTS = 1024
 # Per process, for every LabelCache: folders that cannot take an entry (warned once, not
 # written again), entries whose write failed (warned once, not retried), invalid entries that
-# could not be rebuilt (warned once).
+# could not be rebuilt (warned once), folders holding entries of another version (warned once).
 _unwritable_folders: set[str] = set()
 _unwritable_entries: set[str] = set()
 _unrepaired_entries: set[str] = set()
+_other_versions: set[str] = set()  # folders whose entries of another version were warned about
 
 
 class LabelCache:
@@ -272,6 +273,19 @@ class LabelCache:
         return True
 
     def _warn_invalid(self, path: Path, exc: InvalidEntry, stored: bool) -> None:
+        if stored and isinstance(exc, OtherVersion):
+            # Every entry of an older cache is one: said once per folder, not once per entry.
+            if str(self.directory) in _other_versions:
+                return
+            _other_versions.add(str(self.directory))
+            warnings.warn(
+                f"label cache entries in {self.directory} were {exc}: each is rebuilt from its "
+                "sources when first read (this warning is given once); claravid-cache rebuilds "
+                "them all ahead of time",
+                LabelCacheWarning,
+                stacklevel=5,
+            )
+            return
         if stored:
             warnings.warn(
                 f"label cache entry {path} is invalid ({exc}); rebuilt from the sources",

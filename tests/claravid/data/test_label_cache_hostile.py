@@ -16,6 +16,7 @@ import pytest
 from claravid.data.cache_cli import main as cache_main
 from claravid.data.index import list_frames
 from claravid.data.label_cache import LabelCache, LabelCacheWarning
+from claravid.io import label_tiff
 from claravid.io.labels import read_label_codes
 
 #: A FIFO opened for reading blocks until a writer comes: the tests give up after this.
@@ -92,3 +93,47 @@ def test_claravid_cache_lists_a_fifo_and_goes_on(claravid_root, tmp_path, capsys
     assert err == [f"skipped {frames[0][0]}: the label cache entry {fifo} is a FIFO, not a file, "
                    "and is left alone; remove it to cache this frame"]  # fmt: skip
     assert len([p for p in tmp_path.rglob("*.tif") if p.is_file()]) == len(frames) - 1
+
+
+@pytest.mark.parametrize("link", ["loop", "dangling"])
+def test_a_broken_link_as_the_cache_folder_warns_once(claravid_root, tmp_path, link, capsys):
+    root = tmp_path / "cache"
+    root.mkdir()
+    if link == "loop":
+        os.symlink(root / "label_codes", root / "label_codes")
+    else:
+        os.symlink(tmp_path / "gone" / "codes", root / "label_codes")
+    cache = LabelCache(root)
+    frames = _sources(claravid_root, missions=["urban_1"], altitude=["low"])
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        for frame in frames:  # was one warning per frame
+            np.testing.assert_array_equal(cache.read(*frame), read_label_codes(*frame))
+    (message,) = _label_messages(record)
+    assert f"{root / 'label_codes'} is a symbolic link that leads nowhere" in message
+    # claravid-cache: the folder cannot take any entry, one line, exit 2.
+    argv = [str(claravid_root), "--missions", "urban_1", "--cache-dir", str(root), "--no-progress"]
+    assert cache_main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "symbolic link that leads nowhere" in err[0], err
+
+
+def test_entries_of_an_older_version_warn_once_for_the_folder(claravid_root, tmp_path,
+                                                              monkeypatch):  # fmt: skip
+    frames = _sources(claravid_root, missions=["urban_1"], altitude=["low"])
+    cache = LabelCache(tmp_path / "cache")
+    monkeypatch.setattr(label_tiff, "VERSION", label_tiff.VERSION - 1)  # a cache written before
+    assert cache.prepare(frames).built == len(frames) > 1
+    monkeypatch.undo()
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        for frame in frames:
+            np.testing.assert_array_equal(cache.read(*frame), read_label_codes(*frame))
+    (message,) = _label_messages(record)  # was one per entry
+    assert "were written by another version of the cache" in message
+    assert str(cache.directory) in message and "once" in message
+    # Each was rebuilt: a second pass reads them, quietly.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for frame in frames:
+            cache.read(*frame)
