@@ -80,8 +80,14 @@ class LabelCache:
 
     Args:
         directory: the cache root; None: ``$CLARAVID_CACHE`` or ``~/.cache/claravid``.
-        tile_size: tile side of the entries this cache writes (reading takes any).
-        layouts: how many parsed entry headers to keep (least recently used dropped first).
+        tile_size: tile side of the entries this cache writes (reading takes any): a positive
+            multiple of 16, as TIFF tiles are.
+        layouts: how many parsed entry headers to keep (least recently used dropped first);
+            0 keeps none.
+
+    Raises:
+        ValueError: a tile size or a number of layouts it cannot use, said when it is made
+            rather than at the first read.
     """
 
     def __init__(
@@ -90,6 +96,16 @@ class LabelCache:
         tile_size: int = label_tiff.TILE,
         layouts: int = LAYOUTS,
     ):
+        if not _is_int(tile_size) or tile_size < 16 or tile_size % 16:
+            raise ValueError(
+                f"tile_size={tile_size!r}: TIFF tiles are a positive multiple of 16 pixels, "
+                f"e.g. {label_tiff.TILE} (the default)"
+            )
+        if not _is_int(layouts) or layouts < 0:
+            raise ValueError(
+                f"layouts={layouts!r}: how many parsed entry headers to keep, an integer >= 0 "
+                f"(default {LAYOUTS})"
+            )
         #: Whether the folder came from $CLARAVID_CACHE (what a message advises to change).
         self.from_environment = directory is None
         self.directory = Path(directory) if directory is not None else cache_dir()

@@ -137,3 +137,27 @@ def test_entries_of_an_older_version_warn_once_for_the_folder(claravid_root, tmp
         warnings.simplefilter("error")
         for frame in frames:
             cache.read(*frame)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"tile_size": 0}, r"tile_size=0: TIFF tiles are a positive multiple of 16"),
+        ({"tile_size": 100}, r"tile_size=100: TIFF tiles are a positive multiple of 16"),
+        ({"tile_size": -16}, r"tile_size=-16"),
+        ({"tile_size": 256.0}, r"tile_size=256.0"),
+        ({"layouts": -1}, r"layouts=-1: how many parsed entry headers to keep"),
+        ({"layouts": None}, r"layouts=None: .*an integer >= 0"),
+        ({"layouts": True}, r"layouts=True"),
+    ],
+)
+def test_arguments_it_cannot_use_are_refused_when_made(tmp_path, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        LabelCache(tmp_path, **kwargs)
+
+
+def test_arguments_at_their_bounds_work(claravid_root, tmp_path):
+    frame = _sources(claravid_root, missions=["urban_1"])[0]
+    cache = LabelCache(tmp_path, tile_size=16, layouts=0)  # the smallest tile, no header kept
+    for _ in range(2):
+        np.testing.assert_array_equal(cache.read(*frame), read_label_codes(*frame))
