@@ -128,7 +128,8 @@ class Segmenter(nn.Module):
         if mean is None or std is None:
             raise ValueError("give mean and std together (or neither: the backbone's)")
         m, s = input_stats(mean, "mean"), input_stats(std, "std")
-        if not all(math.isfinite(v) for v in m + s) or min(s) <= 0 or max(m + s) > 1:
+        usable = all(math.isfinite(v) for v in m + s) and min(m) >= 0 and min(s) > 0
+        if not usable or max(m + s) > 1:
             raise ValueError(
                 f"statistics mean {list(m)}, std {list(s)}: need finite numbers for pixels in "
                 "[0, 1] (mean in [0, 1], std in (0, 1]); divide 0–255 statistics by 255"

@@ -61,6 +61,11 @@ class InvalidEntry(Exception):
     """A cache entry that must not be served (truncated, corrupt, foreign, stale); rebuild it."""
 
 
+class OtherVersion(InvalidEntry):
+    """An entry written by another version of the cache format (every entry of an older cache
+    is one: readers say so once, not once per entry)."""
+
+
 @dataclass(frozen=True)
 class TileLayout:
     """Where each tile of an entry lies in its file, and what it must hold.
@@ -214,7 +219,7 @@ def read_layout(
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise InvalidEntry("not a label-code entry")
     if meta.get("version") != VERSION:
-        raise InvalidEntry(f"written by another version of the cache ({meta.get('version')})")
+        raise OtherVersion(f"written by another version of the cache ({meta.get('version')})")
     if meta.get("codes") != CODES_DIGEST:
         raise InvalidEntry(
             f"written under another class/code table (digest {meta.get('codes')}, this "

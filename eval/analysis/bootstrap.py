@@ -21,7 +21,6 @@ and its own images only, never on the other bins; the same seed gives identical 
 
 from __future__ import annotations
 
-import os
 import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -31,6 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from claravid.eval.analysis.units import CLUSTER_UNITS
+from claravid.infra.memory import available_memory
 
 METHOD = "cluster percentile bootstrap"
 #: Resamples per matrix product: bounds the memory of the float64 draw-count block.
@@ -178,20 +178,21 @@ def count_clusters(ids: np.ndarray) -> int:
 
 
 def check_memory(nbytes: int, what: str) -> None:
-    """Refuse, before allocating it, an array larger than the memory available now.
+    """Refuse, before allocating it, an array larger than the memory available now: the
+    kernel's ``MemAvailable`` (free memory and the caches it can drop), not ``MemFree``, which
+    reads far too low on a machine that has been reading files.
 
     Raises:
         ValueError: ``nbytes`` exceeds the memory available (a user's mistake, one line naming
             the size and the flag to lower, instead of a ``MemoryError`` traceback).
     """
-    try:
-        free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):  # not a POSIX system: let numpy decide
+    available = available_memory()
+    if available is None:  # not Linux: let numpy decide
         return
-    if nbytes > free:
+    if nbytes > available:
         raise ValueError(
-            f"{what} need {nbytes / 2**30:.1f} GiB and {free / 2**30:.1f} GiB are free: lower "
-            "--bootstrap (1000 resamples is usual)"
+            f"{what} need {nbytes / 2**30:.1f} GiB and {available / 2**30:.1f} GiB are "
+            "available: lower --bootstrap (1000 resamples is usual)"
         )
 
 

@@ -2,7 +2,8 @@
 
 import pytest
 
-from claravid.models import build_backbone, memory
+from claravid.infra import memory
+from claravid.models import build_backbone
 from claravid.models.memory import NotEnoughMemoryError
 
 TINY = {"embed_dim": 8, "depth": 1, "num_heads": 2}

@@ -114,6 +114,7 @@ def test_a_checkpoint_normalises_uint8_with_the_statistics_it_trained_with(tmp_p
         ([123.7, 116.3, 103.5], [58.4, 57.1, 57.4], "divide 0–255 statistics by 255"),
         ([0.5, 0.5, 0.5], [0.2, 0.0, 0.2], r"std in \(0, 1\]"),
         ([0.5, float("nan"), 0.5], [0.2, 0.2, 0.2], "finite"),
+        ([-0.1, 0.5, 0.5], [0.2, 0.2, 0.2], r"mean in \[0, 1\]"),
         ([0.5, 0.5], [0.2, 0.2, 0.2], r"mean needs 3 values"),
         ([0.5, 0.5, 0.5], None, "together"),
     ],

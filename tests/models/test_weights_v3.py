@@ -192,7 +192,7 @@ def test_official_weights_are_licence_gated():
 
 
 def test_7b_memory_error_before_allocation(monkeypatch):
-    from claravid.models import memory
+    from claravid.infra import memory
 
     monkeypatch.setattr(
         memory, "_read_meminfo", lambda: "MemTotal: 8000000 kB\nMemAvailable: 2097152 kB\n"
@@ -214,11 +214,12 @@ def test_7b_memory_error_before_allocation(monkeypatch):
 
 
 def test_memory_check_is_skipped_when_unknown(monkeypatch):
-    from claravid.models import memory
+    from claravid.infra import memory
+    from claravid.models.memory import check_memory
 
     monkeypatch.setattr(memory, "_read_meminfo", lambda: None)
     assert memory.available_memory() is None
-    memory.check_memory(1 << 60, "anything")  # unknown: no refusal
+    check_memory(1 << 60, "anything")  # unknown: no refusal
     monkeypatch.setattr(memory, "_read_meminfo", lambda: "MemAvailable:   1024 kB\n")
     assert memory.available_memory() == 1 << 20
     build_backbone("dinov3_vits16", embed_dim=8, depth=1, num_heads=2)  # 10 KiB: fits
