@@ -26,23 +26,17 @@ import torch
 from claravid.dsp.tiles import check_tile_count, check_tile_size
 from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.analysis.quality_table import (
-    BOUNDARY,
-    CALIBRATION,
     CONSISTENCY,
-    PairTable,
-    QualityTable,
 )
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.tile_bins import TileTable
+from claravid.eval.inference.background import Background
 from claravid.eval.inference.complexity_job import ComplexityJob
 from claravid.eval.inference.data import EvalData
-from claravid.eval.inference.hardest import Hardest, thumbnail
-from claravid.eval.inference.image_measures import image_measures
+from claravid.eval.inference.hardest import Hardest
 from claravid.eval.inference.label_maps import (
     check_missing,
     label_map_confusions,
-    prediction_file,
-    read_prediction,
     write_marker,
 )
 from claravid.eval.inference.label_maps import write_prediction as save_label_map
@@ -50,9 +44,9 @@ from claravid.eval.inference.pair_stream import PairKeeper, PairStream
 from claravid.eval.inference.pass_frames import (
     PairResult,
     PassFrames,
-    measure_pair,
     pairs_unavailable,
 )
+from claravid.eval.inference.quality_collect import label_map_measure, pair_item, quality_table
 from claravid.eval.inference.quality_plan import QualityPlan, plan_quality
 from claravid.eval.inference.run_model import ImageScore, evaluate_model
 from claravid.eval.inference.sources import ModelSource
@@ -207,47 +201,56 @@ def collect(
             tile_size=tile_size,
         )
         if model is not None:
-            stream = None
-            if frames is not None:
-                window = (s.window or WindowConfig()).for_model(model.model)
+            # The image's measures and its pair run in threads beside the next prediction.
+            with Background(max(1, workers)) as background:
+                stream = None
+                if frames is not None:
+                    window = (s.window or WindowConfig()).for_model(model.model)
 
-                def predict_other(key: str) -> np.ndarray:
-                    image = frames.image(key).to(s.device)
-                    return predict_labels(model.model, image, window).to("cpu", torch.uint8).numpy()
+                    def predict_other(key: str) -> np.ndarray:
+                        image = frames.image(key).to(s.device)
+                        return (
+                            predict_labels(model.model, image, window)
+                            .to("cpu", torch.uint8)
+                            .numpy()
+                        )
 
-                stream = PairStream(frames, [data.keys[i] for i in mine], k, predict_other,
-                                    pair_keeper, mine)  # fmt: skip
+                    stream = PairStream(frames, [data.keys[i] for i in mine], k, predict_other,
+                                        pair_keeper, mine, background)  # fmt: skip
 
-            def on_score(sample: dict[str, Any], pred: torch.Tensor, score: ImageScore) -> None:
-                ids = pred.to("cpu", torch.uint8).numpy() if save_predictions or stream else None
-                if save_predictions is not None:
-                    save_label_map(save_predictions, score.key, ids)
-                keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
+                def on_score(sample: dict[str, Any], pred: torch.Tensor, score: ImageScore) -> None:
+                    ids = (
+                        pred.to("cpu", torch.uint8).numpy() if save_predictions or stream else None
+                    )
+                    if save_predictions is not None:
+                        save_label_map(save_predictions, score.key, ids)
+                    keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
+                    if stream is not None:
+                        stream.add(score.key, ids, np.asarray(sample["mask"], dtype=np.uint8))
+
+                scores = evaluate_model(
+                    model.model,
+                    data.dataset,
+                    k,
+                    s.window,
+                    device=s.device,
+                    indices=mine,
+                    num_workers=workers,
+                    tile_size=tile_size,
+                    progress=s.progress,
+                    on_score=on_score,
+                    measures=plan.image_measures(),
+                    background=background,
+                )
+                confusions = [s.confusion for s in scores]
+                tile_confs = [s.tiles for s in scores]
+                extras = [(s.boundary, s.calibration) for s in scores]
                 if stream is not None:
-                    stream.add(score.key, ids, np.asarray(sample["mask"], dtype=np.uint8))
-
-            scores = evaluate_model(
-                model.model,
-                data.dataset,
-                k,
-                s.window,
-                device=s.device,
-                indices=mine,
-                num_workers=workers,
-                tile_size=tile_size,
-                progress=s.progress,
-                on_score=on_score,
-                measures=plan.image_measures(),
-            )
-            confusions = [s.confusion for s in scores]
-            tile_confs = [s.tiles for s in scores]
-            extras = [(s.boundary, s.calibration) for s in scores]
-            if stream is not None:
-                pairs = stream.finish()
+                    pairs = stream.finish()
         else:
             assert predictions is not None  # one of model and predictions, checked above
             threads = max(1, workers)
-            measure = _label_map_measure(data, predictions, plan, frames, pair_keeper)
+            measure = label_map_measure(data, predictions, plan, frames, pair_keeper)
             scored = label_map_confusions(data, predictions, mine, threads=threads,
                                           tile_size=tile_size, progress=s.progress,
                                           measure=measure)  # fmt: skip
@@ -292,7 +295,7 @@ def collect(
         tiles=None
         if tile_size is None
         else TileTable.from_images(tile_size, [_tiles(r[2]) for r in rows], k),
-        quality=_quality_table(plan, rows, k),
+        quality=quality_table(plan, rows, k),
     )
     # Table rows are positions in `present`; hardest predictions are keyed by those too.
     position = {index: pos for pos, index in enumerate(order)}
@@ -300,80 +303,13 @@ def collect(
                            key=lambda e: e[:2])  # fmt: skip
     sheet = []
     if frames is not None and distributed.current().is_main:
-        sheet = [_pair_item(frames, item) for _, _, item in worst]
+        sheet = [pair_item(frames, item) for _, _, item in worst]
     return Collected(
         result,
         [data.paths[i] for i in skipped],
         {position[-i]: p for _, i, p in heap},
         sheet,
     )
-
-
-def _pair_item(frames: PassFrames, item: dict[str, Any]) -> dict[str, Any]:
-    """A kept pair with the thumbnails of its two frames' images, for ``hardest.png``."""
-
-    def rgb(key: str) -> np.ndarray:
-        return thumbnail(frames.image(key).permute(1, 2, 0).numpy(), nearest=False)
-
-    stem = item["next"].rsplit("/", 1)[-1]
-    title = (f"{item['key']}\nconsistency {item['consistency']:.3f} with {stem} (kept pixels: "
-             "green agree, red disagree)")  # fmt: skip
-    return {**item, "image": rgb(item["key"]), "next_image": rgb(item["next"]), "title": title}
-
-
-def _label_map_measure(
-    data: EvalData,
-    predictions: str | Path | None,
-    plan: QualityPlan,
-    frames: PassFrames | None,
-    keeper: PairKeeper,
-) -> Any:
-    """What a label map's reading thread measures beside the confusion: the boundary sums, and
-    the image's pair with the next frame (whose label map is read from the same folder),
-    offered to ``keeper`` there (the full-size maps go no further)."""
-    measures = plan.image_measures()
-    k = data.palette.num_classes
-    if not measures.boundary and frames is None:
-        return None
-    folder = Path(str(predictions))
-
-    def pred_s(key: str) -> np.ndarray | str:
-        file = prediction_file(folder, key)
-        if not file.is_file():
-            return f"no label map of the next frame ({file})"
-        return read_prediction(file, frames.mask(key).shape, k)
-
-    def measure(index: int, ids: np.ndarray, mask: np.ndarray) -> tuple[Any, Any]:
-        boundary, _ = image_measures(ids, mask, k, measures)
-        if frames is None:
-            return boundary, None
-        key = data.keys[index]
-        after = frames.next_of(key)
-        other = pred_s(after) if after else ""
-        result = measure_pair(frames, key, ids, mask, lambda _key: other, k,
-                              keep_geometry=keeper.k > 0)  # fmt: skip
-        if result.geometry is not None:
-            keeper.offer(index, key, result, (ids, mask, other, frames.mask(after)))
-        result.geometry = None  # full-size depth maps are not kept past the sheet
-        return boundary, result
-
-    return measure
-
-
-def _quality_table(plan: QualityPlan, rows: list[tuple[Any, ...]], k: int) -> QualityTable:
-    """The gathered rows' measures beyond mIoU as a table (status and reasons from ``plan``)."""
-    boundary = calibration = pairs = None
-    if plan.on(BOUNDARY):
-        boundary = np.stack([r[3][0] for r in rows]).astype(np.int64)
-    if plan.on(CALIBRATION):
-        calibration = np.stack([r[3][1] for r in rows]).astype(np.float64)
-    if plan.on(CONSISTENCY):
-        results: list[PairResult] = [r[4] for r in rows]
-        pairs = PairTable([p.next for p in results], [p.status for p in results],
-                          [p.reason for p in results],
-                          np.stack([p.sums for p in results]))  # fmt: skip
-    return QualityTable(dict(plan.status), dict(plan.reasons), boundary, calibration, pairs,
-                        {n: dict(v) for n, v in plan.settings.items()})  # fmt: skip
 
 
 def _check_tile_grids(

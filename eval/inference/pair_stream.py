@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from claravid.eval.analysis.quality_table import PAIR_OK
+from claravid.eval.inference.background import Background
 from claravid.eval.inference.hardest import thumbnail
 from claravid.eval.inference.pair_marks import pair_marks
 from claravid.eval.inference.pass_frames import PairResult, PassFrames, measure_pair
@@ -82,6 +83,7 @@ class PairStream:
         keeper: where the pairs of lowest consistency go.
         indices: each key's index in the whole evaluation (the keeper's tie-break; default
             the position in ``keys``).
+        background: where pairs are measured, beside the model (default: at once).
     """
 
     def __init__(
@@ -92,6 +94,7 @@ class PairStream:
         predict: Callable[[str], np.ndarray],
         keeper: PairKeeper | None = None,
         indices: Sequence[int] | None = None,
+        background: Background | None = None,
     ) -> None:
         self.frames, self.num_classes, self.predict = frames, num_classes, predict
         self.order = {key: i for i, key in enumerate(keys)}
@@ -99,7 +102,8 @@ class PairStream:
                               strict=True))  # fmt: skip
         self.keeper = keeper
         self.waiting: dict[str, tuple[str, np.ndarray, np.ndarray]] = {}
-        self.results: dict[str, PairResult] = {}
+        self.background = background or Background(0)
+        self.jobs: dict[str, Any] = {}
 
     def add(self, key: str, pred: np.ndarray, gt: np.ndarray) -> None:
         """Frame ``key``'s prediction and labels (uint8 [H, W])."""
@@ -118,17 +122,22 @@ class PairStream:
         for key_t, pred, gt in list(self.waiting.values()):
             self._measure(key_t, pred, gt, self.predict)
         self.waiting.clear()
-        return self.results
+        return {key: job.result() for key, job in self.jobs.items()}
 
     def _measure(self, key: str, pred: np.ndarray, gt: np.ndarray,
                  pred_s: Callable[[str], np.ndarray]) -> None:  # fmt: skip
         after = self.frames.next_of(key)
-        other = pred_s(after) if after else None
+        other = pred_s(after) if after else None  # here: it may need the model
+        self.jobs[key] = self.background.submit(self._pair, key, pred, gt, after, other)
+
+    def _pair(self, key: str, pred: np.ndarray, gt: np.ndarray, after: str,
+              other: np.ndarray | None) -> PairResult:  # fmt: skip
+        """The pair's sums (in a background thread), offered to the keeper."""
         sheet = self.keeper is not None and self.keeper.k > 0
         result = measure_pair(self.frames, key, pred, gt, lambda _key: other,
                               self.num_classes, keep_geometry=sheet)  # fmt: skip
-        self.results[key] = result
         if sheet and result.geometry is not None:
             labels = (pred, gt, other, self.frames.mask(after))
             self.keeper.offer(self.index[key], key, result, labels)
         result.geometry = None  # full-size depth maps are not kept past the sheet
+        return result

@@ -17,6 +17,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm.auto import tqdm
 
+from claravid.eval.inference.background import Background
 from claravid.eval.inference.confusion import image_confusion
 from claravid.eval.inference.image_measures import (
     ImageMeasures,
@@ -62,6 +63,7 @@ def evaluate_model(
     progress: bool = False,
     on_score: Callable[[dict[str, Any], torch.Tensor, ImageScore], None] | None = None,
     measures: ImageMeasures | None = None,
+    background: Background | None = None,
 ) -> list[ImageScore]:
     """Predict every image of ``dataset`` with sliding windows and count its confusion.
 
@@ -81,6 +83,7 @@ def evaluate_model(
             save the prediction, keep the hardest images', or pair it with the next frame).
         measures: also each image's Boundary IoU and calibration sums
             (:class:`~claravid.eval.inference.image_measures.ImageMeasures`).
+        background: where those run, beside the next image's prediction (default: at once).
 
     Returns:
         One `ImageScore` per image, in dataset order.
@@ -88,10 +91,11 @@ def evaluate_model(
     # The window and statistics the config leaves unset are the model's; checked once here.
     config = (config or WindowConfig()).for_model(model)
     measures = measures or ImageMeasures()
+    background = background or Background(0)
     device = torch.device(device)
     subset = Subset(dataset, list(indices)) if indices is not None else dataset
     loader = DataLoader(subset, batch_size=None, num_workers=num_workers)
-    results = []
+    results, pending = [], []
     # A map-style dataset has a length; torch's Dataset type does not declare one.
     total = len(subset)  # type: ignore[arg-type]
     for sample in tqdm(loader, total=total, desc="evaluate", unit="img", disable=not progress):
@@ -105,11 +109,14 @@ def evaluate_model(
             # Byte ids take metrics' fast CPU path (an int64 map would be checked and cast).
             prediction = prediction.to(torch.uint8)
         conf, tiles = image_confusion(prediction, target, num_classes, tile_size)
-        boundary, calibration = image_measures(prediction, target, num_classes, measures,
-                                               confidence)  # fmt: skip
-        score = ImageScore(str(sample["path"]), sample_key(sample), conf, tiles, boundary,
-                           calibration)  # fmt: skip
+        score = ImageScore(str(sample["path"]), sample_key(sample), conf, tiles)
+        if measures.boundary or measures.calibration:
+            ids = prediction.to(torch.uint8) if num_classes <= 255 else prediction
+            pending.append((score, background.submit(image_measures, ids, target, num_classes,
+                                                     measures, confidence)))  # fmt: skip
         results.append(score)
         if on_score is not None:
             on_score(sample, prediction, score)
+    for score, job in pending:
+        score.boundary, score.calibration = job.result()
     return results
