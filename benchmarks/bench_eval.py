@@ -428,8 +428,8 @@ def section_evaluation_measures(tmp: Path, frames: int, size: tuple[int, int], s
     device = "CUDA" if torch.cuda.is_available() else f"CPU ({os.cpu_count()} cores)"
     print(
         f"\n5b. measures beyond mIoU, the whole evaluation: ViT-S/14 + DPT checkpoint, "
-        f"{frames} frames of one pass at {size[0]}×{size[1]}, --scale {scale}, {device}, load average "
-        f"{os.getloadavg()[0]:.1f}; medians of {repeats}"
+        f"{frames} frames of one pass at {size[0]}×{size[1]}, --scale {scale}, {device}, "
+        f"load average {os.getloadavg()[0]:.1f}; medians of {repeats}"
     )
     print(f"   every measure off:  {none:8.2f} s ({none / frames:.2f} s/frame)")
     print(
