@@ -117,8 +117,8 @@ def render(
     hit = _first_hits(world, pose, size)
     depth = np.clip(hit.depth, 0.01, DEPTH_MAX_M)
     border = UNLABELED_ID * 65536.0  # sky, and ground beyond the world: Unlabeled
-    look = dict(interpolation=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
-    packed = cv2.remap(world.packed, hit.col, hit.row, borderValue=border, **look)
+    packed = cv2.remap(world.packed, hit.col, hit.row, interpolation=cv2.INTER_NEAREST,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=border)  # fmt: skip
     packed = packed.astype(np.int32)
     semantic, instance = (packed >> 16).astype(np.uint8), (packed & 0xFFFF).astype(np.uint16)
     rgb = cv2.remap(world.color, hit.col, hit.row, interpolation=cv2.INTER_LINEAR,
