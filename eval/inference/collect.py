@@ -219,10 +219,12 @@ def collect(
                                     pair_keeper, mine)  # fmt: skip
 
             def on_score(sample: dict[str, Any], pred: torch.Tensor, score: ImageScore) -> None:
-                ids = pred.to("cpu", torch.uint8).numpy() if save_predictions or stream else None
+                keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
+                if save_predictions is None and stream is None:
+                    return
+                ids = pred.to("cpu", torch.uint8).numpy()
                 if save_predictions is not None:
                     save_label_map(save_predictions, score.key, ids)
-                keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
                 if stream is not None:
                     stream.add(score.key, ids, np.asarray(sample["mask"], dtype=np.uint8))
 
@@ -338,6 +340,8 @@ def _label_map_measure(
     folder = Path(str(predictions))
 
     def pred_s(key: str) -> np.ndarray | str:
+        if frames is None:  # measure asks only for a pair, which needs the passes
+            raise RuntimeError(f"{key}: a next frame's label map read without the passes")
         file = prediction_file(folder, key)
         if not file.is_file():
             return f"no label map of the next frame ({file})"
@@ -352,7 +356,8 @@ def _label_map_measure(
         other = pred_s(after) if after else ""
         result = measure_pair(frames, key, ids, mask, lambda _key: other, k,
                               keep_geometry=keeper.k > 0)  # fmt: skip
-        if result.geometry is not None:
+        # A pair with geometry was measured, so the next frame's label map was read.
+        if result.geometry is not None and isinstance(other, np.ndarray):
             keeper.offer(index, key, result, (ids, mask, other, frames.mask(after)))
         result.geometry = None  # full-size depth maps are not kept past the sheet
         return boundary, result
