@@ -21,6 +21,8 @@ class MaskedBiasLinear(nn.Linear):
     every score of a query, which softmax cancels), and store the mask with the weights.
     """
 
+    bias_mask: torch.Tensor  # a buffer, registered only when there is a bias
+
     def __init__(self, dim: int, bias: bool = True) -> None:
         super().__init__(dim, 3 * dim, bias=bias)
         if bias:

@@ -50,6 +50,8 @@ class LinearHead(nn.Module):
         self.conv = nn.Conv2d(channels, num_classes, kernel_size=1)
         # The official initialisation: a small classifier, so training starts near uniform.
         nn.init.normal_(self.conv.weight, mean=0.0, std=0.01)
+        if self.conv.bias is None:  # nn.Conv2d makes a bias unless told not to
+            raise RuntimeError("LinearHead's classifier was built without a bias")
         nn.init.zeros_(self.conv.bias)
 
     @property

@@ -140,6 +140,8 @@ class UperNetHead(nn.Module):
         self.dropout = nn.Dropout2d(dropout)
         self.classifier = nn.Conv2d(c, num_classes, kernel_size=1)
         nn.init.normal_(self.classifier.weight, mean=0.0, std=0.01)
+        if self.classifier.bias is None:  # nn.Conv2d makes a bias unless told not to
+            raise RuntimeError("UperNet's classifier was built without a bias")
         nn.init.zeros_(self.classifier.bias)
 
     @property

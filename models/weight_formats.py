@@ -139,7 +139,9 @@ def _renames(fmt: KeyFormat, ffn: str) -> list[Rename]:
     return [r for r in fmt.renames if r.ffn in (None, ffn)]
 
 
-def detect_format(state: Mapping[str, torch.Tensor], formats: tuple[KeyFormat, ...]):
+def detect_format(
+    state: Mapping[str, torch.Tensor], formats: tuple[KeyFormat, ...]
+) -> KeyFormat | None:
     """The first of ``formats`` whose keys ``state`` has, or None (the official names)."""
     keys = list(state)
     return next((fmt for fmt in formats if fmt.matches(keys)), None)
@@ -237,7 +239,9 @@ def _part_of(key: str, split: Split) -> tuple[int, dict[str, str]] | None:
     return None
 
 
-def absent_keys(fmt: KeyFormat | None, own: list[str], state: Mapping[str, torch.Tensor]):
+def absent_keys(
+    fmt: KeyFormat | None, own: list[str], state: Mapping[str, torch.Tensor]
+) -> list[str]:
     """The model's keys that ``state`` lacks because ``fmt`` does not store them."""
     if fmt is None:
         return []

@@ -222,7 +222,8 @@ def _read_one(path: Path) -> State:
     if isinstance(obj, dict) and (
         str(obj.get("format", "")).startswith("claravid") or "model_args" in obj
     ):
-        args = obj.get("model_args") if isinstance(obj.get("model_args"), dict) else {}
+        model_args = obj.get("model_args")
+        args = model_args if isinstance(model_args, dict) else {}
         raise WeightsError(
             f"{path} is a claravid checkpoint (a trained {args.get('backbone', '')} segmenter), "
             "not backbone weights: evaluate, export or predict with it as a checkpoint "
@@ -243,7 +244,12 @@ def _read_one(path: Path) -> State:
     return dict(obj)
 
 
-def check_family(state: Mapping[str, Any], spec: BackboneSpec, source: Any, config=None) -> None:
+def check_family(
+    state: Mapping[str, Any],
+    spec: BackboneSpec,
+    source: Any,
+    config: Mapping[str, Any] | None = None,
+) -> None:
     """Raise `WeightsError` naming both families when the weights are the other family's (by
     keys only one family's files have, else by what their config.json says)."""
     found: dict[str, str] = {}
@@ -268,7 +274,7 @@ def check_family(state: Mapping[str, Any], spec: BackboneSpec, source: Any, conf
 
 
 def check_config(
-    source: WeightsSource, family: WeightsFamily, arch: Mapping[str, Any], spec
+    source: WeightsSource, family: WeightsFamily, arch: Mapping[str, Any], spec: BackboneSpec
 ) -> None:
     """Refuse weights whose transformers ``config.json`` describes another architecture."""
     config = source.config

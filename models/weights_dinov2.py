@@ -20,6 +20,7 @@ sizes other than 518 (docs/models.md); this toolkit keeps the official rule for 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import torch
 
@@ -92,7 +93,7 @@ def _fold_cls_position(state: State) -> State:
     return state
 
 
-def _timm_gated(state: State) -> bool:
+def _timm_gated(state: Mapping[str, torch.Tensor]) -> bool:
     """timm names the giant model's fused SwiGLU fc1/fc2 like an MLP: fc1 is then twice as wide
     as fc2's input (the two halves of w12), where an MLP's are equal."""
     fc1, fc2 = state.get("blocks.0.mlp.fc1.weight"), state.get("blocks.0.mlp.fc2.weight")

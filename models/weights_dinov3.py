@@ -22,6 +22,9 @@ features.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 import torch
 from torch import nn
 
@@ -154,7 +157,7 @@ def _checks(state: dict[str, torch.Tensor], model: nn.Module, source: str) -> No
     check_periods(state, model, source)
 
 
-def _hidden(arch) -> int:
+def _hidden(arch: Mapping[str, Any]) -> int:
     if arch["ffn"] == "swiglu":
         return swiglu_hidden(arch["embed_dim"], arch["ffn_ratio"], arch["swiglu_align"])
     return int(arch["embed_dim"] * arch["ffn_ratio"])

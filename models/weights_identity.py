@@ -203,23 +203,23 @@ def check_identity(
         return
     by_data = named_dataset(names)
     if by_data is not None:
-        right = next((s for s in [spec, *alike] if s.weights.dataset == by_data[0]), None)
-        if right is spec:
+        named = next((s for s in [spec, *alike] if s.weights.dataset == by_data[0]), None)
+        if named is spec:
             return
-        if right is not None:
+        if named is not None:
             raise WeightsError(
                 f"{source}: the name {by_data[1]} says {by_data[0]}, so these are the weights of "
-                f"{right.name}, not of {spec.name} ({spec.weights.dataset}): build {right.name} "
-                f"for it (inputs normalised with mean {right.mean}, std {right.std})"
+                f"{named.name}, not of {spec.name} ({spec.weights.dataset}): build {named.name} "
+                f"for it (inputs normalised with mean {named.mean}, std {named.std})"
             )
-    others = ", ".join(f"{s.name} ({s.weights.dataset})" for s in alike)
+    alike_listed = ", ".join(f"{s.name} ({s.weights.dataset})" for s in alike)
     dropped = (
         "Hugging Face and timm files drop local_cls_norm; " if shape.local_cls_norm is None else ""
     )
     warnings.warn(
         f"{source} does not show whether it holds the weights of {spec.name} "
-        f"({spec.weights.dataset}) or of {others}: same shapes ({dropped}no official hash, known "
-        f"hub id or data-set name such as sat493m in its name). Loaded as {spec.name}, as "
+        f"({spec.weights.dataset}) or of {alike_listed}: same shapes ({dropped}no official hash, "
+        f"known hub id or data-set name such as sat493m in its name). Loaded as {spec.name}, as "
         "chosen; if it is the other, build that backbone, whose input statistics differ",
         WeightsWarning,
         stacklevel=3,

@@ -293,7 +293,10 @@ def _check_statistics_given(given: DictConfig, source: str) -> None:
     for name in ("mean", "std"):
         if name not in augment:
             continue
-        value = OmegaConf.to_container(augment, resolve=False)[name]  # type: ignore[index]
+        container = OmegaConf.to_container(augment, resolve=False)
+        if not isinstance(container, dict):  # a DictConfig always converts to a dict
+            raise TypeError(f"data.augment converted to a {type(container).__name__}, not a dict")
+        value = container[name]
         if value is None or _three_numbers(value):
             continue  # the merge converts them; check_config checks their values
         problem = statistics_problem(value if name == "mean" else None,

@@ -84,9 +84,12 @@ class Validator:
         finally:
             model.train(was_training)
         rows = gather_in_order([(s.confusion, s.boundary) for s in scores], mine)
-        quality = QualityTable(
-            {"boundary_iou": "computed"}, boundary=np.stack([b for _, b in rows])
-        )
+        boundaries = []
+        for _, sums in rows:
+            if sums is None:  # asked for with ImageMeasures(boundary=True)
+                raise RuntimeError("evaluate_model returned an image without its boundary sums")
+            boundaries.append(sums)
+        quality = QualityTable({"boundary_iou": "computed"}, boundary=np.stack(boundaries))
         report = stratify(self.paths, np.stack([c for c, _ in rows]), self.classes,
                           {"delent": self.delent}, bins=self.bins, quality=quality)  # fmt: skip
         overall = report["overall"]

@@ -86,7 +86,12 @@ def _run(args: argparse.Namespace) -> int:
     if args.output is not None and args.output.exists() and not args.output.is_dir():
         raise UsageError(f"--output {args.output} is a file; give a folder")
     dataset = ClaraVidSegmentation(
-        args.data, split="all", label_cache=args.output or True, **selection
+        args.data,
+        split="all",
+        missions=selection.get("missions"),
+        altitude=selection.get("altitude"),
+        direction=selection.get("direction"),
+        label_cache=args.output or True,
     )
     try:
         summary = dataset.prepare_label_cache(

@@ -158,6 +158,8 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.merge:
         run = merge_runs([load_results(p) for p in args.merge])
+    elif args.data is None:  # refused above, before the output checks
+        raise UsageError("give --data (a folder, a list file or a results JSON) or --merge")
     elif json_input:
         run = load_results(args.data)
     else:

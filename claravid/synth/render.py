@@ -117,10 +117,10 @@ def render(
     hit = _first_hits(world, pose, size)
     depth = np.clip(hit.depth, 0.01, DEPTH_MAX_M)
     border = UNLABELED_ID * 65536.0  # sky, and ground beyond the world: Unlabeled
-    look = dict(interpolation=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
-    packed = cv2.remap(world.packed, hit.col, hit.row, borderValue=border, **look)
-    packed = packed.astype(np.int32)
-    semantic, instance = (packed >> 16).astype(np.uint8), (packed & 0xFFFF).astype(np.uint16)
+    packed = cv2.remap(world.packed, hit.col, hit.row, interpolation=cv2.INTER_NEAREST,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=border)  # fmt: skip
+    codes = packed.astype(np.int32)
+    semantic, instance = (codes >> 16).astype(np.uint8), (codes & 0xFFFF).astype(np.uint16)
     rgb = cv2.remap(world.color, hit.col, hit.row, interpolation=cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_CONSTANT, borderValue=_SKY.tolist())  # fmt: skip
     # Walls (the ray came in through a prism's side) take the top's colour, darker.

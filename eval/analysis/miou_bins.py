@@ -180,11 +180,13 @@ def add_quality(
     if quality is None:
         return
     ids = cluster_ids(clusters) if bootstrap is not None else None
-    sets = [(report["overall"], np.arange(len(clusters)), "overall")]
+    sets: list[tuple[dict[str, Any], Sequence[int], str]] = [
+        (report["overall"], range(len(clusters)), "overall")
+    ]
     sets += [(row, b.indices, f"bin:{b.name}")
              for b, row in zip(bin_list, report["bins"], strict=True)]  # fmt: skip
-    for (name, members), row in zip(groups.items(), report["groups"], strict=True):
-        sets.append((row, members, f"group:{name}"))
+    for (name, group), row in zip(groups.items(), report["groups"], strict=True):
+        sets.append((row, group, f"group:{name}"))
     for row, members, stream in sets:
         row.update(quality_entries(quality, members, classes, clusters=ids, bootstrap=bootstrap,
                                    stream=stream))  # fmt: skip

@@ -219,12 +219,12 @@ def collect(
                                         pair_keeper, mine, background)  # fmt: skip
 
                 def on_score(sample: dict[str, Any], pred: torch.Tensor, score: ImageScore) -> None:
-                    ids = (
-                        pred.to("cpu", torch.uint8).numpy() if save_predictions or stream else None
-                    )
+                    keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
+                    if save_predictions is None and stream is None:
+                        return
+                    ids = pred.to("cpu", torch.uint8).numpy()
                     if save_predictions is not None:
                         save_label_map(save_predictions, score.key, ids)
-                    keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
                     if stream is not None:
                         stream.add(score.key, ids, np.asarray(sample["mask"], dtype=np.uint8))
 

@@ -225,7 +225,9 @@ def _load_quality(
                           [str(x) for x in data["pair_status"]],
                           [str(x) for x in data["pair_reason"]],
                           data["pair_sums"].astype(np.int64))  # fmt: skip
-    shapes = [("boundary_sums", boundary, (n, 2, k))]
+    shapes: list[tuple[str, np.ndarray | None, tuple[int, ...]]] = [
+        ("boundary_sums", boundary, (n, 2, k))
+    ]
     if pairs is not None:
         shapes.append(("pair_sums", pairs.sums, (n, pair_columns(k))))
     if calibration is not None:
