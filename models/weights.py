@@ -13,7 +13,6 @@ pre-training data, ``config.json``, values) and loads them strictly. Every refus
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 from collections.abc import Mapping
@@ -24,7 +23,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from claravid.models.backbones import FAMILIES, BackboneSpec
+from claravid.models.backbones import BackboneSpec
 from claravid.models.hub import (  # noqa: F401  (official_url, official_checkpoint_path: API)
     download_official,
     hub_snapshot,
@@ -36,18 +35,30 @@ from claravid.models.torchfile import read_tensor_file
 from claravid.models.weight_formats import (
     State,
     WeightsError,
-    WeightsFamily,
     absent_keys,
     detect_format,
     to_official,
 )
-from claravid.models.weights_dinov2 import DINOV2, hf_to_official, official_to_hf  # noqa: F401
-from claravid.models.weights_dinov3 import DINOV3
-from claravid.models.weights_identity import check_identity, fitting, state_shape
+from claravid.models.weights_dinov2 import hf_to_official, official_to_hf  # noqa: F401
+from claravid.models.weights_identity import (
+    WEIGHTS_FAMILIES,
+    WeightsWarning,
+    check_config,
+    check_family,
+    check_identity,
+    fitting,
+    state_shape,
+)
 
-__all__ = ["WeightsError", "WeightsSource", "load_weights", "locate_weights", "read_weights"]
+__all__ = [
+    "WeightsError",
+    "WeightsSource",
+    "WeightsWarning",
+    "load_weights",
+    "locate_weights",
+    "read_weights",
+]
 
-WEIGHTS_FAMILIES: dict[str, WeightsFamily] = {"dinov2": DINOV2, "dinov3": DINOV3}
 _SUFFIXES = (".safetensors", ".bin", ".pth", ".pt")
 _SHARD = re.compile(r".+-(\d{5})-of-(\d{5})\.(safetensors|bin)")
 # Where the Hugging Face convention stores the same weights twice: the first is read.
@@ -244,65 +255,6 @@ def _read_one(path: Path) -> State:
     return dict(obj)
 
 
-def check_family(
-    state: Mapping[str, Any],
-    spec: BackboneSpec,
-    source: Any,
-    config: Mapping[str, Any] | None = None,
-) -> None:
-    """Raise `WeightsError` naming both families when the weights are the other family's (by
-    keys only one family's files have, else by what their config.json says)."""
-    found: dict[str, str] = {}
-    for family, weights in WEIGHTS_FAMILIES.items():
-        pattern = re.compile(weights.marker)
-        key = next((k for k in sorted(state) if pattern.fullmatch(k)), None)
-        if key is not None:
-            found[family] = f"it has {key!r}"
-    if len(found) != 1 and config:
-        said = str(config.get("model_type") or config.get("architecture") or "")
-        found = {f: f"its config.json says {said!r}" for f in WEIGHTS_FAMILIES if f in said}
-    if len(found) != 1:
-        return
-    family, evidence = next(iter(found.items()))
-    if family == spec.family:
-        return
-    raise WeightsError(
-        f"{source} holds {FAMILIES[family]} weights ({evidence}), but {spec.name} is a "
-        f"{spec.family_name} backbone: build a {FAMILIES[family]} backbone ({family}_...) for "
-        f"this file, or pass {spec.family_name} weights for {spec.name}"
-    )
-
-
-def check_config(
-    source: WeightsSource, family: WeightsFamily, arch: Mapping[str, Any], spec: BackboneSpec
-) -> None:
-    """Refuse weights whose transformers ``config.json`` describes another architecture."""
-    config = source.config
-    if not config or "model_type" not in config:
-        return
-    wrong = []
-    for key, expected in family.hf_config.items():
-        if key in config and not _same(config[key], expected(arch)):
-            wrong.append(f"{key} {config[key]!r} (the model: {expected(arch)!r})")
-    if wrong:
-        raise WeightsError(
-            f"{source}: its config.json describes another model than {spec.name}: "
-            f"{', '.join(wrong)}; these weights were trained with other settings, so their "
-            "features would be wrong: pass the weights of the backbone you build"
-        )
-
-
-def _same(a: Any, b: Any) -> bool:
-    if isinstance(a, bool) or isinstance(b, bool) or isinstance(a, str) or isinstance(b, str):
-        return a == b
-    if isinstance(a, (list, tuple)):
-        return len(set(a)) == 1 and _same(a[0], b)  # e.g. image_size [518, 518]
-    try:
-        return math.isclose(float(a), float(b), rel_tol=1e-9)
-    except (TypeError, ValueError):
-        return a == b
-
-
 def load_weights(
     model: nn.Module,
     spec: BackboneSpec,
@@ -330,7 +282,7 @@ def load_weights(
     check_family(state, spec, source, source.config)
     fmt = detect_format(state, family.formats)
     official = to_official(state, fmt)
-    check_config(source, family, arch, spec)
+    check_config(source.config, str(source), family, arch, spec)
     shape = state_shape(official, keeps_local_cls_norm=fmt is None)
     check_identity(shape, spec, overrides, source.names, source.config, str(source))
     own = model.state_dict()

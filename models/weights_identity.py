@@ -1,5 +1,6 @@
-"""Which backbone a weights file is for: what its tensors show, what its names say, and the
-user's choice, in that order.
+"""Which backbone a weights file is for: its family (keys, ``config.json``), its architecture
+(``config.json``), and among backbones of one shape what its tensors show, what its names say,
+and the user's choice, in that order.
 
 Backbones of one shape can hold different weights: DINOv3's ViT-L and 7B exist pre-trained on
 web images (LVD-1689M) and on satellite images (SAT-493M), which expect other input statistics.
@@ -19,6 +20,7 @@ Evidence, strongest first:
 
 from __future__ import annotations
 
+import math
 import re
 import warnings
 from collections.abc import Mapping
@@ -27,8 +29,19 @@ from typing import Any
 
 import torch
 
-from claravid.models.backbones import BACKBONES, BackboneSpec, spec_for_hash, spec_for_hub_id
-from claravid.models.weight_formats import WeightsError
+from claravid.models.backbones import (
+    BACKBONES,
+    FAMILIES,
+    BackboneSpec,
+    spec_for_hash,
+    spec_for_hub_id,
+)
+from claravid.models.weight_formats import WeightsError, WeightsFamily
+from claravid.models.weights_dinov2 import DINOV2
+from claravid.models.weights_dinov3 import DINOV3
+
+#: Each family's declared formats, by family name.
+WEIGHTS_FAMILIES: dict[str, WeightsFamily] = {"dinov2": DINOV2, "dinov3": DINOV3}
 
 _DATASETS = {"sat493m": "SAT-493M", "lvd1689m": "LVD-1689M", "lvd142m": "LVD-142M"}
 
@@ -235,3 +248,65 @@ def _cls_norm_words(shape: Shape) -> str:
     if shape.local_cls_norm is None:
         return ""
     return ", with local_cls_norm.*" if shape.local_cls_norm else ", without local_cls_norm.*"
+
+
+def check_family(
+    state: Mapping[str, Any],
+    spec: BackboneSpec,
+    source: Any,
+    config: Mapping[str, Any] | None = None,
+) -> None:
+    """Raise `WeightsError` naming both families when the weights are the other family's (by
+    keys only one family's files have, else by what their config.json says)."""
+    found: dict[str, str] = {}
+    for family, weights in WEIGHTS_FAMILIES.items():
+        pattern = re.compile(weights.marker)
+        key = next((k for k in sorted(state) if pattern.fullmatch(k)), None)
+        if key is not None:
+            found[family] = f"it has {key!r}"
+    if len(found) != 1 and config:
+        said = str(config.get("model_type") or config.get("architecture") or "")
+        found = {f: f"its config.json says {said!r}" for f in WEIGHTS_FAMILIES if f in said}
+    if len(found) != 1:
+        return
+    family, evidence = next(iter(found.items()))
+    if family == spec.family:
+        return
+    raise WeightsError(
+        f"{source} holds {FAMILIES[family]} weights ({evidence}), but {spec.name} is a "
+        f"{spec.family_name} backbone: build a {FAMILIES[family]} backbone ({family}_...) for "
+        f"this file, or pass {spec.family_name} weights for {spec.name}"
+    )
+
+
+def check_config(
+    config: Mapping[str, Any] | None,
+    source: str,
+    family: WeightsFamily,
+    arch: Mapping[str, Any],
+    spec: BackboneSpec,
+) -> None:
+    """Refuse weights whose transformers ``config.json`` describes another architecture."""
+    if not config or "model_type" not in config:
+        return
+    wrong = []
+    for key, expected in family.hf_config.items():
+        if key in config and not _same(config[key], expected(arch)):
+            wrong.append(f"{key} {config[key]!r} (the model: {expected(arch)!r})")
+    if wrong:
+        raise WeightsError(
+            f"{source}: its config.json describes another model than {spec.name}: "
+            f"{', '.join(wrong)}; these weights were trained with other settings, so their "
+            "features would be wrong: pass the weights of the backbone you build"
+        )
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, bool) or isinstance(b, bool) or isinstance(a, str) or isinstance(b, str):
+        return a == b
+    if isinstance(a, (list, tuple)):
+        return len(set(a)) == 1 and _same(a[0], b)  # e.g. image_size [518, 518]
+    try:
+        return math.isclose(float(a), float(b), rel_tol=1e-9)
+    except (TypeError, ValueError):
+        return a == b

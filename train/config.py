@@ -511,10 +511,12 @@ def _check_weights(cfg: DictConfig, spec: Any) -> None:
     from claravid.models.backbones import DINOV3_REQUEST_URL
 
     # A shipped config's `weights: ???` leaves the default ("official") in place when merged.
+    timm = next((h for h in spec.weights.hub if h.startswith("timm/")), None)
+    ungated = f", or timm's ungated copy: model.weights={timm}" if timm else ""
     raise ConfigError(
         f"model.weights: the {spec.family_name} weights of {spec.name} are licence-gated, with "
         f"no official download; request them at {DINOV3_REQUEST_URL} and pass "
-        f"model.weights=/path/to/{spec.weights.file}"
+        f"model.weights=/path/to/{spec.weights.file}{ungated}"
     )
 
 

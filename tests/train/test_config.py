@@ -265,7 +265,9 @@ def test_dinov3_configs_need_the_weights_file_one_line(tmp_path, capsys, name, f
             load_config(name, extra)
         assert train_main(["--config", name, *extra]) == 2
         err = capsys.readouterr().err.strip()
-        assert err.startswith("claravid-train: error: model.weights: ") and err.endswith(hint)
+        timm = "timm/vit_large_patch16_dinov3." + ("sat493m" if "sat" in name else "lvd1689m")
+        assert err.startswith("claravid-train: error: model.weights: ") and hint in err
+        assert err.endswith(f"or timm's ungated copy: model.weights={timm}")
         assert len(err.splitlines()) == 1 and "dinov3-downloads" in err
     cfg = load_config(name, [f"model.weights={tmp_path / file}"])
     # The paper's protocol at 640: crops and windows of 40 x 40 patches of 16.
