@@ -43,6 +43,39 @@ def _without_source(report):
     return {k: v for k, v in report.items() if k != "source"}
 
 
+def _calibration(report):
+    """A report's calibration entries, each path with its numbers (rows, bins, images)."""
+    found = {}
+
+    def walk(node, path):
+        if isinstance(node, dict):
+            for key, value in node.items():
+                walk(value, f"{path}/{key}")
+        elif isinstance(node, list):
+            for i, value in enumerate(node):
+                walk(value, f"{path}[{i}]")
+        elif "calibration" in path or "/ece" in path or "/mce" in path:
+            found[path] = node
+
+    walk(_without_source(report), "")
+    return found
+
+
+def _without_calibration(report, also=()):
+    """The report less what only a source with scores has (calibration, by definition), and
+    the entries named in ``also``."""
+    drop = {"calibration", "ece", "mce", "source", *also}
+
+    def strip(node):
+        if isinstance(node, dict):
+            return {k: strip(v) for k, v in node.items() if k not in drop}
+        if isinstance(node, list):
+            return [strip(v) for v in node]
+        return node
+
+    return strip(report)
+
+
 def test_checkpoint_rebuilds_data_and_palette_and_matches_a_direct_count(
     model_files, claravid_root, splits, tmp_path, saved_figures
 ):
@@ -167,7 +200,15 @@ def test_onnx_and_pytorch_give_the_same_report(model_files, claravid_root, split
     torch_report = _run(tmp_path / "pt", "--checkpoint", str(model_files["checkpoint"]), *common)
     onnx_report = _run(tmp_path / "onnx", "--onnx", str(model_files["onnx"]), *common)
     assert onnx_report["source"]["kind"] == "onnx"
-    assert _without_source(onnx_report) == _without_source(torch_report)
+    # Labels, confusions and every count agree exactly; confidences are ONNX Runtime's floats.
+    assert _without_calibration(onnx_report) == _without_calibration(torch_report)
+    ours, theirs = _calibration(torch_report), _calibration(onnx_report)
+    assert ours.keys() == theirs.keys() and ours
+    for path, value in ours.items():
+        if isinstance(value, float):
+            assert theirs[path] == pytest.approx(value, abs=1e-6), path
+        else:
+            assert theirs[path] == value, path
 
 
 def test_saved_predictions_give_the_same_report(model_files, claravid_root, splits, tmp_path):
@@ -178,7 +219,16 @@ def test_saved_predictions_give_the_same_report(model_files, claravid_root, spli
     key = SECOND[0]
     assert (preds / f"{key}.png").is_file() and (preds / "predictions.json").is_file()
     again = _run(tmp_path / "b", "--predictions", str(preds), *common)
-    assert _without_source(again) == _without_source(direct)
+    # Label maps have no scores: everything but calibration is the same, and it is said why.
+    # Consistency too, but for pairs whose next frame is outside the split: the checkpoint
+    # predicts that frame, the folder has no label map of it (each such pair says so).
+    consistency = ("consistency", "consistency_gt", "consistency_ci", "consistency_gt_ci")
+    assert _without_calibration(again, consistency) == _without_calibration(direct, consistency)
+    pairs = again["quality"]["consistency"]["unavailable"]
+    assert pairs and all("no label map of the next frame" in reason for reason in pairs)
+    assert direct["quality"]["calibration"]["status"] == "computed"
+    assert again["quality"]["calibration"]["status"] == "unavailable"
+    assert "no scores" in again["quality"]["calibration"]["reason"]
     # Reusing the folder is allowed (it is ours); a foreign one is not.
     assert main(["--checkpoint", str(model_files["checkpoint"]), *common, "--window", WINDOW,
                  "--save-predictions", str(preds), "--output", str(tmp_path / "c"),

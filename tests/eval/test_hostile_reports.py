@@ -1,6 +1,7 @@
 """Report folders under hostile use (issue 20): replaced whole, files that belong together,
 images known by their key, options and inputs that would give a silent wrong number."""
 
+import itertools
 import json
 import os
 import shutil
@@ -164,7 +165,9 @@ def test_compare_without_intervals_excludes_nothing(reps, tmp_path):
     assert main(argv) == 0
     lines = (out / "compare.md").read_text().splitlines()
     start = next(i for i, ln in enumerate(lines) if ln.endswith("| interval excludes 0 |"))
-    rows = [ln for ln in lines[start + 2 :] if ln.startswith("| ")]
+    # The mIoU table's rows: up to the first line that is not a row (the other measures'
+    # tables follow, each with its own header).
+    rows = list(itertools.takewhile(lambda ln: ln.startswith("| "), lines[start + 2 :]))
     assert rows
     for line in rows:  # bins and overall: a gap, no interval, p-value and mark "–"
         assert [c.strip() for c in line.strip("| ").split("|")][-2:] == ["–", "–"], line
