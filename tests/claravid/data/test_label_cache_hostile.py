@@ -85,7 +85,7 @@ def test_claravid_cache_lists_a_fifo_and_goes_on(claravid_root, tmp_path, capsys
     fifo = cache.path_for(*frames[0])
     fifo.parent.mkdir(parents=True)
     os.mkfifo(fifo)
-    argv = [str(claravid_root), "--missions", "urban_1", "--cache-dir", str(tmp_path),
+    argv = ["--data", str(claravid_root), "--missions", "urban_1", "-o", str(tmp_path),
             "--no-progress"]  # fmt: skip
     with hang_guard():
         assert cache_main(argv) == 1  # some frames could not be cached: listed
@@ -112,7 +112,7 @@ def test_a_broken_link_as_the_cache_folder_warns_once(claravid_root, tmp_path, l
     (message,) = _label_messages(record)
     assert f"{root / 'label_codes'} is a symbolic link that leads nowhere" in message
     # claravid-cache: the folder cannot take any entry, one line, exit 2.
-    argv = [str(claravid_root), "--missions", "urban_1", "--cache-dir", str(root), "--no-progress"]
+    argv = ["--data", str(claravid_root), "--missions", "urban_1", "-o", str(root), "--no-progress"]
     assert cache_main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "symbolic link that leads nowhere" in err[0], err
