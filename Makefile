@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 export NO_ALBUMENTATIONS_UPDATE := 1
 
-.PHONY: install demo test lint format clean
+.PHONY: install demo test lint typecheck format clean
 
 install: $(STAMP)
 
@@ -19,22 +19,31 @@ $(STAMP): pyproject.toml constraints.txt claravid/dsp/_deldensity.c claravid/io/
 # The evaluation is the one claravid-train suggests: the checkpoint's data, split and palette,
 # into the run folder's report/ (tests/claravid/test_demo.py checks they agree).
 demo: $(STAMP)
-	$(BIN)/claravid-demo runs/demo
+	$(BIN)/claravid-demo -o runs/demo
 	$(BIN)/claravid-train --config demo --resume
 	$(BIN)/claravid-eval --checkpoint runs/demo/train/best.pt --output runs/demo/train/report
 
-test: $(STAMP)
-	$(BIN)/ruff check .
-	$(BIN)/ruff format --check .
+test: lint
 	$(BIN)/python -m pytest -q
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(MAKE) --no-print-directory typecheck
+
+# mypy reads the package as it installs (models/ is claravid.models, as pyproject.toml's
+# package-dir says) through a tree of links, made anew each time so new modules are seen.
+TYPECHECK_TREE := build/typecheck/claravid
+typecheck: $(STAMP)
+	rm -rf build/typecheck
+	mkdir -p $(TYPECHECK_TREE)
+	ln -s $(CURDIR)/claravid/* $(TYPECHECK_TREE)/
+	for folder in configs eval models train; do ln -s $(CURDIR)/$$folder $(TYPECHECK_TREE)/; done
+	$(BIN)/mypy
 
 format: $(STAMP)
 	$(BIN)/ruff format .
 	$(BIN)/ruff check --fix .
 
 clean:
-	rm -rf runs .pytest_cache .ruff_cache
+	rm -rf runs build/typecheck .pytest_cache .ruff_cache .mypy_cache

@@ -129,6 +129,7 @@ def main() -> None:
             sys.executable,
             "-m",
             "claravid.dsp.cli",
+            "--data",
             str(listing),
             "--workers",
             "1",

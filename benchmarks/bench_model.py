@@ -33,9 +33,9 @@ forked process: its peak resident set, and the rise above the built model). Then
 (fixed-size fp32 exports, checked) of both; exporting two ViT-L takes longer than a short run
 here, so ``--ort-depth`` (default 6 of 24 blocks, taps 1, 2, 4, 5) builds both with fewer
 blocks of the same width (the per-block costs compare alike); ``--ort-depth 24`` exports the
-full models. ``--backbone dinov3_vits16 --precisions`` runs the precisions part on a DINOv3
-segmenter at its natural size, and adds which operators of the int8 file stay float and where
-ONNX Runtime spends its time (its profiler, per operator type).
+full models, ``--ort-depth 0`` skips them. ``--backbone dinov3_vits16 --precisions`` runs the
+precisions part on a DINOv3 segmenter at its natural size, and adds which operators of the
+int8 file stay float and where ONNX Runtime spends its time (its profiler, per operator type).
 GPU: dinov2_vitl14 + head at 630x630, training step (frozen backbone forward + head forward and
 backward + AdamW) in fp32 and bf16 autocast, torch.compile off/on; images/s and achieved TFLOP/s
 counting the backbone as ~1.63 TFLOP per image (2 FLOP per multiply-add).
@@ -304,7 +304,7 @@ def _peak_memory(name: str, size: int) -> tuple[float, float]:
     return peak / 2**20, rise / 2**20
 
 
-def bench_backbones(reps: int, ort_depth: int | None) -> None:
+def bench_backbones(reps: int, ort_depth: int) -> None:
     """DINOv3-L/16 at 640² against DINOv2-L/14 at 630²: eager time and memory, then ORT."""
     threads = torch.get_num_threads()
     sizes = {name: natural_size(backbone_spec(name).patch_size) for name in PAIR}
@@ -333,7 +333,9 @@ def bench_backbones(reps: int, ort_depth: int | None) -> None:
         print(f"{n:16s} eager fp32 {t * 1000:8.0f} ms/image (median of {reps}, best "
               f"{min(times[n]) * 1000:.0f})  {ratio:.2f}x {base}'s time")  # fmt: skip
     print(f"target: {PAIR[1]} <= 0.8x {base}'s time")
-    depth = ort_depth if ort_depth and ort_depth < 24 else None
+    if ort_depth == 0:
+        return
+    depth = ort_depth if ort_depth < 24 else None
     what = "full depth" if depth is None else f"depth {depth} of 24 (same width, heads, head)"
     print(f"-- onnxruntime, fixed-size fp32 exports, {what}")
     runners, eager = {}, {}
@@ -450,7 +452,10 @@ def main(argv: list[str] | None = None) -> int:
         "--backbones", action="store_true", help="DINOv3-L/16 at 640 vs DINOv2-L/14 at 630"
     )
     parser.add_argument(
-        "--ort-depth", type=int, default=6, help="--backbones: blocks of the ORT models (24: all)"
+        "--ort-depth",
+        type=int,
+        default=6,
+        help="--backbones: blocks of the ORT models (24: all; 0: no ORT part)",
     )
     parser.add_argument("--reps", type=int, default=5, help="timed repetitions (CPU)")
     parser.add_argument(

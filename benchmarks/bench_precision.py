@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_precision.py             # dinov2_vits14 + DPT, 630², batch 1
     .venv/bin/python benchmarks/bench_precision.py --reps 3 --size 448
 
-What ``claravid-eval --precision bf16`` (and ``train.amp=bf16`` on a CPU) buys: the segmenter's
+What ``--precision bf16`` (or ``train.precision=bf16``) buys on a CPU: the segmenter's
 forward under ``torch.autocast("cpu", dtype=torch.bfloat16)`` against float32, in the same run,
 alternating the two so load from other processes hits both alike. Random weights (speed does not
 depend on their values); agreement is the share of pixels whose argmax class is the same, on a

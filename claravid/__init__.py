@@ -7,32 +7,40 @@ we provide as a drop-in; do not install both in one environment.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from typing import TYPE_CHECKING
+
+from claravid.infra.lazy import lazy_exports
 
 __version__ = "0.2.0.dev0"
 
-# Public name -> module that defines it, imported on first access (PEP 562).
-_LAZY = {
-    "ClaravidDataset": "claravid.data.sdk",
-    "ClaraVidSegmentation": "claravid.data.segmentation",
-    "UAVidSegmentation": "claravid.data.targets",
-    "FolderSegmentation": "claravid.data.targets",
-    "Palette": "claravid.data.palettes",
-    "load_palette": "claravid.data.palettes",
-    "DatasetNotFoundError": "claravid.infra.errors",
-    "CorruptFileError": "claravid.infra.errors",
-}
+__all__ = [
+    "ClaraVidSegmentation",
+    "ClaravidDataset",
+    "CorruptFileError",
+    "DatasetNotFoundError",
+    "FolderSegmentation",
+    "Palette",
+    "UAVidSegmentation",
+    "load_palette",
+]
 
-__all__ = sorted(_LAZY)
-
-
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'claravid' has no attribute {name!r}")
-    return getattr(importlib.import_module(module), name)
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_LAZY])
+if TYPE_CHECKING:
+    from claravid.data.palettes import Palette, load_palette
+    from claravid.data.sdk import ClaravidDataset
+    from claravid.data.segmentation import ClaraVidSegmentation
+    from claravid.data.targets import FolderSegmentation, UAVidSegmentation
+    from claravid.infra.errors import CorruptFileError, DatasetNotFoundError
+else:
+    __getattr__, __dir__ = lazy_exports(
+        __name__,
+        {
+            "ClaravidDataset": "claravid.data.sdk",
+            "ClaraVidSegmentation": "claravid.data.segmentation",
+            "UAVidSegmentation": "claravid.data.targets",
+            "FolderSegmentation": "claravid.data.targets",
+            "Palette": "claravid.data.palettes",
+            "load_palette": "claravid.data.palettes",
+            "DatasetNotFoundError": "claravid.infra.errors",
+            "CorruptFileError": "claravid.infra.errors",
+        },
+    )

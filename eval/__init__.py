@@ -56,75 +56,156 @@ report layers) never loads torch unless a torch-side name is asked for.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from typing import TYPE_CHECKING
 
-# Public name -> (module, attribute), imported on first access (PEP 562).
-_LAZY: dict[str, tuple[str, str]] = {
-    # analysis (numpy)
-    "CONVENTION": ("claravid.eval.analysis.metrics", "CONVENTION"),
-    "IGNORE_INDEX": ("claravid.eval.analysis.metrics", "IGNORE_INDEX"),
-    "iou_per_class": ("claravid.eval.analysis.metrics", "iou_per_class"),
-    "mean_iou": ("claravid.eval.analysis.metrics", "mean_iou"),
-    "pixel_accuracy": ("claravid.eval.analysis.metrics", "pixel_accuracy"),
-    "calibration_errors": ("claravid.eval.analysis.calibration", "calibration_errors"),
-    "confusion_scores": ("claravid.eval.analysis.metrics", "confusion_scores"),
-    "Bin": ("claravid.eval.analysis.bins", "Bin"),
-    "bin_names": ("claravid.eval.analysis.bins", "bin_names"),
-    "fixed_bins": ("claravid.eval.analysis.bins", "fixed_bins"),
-    "parse_edges": ("claravid.eval.analysis.bins", "parse_edges"),
-    "quantile_bins": ("claravid.eval.analysis.bins", "quantile_bins"),
-    "Bootstrap": ("claravid.eval.analysis.bootstrap", "Bootstrap"),
-    "correlation": ("claravid.eval.analysis.stats", "correlation"),
-    "stratify": ("claravid.eval.analysis.miou_bins", "stratify"),
-    "bin_mious": ("claravid.eval.analysis.miou_bins", "bin_mious"),
-    "EvalResult": ("claravid.eval.analysis.table", "EvalResult"),
-    "QualityTable": ("claravid.eval.analysis.quality_table", "QualityTable"),
-    "PairTable": ("claravid.eval.analysis.quality_table", "PairTable"),
-    "merge_results": ("claravid.eval.analysis.table", "merge_results"),
-    # report (numpy, files, matplotlib)
-    "build_report": ("claravid.eval.report.build", "build_report"),
-    "load_result": ("claravid.eval.report.files", "load_result"),
-    "write_outputs": ("claravid.eval.report.folder", "write_outputs"),
-    "compare_reports": ("claravid.eval.report.compare", "compare_reports"),
-    # inference (torch)
-    "WindowConfig": ("claravid.eval.inference.windows", "WindowConfig"),
-    "predict_labels": ("claravid.eval.inference.windows", "predict_labels"),
-    "sliding_window_logits": ("claravid.eval.inference.windows", "sliding_window_logits"),
-    "window_starts": ("claravid.eval.inference.windows", "window_starts"),
-    "confusion_matrix": ("claravid.eval.inference.confusion", "confusion_matrix"),
-    "boundary_iou": ("claravid.eval.inference.boundary", "boundary_iou"),
-    "calibration_bins": ("claravid.eval.inference.calibration", "calibration_bins"),
-    "cross_view": ("claravid.eval.inference.cross_view", "cross_view"),
-    "CrossViewSums": ("claravid.eval.inference.cross_view", "CrossViewSums"),
-    "ImageScore": ("claravid.eval.inference.run_model", "ImageScore"),
-    "ImageMeasures": ("claravid.eval.inference.image_measures", "ImageMeasures"),
-    "evaluate_model": ("claravid.eval.inference.run_model", "evaluate_model"),
-    "sample_key": ("claravid.eval.inference.run_model", "sample_key"),
-    "open_data": ("claravid.eval.inference.data", "open_data"),
-    "load_source": ("claravid.eval.inference.sources", "load_source"),
-    "collect": ("claravid.eval.inference.collect", "collect"),
-    "CollectSettings": ("claravid.eval.inference.collect", "CollectSettings"),
-    # runs: what each claravid-eval mode does, in one call
-    "evaluate": ("claravid.eval.run", "evaluate"),
-    "score_metrics": ("claravid.eval.run", "score_metrics"),
-    "merge": ("claravid.eval.reports", "merge"),
-    "compare": ("claravid.eval.reports", "compare"),
-    "DataChoice": ("claravid.eval.settings", "DataChoice"),
-    "InferenceSettings": ("claravid.eval.settings", "InferenceSettings"),
-    "ReportSettings": ("claravid.eval.settings", "ReportSettings"),
-    "Evaluation": ("claravid.eval.settings", "Evaluation"),
-}
+from claravid.infra.lazy import lazy_exports
 
-__all__ = sorted(_LAZY)
+__all__ = [
+    "CONVENTION",
+    "IGNORE_INDEX",
+    "Bin",
+    "Bootstrap",
+    "CollectSettings",
+    "CrossViewSums",
+    "DataChoice",
+    "EvalResult",
+    "Evaluation",
+    "ImageMeasures",
+    "ImageScore",
+    "InferenceSettings",
+    "PairTable",
+    "QualityTable",
+    "ReportSettings",
+    "WindowConfig",
+    "bin_mious",
+    "bin_names",
+    "boundary_iou",
+    "build_report",
+    "calibration_bins",
+    "calibration_errors",
+    "collect",
+    "compare",
+    "compare_reports",
+    "confusion_matrix",
+    "confusion_scores",
+    "correlation",
+    "cross_view",
+    "evaluate",
+    "evaluate_model",
+    "fixed_bins",
+    "iou_per_class",
+    "load_result",
+    "load_source",
+    "mean_iou",
+    "merge",
+    "merge_results",
+    "open_data",
+    "parse_edges",
+    "pixel_accuracy",
+    "predict_labels",
+    "quantile_bins",
+    "sample_key",
+    "score_metrics",
+    "sliding_window_logits",
+    "stratify",
+    "window_starts",
+    "write_outputs",
+]
 
-
-def __getattr__(name: str) -> Any:
-    target = _LAZY.get(name)
-    if target is None:
-        raise AttributeError(f"module 'claravid.eval' has no attribute {name!r}")
-    return getattr(importlib.import_module(target[0]), target[1])
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_LAZY])
+if TYPE_CHECKING:
+    from claravid.eval.analysis.bins import Bin, bin_names, fixed_bins, parse_edges, quantile_bins
+    from claravid.eval.analysis.bootstrap import Bootstrap
+    from claravid.eval.analysis.calibration import calibration_errors
+    from claravid.eval.analysis.metrics import (
+        CONVENTION,
+        IGNORE_INDEX,
+        confusion_scores,
+        iou_per_class,
+        mean_iou,
+        pixel_accuracy,
+    )
+    from claravid.eval.analysis.miou_bins import bin_mious, stratify
+    from claravid.eval.analysis.quality_table import PairTable, QualityTable
+    from claravid.eval.analysis.stats import correlation
+    from claravid.eval.analysis.table import EvalResult, merge_results
+    from claravid.eval.inference.boundary import boundary_iou
+    from claravid.eval.inference.calibration import calibration_bins
+    from claravid.eval.inference.collect import CollectSettings, collect
+    from claravid.eval.inference.confusion import confusion_matrix
+    from claravid.eval.inference.cross_view import CrossViewSums, cross_view
+    from claravid.eval.inference.data import open_data
+    from claravid.eval.inference.image_measures import ImageMeasures
+    from claravid.eval.inference.run_model import ImageScore, evaluate_model, sample_key
+    from claravid.eval.inference.sources import load_source
+    from claravid.eval.inference.windows import (
+        WindowConfig,
+        predict_labels,
+        sliding_window_logits,
+        window_starts,
+    )
+    from claravid.eval.report.build import build_report
+    from claravid.eval.report.compare import compare_reports
+    from claravid.eval.report.files import load_result
+    from claravid.eval.report.folder import write_outputs
+    from claravid.eval.reports import compare, merge
+    from claravid.eval.run import evaluate, score_metrics
+    from claravid.eval.settings import DataChoice, Evaluation, InferenceSettings, ReportSettings
+else:
+    __getattr__, __dir__ = lazy_exports(
+        __name__,
+        {
+            # analysis (numpy)
+            "CONVENTION": "claravid.eval.analysis.metrics",
+            "IGNORE_INDEX": "claravid.eval.analysis.metrics",
+            "iou_per_class": "claravid.eval.analysis.metrics",
+            "mean_iou": "claravid.eval.analysis.metrics",
+            "pixel_accuracy": "claravid.eval.analysis.metrics",
+            "confusion_scores": "claravid.eval.analysis.metrics",
+            "Bin": "claravid.eval.analysis.bins",
+            "bin_names": "claravid.eval.analysis.bins",
+            "fixed_bins": "claravid.eval.analysis.bins",
+            "parse_edges": "claravid.eval.analysis.bins",
+            "quantile_bins": "claravid.eval.analysis.bins",
+            "Bootstrap": "claravid.eval.analysis.bootstrap",
+            "correlation": "claravid.eval.analysis.stats",
+            "stratify": "claravid.eval.analysis.miou_bins",
+            "bin_mious": "claravid.eval.analysis.miou_bins",
+            "EvalResult": "claravid.eval.analysis.table",
+            "merge_results": "claravid.eval.analysis.table",
+            # report (numpy, files, matplotlib)
+            "build_report": "claravid.eval.report.build",
+            "load_result": "claravid.eval.report.files",
+            "write_outputs": "claravid.eval.report.folder",
+            "compare_reports": "claravid.eval.report.compare",
+            # inference (torch)
+            "WindowConfig": "claravid.eval.inference.windows",
+            "predict_labels": "claravid.eval.inference.windows",
+            "sliding_window_logits": "claravid.eval.inference.windows",
+            "window_starts": "claravid.eval.inference.windows",
+            "confusion_matrix": "claravid.eval.inference.confusion",
+            "ImageScore": "claravid.eval.inference.run_model",
+            "evaluate_model": "claravid.eval.inference.run_model",
+            "sample_key": "claravid.eval.inference.run_model",
+            "open_data": "claravid.eval.inference.data",
+            "load_source": "claravid.eval.inference.sources",
+            "collect": "claravid.eval.inference.collect",
+            "CollectSettings": "claravid.eval.inference.collect",
+            # runs: what each claravid-eval mode does, in one call
+            "evaluate": "claravid.eval.run",
+            "score_metrics": "claravid.eval.run",
+            "merge": "claravid.eval.reports",
+            "compare": "claravid.eval.reports",
+            "DataChoice": "claravid.eval.settings",
+            "InferenceSettings": "claravid.eval.settings",
+            "ReportSettings": "claravid.eval.settings",
+            "Evaluation": "claravid.eval.settings",
+            "calibration_errors": "claravid.eval.analysis.calibration",
+            "QualityTable": "claravid.eval.analysis.quality_table",
+            "PairTable": "claravid.eval.analysis.quality_table",
+            "boundary_iou": "claravid.eval.inference.boundary",
+            "calibration_bins": "claravid.eval.inference.calibration",
+            "cross_view": "claravid.eval.inference.cross_view",
+            "CrossViewSums": "claravid.eval.inference.cross_view",
+            "ImageMeasures": "claravid.eval.inference.image_measures",
+        },
+    )

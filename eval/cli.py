@@ -36,13 +36,19 @@ from claravid.eval.settings import (
 from claravid.infra.cli import (
     EXIT_PARTIAL,
     UsageError,
+    add_checkpoint_flag,
+    add_data_flag,
     add_debug_flag,
+    add_device_flag,
+    add_output_flag,
+    add_precision_flag,
     add_progress_flag,
+    add_selection_flags,
+    add_window_flags,
     add_workers_flag,
     non_negative_int,
     positive_int,
     run_cli,
-    window_size,
 )
 from claravid.models.onnx_runtime import PROVIDERS
 
@@ -59,7 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=__doc__.split("::", 1)[1].split("Exit 0")[0],
     )
     src = p.add_argument_group("what to evaluate (exactly one)")
-    src.add_argument("--checkpoint", type=Path, help="PyTorch checkpoint (models.save_checkpoint)")
+    add_checkpoint_flag(src)
     src.add_argument("--onnx", type=Path, help="ONNX model (claravid-export), run by onnxruntime")
     src.add_argument(
         "--predictions", type=Path, metavar="DIR", help="saved label maps DIR/<key>.png"
@@ -73,8 +79,10 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument(
         "--scores", type=Path, metavar="CSV", help="per-image metrics (path + numeric columns)"
     )
-    data = p.add_argument_group("data")
-    data.add_argument("--data", type=Path, help="dataset root (default: the checkpoint's)")
+    data = p.add_argument_group(
+        "data", "Unset, the root, split, palette and selection are the checkpoint's."
+    )
+    add_data_flag(data)
     # Choices shown, checked by DataChoice (the Python API's check and message).
     data.add_argument(
         "--dataset", metavar=_choices(DATASETS), help="kind of data (default claravid)"
@@ -82,33 +90,17 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_argument("--split", help="train, val, test or all (default val)")
     data.add_argument("--palette", help="palette name or YAML (default: the checkpoint's)")
     data.add_argument("--masks", type=Path, help="label folder mirroring --data (folder only)")
-    data.add_argument(
-        "--missions", help="ClaraVid missions, e.g. rural_1,urban_2 (default: the checkpoint's)"
-    )
-    data.add_argument(
-        "--altitude", help="ClaraVid altitudes low,mid,high (default: the checkpoint's)"
-    )
-    data.add_argument("--direction", help="ClaraVid directions h,v (default: the checkpoint's)")
+    add_selection_flags(data)
     infer = p.add_argument_group("inference")
-    infer.add_argument("--window", type=window_size, metavar="WxH",
-                       help="window, width x height or N for N x N (default: the model's, "
-                       "else its natural size: 630 for patches of 14, 640 for 16)")  # fmt: skip
-    infer.add_argument("--stride", type=window_size, metavar="WxH",
-                       help="window step, WxH or N (default 2/3 of the window)")  # fmt: skip
-    infer.add_argument("--scale", type=float, help="resize images first (default 1; paper 0.5)")
-    infer.add_argument(
-        "--batch-size", type=positive_int, help="windows per forward pass (default 4)"
-    )
-    infer.add_argument("--device", help="cpu or cuda (default: cuda when available)")
-    infer.add_argument(
-        "--precision",
-        help="PyTorch model: fp32 or bf16 autocast (default: fp32 on CPU, bf16/fp16 on CUDA)",
-    )
+    add_window_flags(infer)
+    add_device_flag(infer)
+    add_precision_flag(infer)
     infer.add_argument(
         "--provider", metavar=_choices(PROVIDERS), help="ONNX Runtime provider (--onnx)"
     )
-    rep = p.add_argument_group("report")
-    rep.add_argument("--output", "-o", type=Path, help="report folder")
+    rep = p.add_argument_group("report", "-o/--output is the report folder (--compare: the "
+                               "comparison's).")  # fmt: skip
+    add_output_flag(rep)
     rep.add_argument("--bins", type=positive_int, help="quantile bins of delentropy (default 3)")
     rep.add_argument("--edges", help="fixed delentropy edges e1,e2,... instead of --bins")
     rep.add_argument(
@@ -276,6 +268,7 @@ def _run_merge(args: argparse.Namespace) -> int:
     from claravid.eval.reports import merge
 
     done = merge(args.merge, args.output, args.settings["report"], overwrite=args.overwrite)
+    assert done.report is not None  # only a torchrun rank other than 0 has none
     _print_done(done.output, done.report)
     return 0
 
@@ -318,6 +311,7 @@ def _run_scores(args: argparse.Namespace) -> int:
                          report=args.settings["report"], workers=args.workers,
                          overwrite=args.overwrite)  # fmt: skip
     # The bins and groups as report.md has them, less its warning lines: printed once, below.
+    assert done.report is not None  # only a torchrun rank other than 0 has none
     text = done.text.split("## Correlations")[0].rstrip()
     print("\n".join(ln for ln in text.splitlines() if not ln.startswith("**Warning:**")))
     for message in done.report["uncertainty"]["warnings"]:

@@ -24,7 +24,9 @@ import numpy as np
 from claravid.infra.cli import (
     EXIT_FAILED,
     UsageError,
+    add_checkpoint_flag,
     add_debug_flag,
+    add_output_flag,
     add_progress_flag,
     parse_size,
     positive_float,
@@ -110,21 +112,23 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``claravid-export`` argument parser."""
     parser = argparse.ArgumentParser(
         prog=PROG,
-        description="Export a claravid segmenter checkpoint to ONNX, checked with ONNX Runtime.",
+        description="Export a claravid segmenter checkpoint to ONNX, checked with ONNX Runtime, "
+        "into the -o/--output .onnx file. --precision here is the file's number format, not "
+        "an autocast.",
         epilog="Exit status: 0 ok; 1 the export differs from PyTorch beyond --tolerance or "
         "--min-agreement (nothing written); 2 a bad argument, an unreadable checkpoint or an "
         "unusable --output.",
     )
-    parser.add_argument("--checkpoint", required=True,
-                        help="checkpoint written by models.save_checkpoint")  # fmt: skip
-    parser.add_argument("--output", "-o", required=True, help="output .onnx file")
+    add_checkpoint_flag(parser, required=True)
+    add_output_flag(parser, metavar="FILE", required=True)
     parser.add_argument("--size", type=parse_size, metavar="WxH",
                         help="input size, width x height or N for N x N, patch multiples "
                         "(default: the model's natural size, 630 for patches of 14, 640 for "
                         "16)")  # fmt: skip
     parser.add_argument("--dynamic", action="store_true", help="dynamic height and width")
     parser.add_argument("--precision", choices=PRECISIONS, default="fp32",
-                        help="fp32 (default), fp16 (GPUs) or int8 (CPUs)")  # fmt: skip
+                        help="the file's precision: fp32 (default), fp16 (GPUs) or int8 "
+                        "(CPUs)")  # fmt: skip
     parser.add_argument("--no-check", action="store_true", help="skip the ONNX Runtime check")
     parser.add_argument("--tolerance", type=positive_float, default=None,
                         help="max allowed abs difference of logits (default 1e-3 for fp32, "

@@ -41,13 +41,16 @@ from claravid.eval.inference.sources import RunSettings
 from claravid.eval.inference.windows import predict_labels
 from claravid.infra.cli import (
     UsageError,
+    add_checkpoint_flag,
     add_debug_flag,
+    add_device_flag,
+    add_output_flag,
+    add_precision_flag,
     add_progress_flag,
+    add_window_flags,
     add_workers_flag,
     check_device,
-    positive_int,
     run_cli,
-    window_size,
 )
 from claravid.infra.files import check_output_dir
 from claravid.infra.precision import flag_precision
@@ -119,13 +122,6 @@ def _palette_for(
     custom reduction may too), and a guess would colour the overlays with the wrong classes.
     """
     info = settings.palette_info
-    if settings.palette is None and info is None:
-        if not no_overlays:
-            raise UsageError(
-                "the model does not record its palette (a foreign ONNX file or a plain "
-                "checkpoint): pass --palette for the overlays, or --no-overlays for label maps only"
-            )
-        return None
     if info is not None:  # the ONNX file's own record: no palette file needed
         palette: Any = SimpleNamespace(
             name=info["name"],
@@ -133,8 +129,15 @@ def _palette_for(
             colors=np.asarray(info["colors"], dtype=np.uint8).reshape(-1, 3),
             num_classes=len(info["names"]),
         )
+    elif settings.palette is not None:
+        palette = load_palette(settings.palette)
     else:
-        palette = load_palette(settings.palette)  # type: ignore[arg-type]
+        if not no_overlays:
+            raise UsageError(
+                "the model does not record its palette (a foreign ONNX file or a plain "
+                "checkpoint): pass --palette for the overlays, or --no-overlays for label maps only"
+            )
+        return None
     if num_classes is not None and palette.num_classes != num_classes:
         raise UsageError(
             f"the model predicts {num_classes} classes but palette {palette.name} has "
@@ -145,23 +148,19 @@ def _palette_for(
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``claravid-predict`` arguments."""
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n")[0].strip("`: "))
-    p.add_argument("images", nargs="+", type=Path, help="a folder of images, or image files")
-    p.add_argument("--checkpoint", type=Path, help="PyTorch checkpoint")
-    p.add_argument("--onnx", type=Path, help="ONNX model")
-    p.add_argument("--output", "-o", type=Path, required=True, help="output folder")
-    p.add_argument("--palette", help="palette for the colours (default: the checkpoint's)")
-    p.add_argument("--window", type=window_size, metavar="WxH",
-                   help="window, width x height or N (default: the model's, else its "
-                   "natural size: 630 for patches of 14, 640 for 16)")  # fmt: skip
-    p.add_argument("--stride", type=window_size, metavar="WxH",
-                   help="window step, WxH or N (default: the model's, or 2/3 window)")  # fmt: skip
-    p.add_argument("--scale", type=float, help="resize images first (default: the model's, or 1)")
-    p.add_argument("--batch-size", type=positive_int, help="windows per forward pass (default 4)")
-    p.add_argument("--device", help="cpu or cuda (default: cuda when available)")
-    p.add_argument(
-        "--precision", help="PyTorch model: fp32 or bf16 (default: fp32 on CPU, bf16/fp16 on CUDA)"
+    p = argparse.ArgumentParser(
+        prog=PROG,
+        description="Label maps and colour overlays for unlabeled images (e.g. a real flight), "
+        "written into the -o/--output folder; the model is --checkpoint or --onnx.",
     )
+    p.add_argument("images", nargs="+", type=Path, help="a folder of images, or image files")
+    add_checkpoint_flag(p)
+    p.add_argument("--onnx", type=Path, help="ONNX model")
+    add_output_flag(p, required=True)
+    p.add_argument("--palette", help="palette for the colours (default: the checkpoint's)")
+    add_window_flags(p)
+    add_device_flag(p)
+    add_precision_flag(p)
     p.add_argument("--provider", choices=PROVIDERS, help="ONNX Runtime provider (--onnx)")
     add_workers_flag(p, "image decoding")
     p.add_argument("--no-overlays", action="store_true", help="label maps only")
@@ -193,15 +192,17 @@ def run(args: argparse.Namespace) -> int:
     loader = DataLoader(ImageList(paths, keys), batch_size=None, num_workers=args.workers)
     bar = tqdm(loader, total=len(paths), desc="predict", unit="img", disable=args.no_progress)
     for sample in bar:
-        ids = predict_labels(source.model, sample["image"].to(device), config)
-        ids = ids.to("cpu", torch.uint8).numpy()
+        pred = predict_labels(source.model, sample["image"].to(device), config)
+        ids = pred.to("cpu", torch.uint8).numpy()
         write_prediction(out, sample["key"], ids)
         if not args.no_overlays:
             rgb = sample["image"].permute(1, 2, 0).numpy()  # the decoded pixels, not a re-read
+            # Overlays are refused without a palette.
             blend = cv2.cvtColor(overlay(rgb, ids, palette.colors), cv2.COLOR_RGB2BGR)  # type: ignore[union-attr]
             target = out / "overlays" / f"{sample['key']}.jpg"
             write_image(target, blend, [cv2.IMWRITE_JPEG_QUALITY, 90])
     described = {**source.describe(), "settings": settings.describe()}
+    # An ONNX file's palette: its names and colours.
     write_marker(out, palette, described, images=len(paths))  # type: ignore[arg-type]
     print(f"{len(paths)} label maps: {out}/<name>.png" + ("" if args.no_overlays else
           f"; overlays: {out / 'overlays'}"))  # fmt: skip

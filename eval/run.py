@@ -233,6 +233,7 @@ def _model_and_source(
         batch_size=inference.batch_size, palette=data.palette, precision=inference.precision,
     )  # fmt: skip
     window = run.window
+    assert window.size is not None and window.stride is not None  # resolved for the model
     source = model.describe()
     source["window"] = {"size": list(window.size), "stride": list(window.stride),
                         "scale": window.scale}  # fmt: skip

@@ -31,13 +31,12 @@ from claravid.eval.analysis.bootstrap import Bootstrap
 from claravid.eval.analysis.measures import parse_measures
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.units import CLUSTER_UNITS, DATASETS, GROUP_BY, check_unit
-from claravid.infra.cli import UsageError
+from claravid.infra.cli import UsageError, selection_names
 from claravid.infra.precision import PRECISIONS
 from claravid.models.onnx_runtime import PROVIDERS
 
 #: ClaraVid selection settings a checkpoint records and ``DataChoice.selection`` replaces.
 SELECTION = ("missions", "altitude", "direction")
-_EXAMPLE = {"missions": "rural_1,urban_2", "altitude": "low,mid", "direction": "h"}
 
 
 def _one_of(value: Any, choices: Sequence[str], flag: str, what: str) -> None:
@@ -82,11 +81,7 @@ def selection_lists(selection: Mapping[str, Any]) -> dict[str, list[str]]:
             raise ValueError(
                 f"unknown selection {name!r}: the ClaraVid selection is {', '.join(SELECTION)}"
             )
-        items = given.split(",") if isinstance(given, str) else list(given)
-        values = [str(v).strip() for v in items if str(v).strip()]
-        if not values:
-            raise ValueError(f"--{name} is empty; give e.g. --{name} {_EXAMPLE[name]}")
-        out[name] = values
+        out[name] = selection_names(name, given)
     return out
 
 

@@ -1,12 +1,13 @@
-"""Models: DINOv2 and DINOv3 ViT backbones in plain PyTorch, the DPT segmentation decoder, ONNX
-export.
+"""Models: DINOv2 and DINOv3 ViT backbones in plain PyTorch, segmentation heads (DPT, linear,
+UperNet), ONNX export.
 
 Public API::
 
     BACKBONES / backbone_spec(name)          # what each named backbone is (backbones.py)
     build_backbone(name, weights=None)       # DINOv2 ViT-S/B/L/g (+ _reg), DINOv3 ViT-S/S+/B/
                                              # L/H+/7B (+ _sat); official or Hugging Face weights
-    build_model(backbone, num_classes, ...)  # frozen backbone + trainable DPT head
+    HEADS / head_spec(name)                  # the heads and their settings (heads.py)
+    build_model(backbone, num_classes, head="dpt", ...)  # frozen backbone + trainable head
     save_checkpoint / load_checkpoint        # weights_only-safe model files
     export_onnx(model, path, ExportSettings(...))  # ONNX + onnxruntime check
     OnnxSegmenter(path)                      # onnxruntime runner
@@ -17,46 +18,100 @@ Names are imported on first use (PEP 562): a module that needs only the ONNX Run
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from typing import TYPE_CHECKING
 
-# Public name -> module that defines it.
-_LAZY = {
-    "BACKBONES": "claravid.models.backbones",
-    "BACKBONE_NAMES": "claravid.models.backbones",
-    "BackboneSpec": "claravid.models.backbones",
-    "backbone_config": "claravid.models.backbones",
-    "backbone_spec": "claravid.models.backbones",
-    "build_backbone": "claravid.models.build",
-    "CheckpointError": "claravid.models.checkpoint",
-    "load_checkpoint": "claravid.models.checkpoint",
-    "save_checkpoint": "claravid.models.checkpoint",
-    "DinoV3VisionTransformer": "claravid.models.dinov3",
-    "DPTHead": "claravid.models.dpt",
-    "ExportCheckError": "claravid.models.export",
-    "export_onnx": "claravid.models.export",
-    "ExportSettings": "claravid.models.export",
-    "Provenance": "claravid.models.export",
-    "NotEnoughMemoryError": "claravid.models.memory",
-    "OnnxSegmenter": "claravid.models.onnx_runtime",
-    "Segmenter": "claravid.models.segmenter",
-    "build_model": "claravid.models.segmenter",
-    "DinoVisionTransformer": "claravid.models.vit",
-    "WeightsError": "claravid.models.weights",
-    "hf_to_official": "claravid.models.weights",
-    "official_to_hf": "claravid.models.weights",
-    "official_url": "claravid.models.weights",
-}
+from claravid.infra.lazy import lazy_exports
 
-__all__ = sorted(_LAZY)
+__all__ = [
+    "BACKBONES",
+    "BACKBONE_NAMES",
+    "HEADS",
+    "HEAD_NAMES",
+    "BackboneSpec",
+    "CheckpointError",
+    "DPTHead",
+    "DinoV3VisionTransformer",
+    "DinoVisionTransformer",
+    "ExportCheckError",
+    "ExportSettings",
+    "HeadSpec",
+    "InputRangeWarning",
+    "LinearHead",
+    "NotEnoughMemoryError",
+    "OnnxSegmenter",
+    "Provenance",
+    "Segmenter",
+    "UperNetHead",
+    "WeightsError",
+    "backbone_config",
+    "backbone_spec",
+    "build_backbone",
+    "build_model",
+    "export_onnx",
+    "head_spec",
+    "hf_to_official",
+    "load_checkpoint",
+    "official_to_hf",
+    "official_url",
+    "save_checkpoint",
+]
 
-
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'claravid.models' has no attribute {name!r}")
-    return getattr(importlib.import_module(module), name)
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_LAZY])
+if TYPE_CHECKING:
+    from claravid.models.backbones import (
+        BACKBONE_NAMES,
+        BACKBONES,
+        BackboneSpec,
+        backbone_config,
+        backbone_spec,
+    )
+    from claravid.models.build import build_backbone
+    from claravid.models.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+    from claravid.models.dinov3 import DinoV3VisionTransformer
+    from claravid.models.dpt import DPTHead
+    from claravid.models.export import ExportCheckError, ExportSettings, Provenance, export_onnx
+    from claravid.models.heads import HEAD_NAMES, HEADS, HeadSpec, head_spec
+    from claravid.models.inputs import InputRangeWarning
+    from claravid.models.linear_head import LinearHead
+    from claravid.models.memory import NotEnoughMemoryError
+    from claravid.models.onnx_runtime import OnnxSegmenter
+    from claravid.models.segmenter import Segmenter, build_model
+    from claravid.models.upernet import UperNetHead
+    from claravid.models.vit import DinoVisionTransformer
+    from claravid.models.weights import WeightsError, hf_to_official, official_to_hf, official_url
+else:
+    __getattr__, __dir__ = lazy_exports(
+        __name__,
+        {
+            "BACKBONES": "claravid.models.backbones",
+            "BACKBONE_NAMES": "claravid.models.backbones",
+            "BackboneSpec": "claravid.models.backbones",
+            "backbone_config": "claravid.models.backbones",
+            "backbone_spec": "claravid.models.backbones",
+            "build_backbone": "claravid.models.build",
+            "CheckpointError": "claravid.models.checkpoint",
+            "load_checkpoint": "claravid.models.checkpoint",
+            "save_checkpoint": "claravid.models.checkpoint",
+            "DinoV3VisionTransformer": "claravid.models.dinov3",
+            "DPTHead": "claravid.models.dpt",
+            "HEAD_NAMES": "claravid.models.heads",
+            "HEADS": "claravid.models.heads",
+            "HeadSpec": "claravid.models.heads",
+            "head_spec": "claravid.models.heads",
+            "LinearHead": "claravid.models.linear_head",
+            "InputRangeWarning": "claravid.models.inputs",
+            "UperNetHead": "claravid.models.upernet",
+            "ExportCheckError": "claravid.models.export",
+            "export_onnx": "claravid.models.export",
+            "ExportSettings": "claravid.models.export",
+            "Provenance": "claravid.models.export",
+            "NotEnoughMemoryError": "claravid.models.memory",
+            "OnnxSegmenter": "claravid.models.onnx_runtime",
+            "Segmenter": "claravid.models.segmenter",
+            "build_model": "claravid.models.segmenter",
+            "DinoVisionTransformer": "claravid.models.vit",
+            "WeightsError": "claravid.models.weights",
+            "hf_to_official": "claravid.models.weights",
+            "official_to_hf": "claravid.models.weights",
+            "official_url": "claravid.models.weights",
+        },
+    )

@@ -45,12 +45,15 @@ class WeightsInfo:
         file: The official file name.
         url: Its download URL, or None when the files are licence-gated (DINOv3).
         licence: The weights' licence.
+        hub: Repositories of the Hugging Face hub holding the same weights in other formats
+            (``facebook/...`` for transformers, ``timm/...``), usable as ``weights=``.
     """
 
     dataset: str
     file: str
     url: str | None
     licence: str
+    hub: tuple[str, ...] = ()
 
     @property
     def hash(self) -> str | None:
@@ -117,11 +120,33 @@ class BackboneSpec:
         return FAMILIES[self.family]
 
 
-def _dinov2(arch: str, dims: tuple[int, int, int], ffn: str, registers: bool, dpt: DPTDefaults):
+# Size names of the hub repositories: ours -> (transformers, timm).
+_HUB_SIZES = {
+    "vits": ("small", "small"),
+    "vitb": ("base", "base"),
+    "vitl": ("large", "large"),
+    "vitg": ("giant", "giant"),
+    "vits16": ("vits16", "small"),
+    "vits16plus": ("vits16plus", "small_plus"),
+    "vitb16": ("vitb16", "base"),
+    "vitl16": ("vitl16", "large"),
+    "vith16plus": ("vith16plus", "huge_plus"),
+    "vit7b16": ("vit7b16", "7b"),
+}
+
+
+def _dinov2(
+    arch: str, dims: tuple[int, int, int], ffn: str, registers: bool, dpt: DPTDefaults
+) -> BackboneSpec:
     """A DINOv2 description: ViT-``arch``/14 trained at 518 (a 37x37 positional grid)."""
     embed_dim, depth, num_heads = dims
     base = f"dinov2_{arch}14"
     file = f"{base}_reg4_pretrain.pth" if registers else f"{base}_pretrain.pth"
+    hf, timm = _HUB_SIZES[arch]
+    hub = (
+        f"facebook/dinov2-{'with-registers-' if registers else ''}{hf}",
+        f"timm/vit_{timm}_patch14_{'reg4_' if registers else ''}dinov2.lvd142m",
+    )
     return BackboneSpec(
         name=f"{base}_reg" if registers else base,
         family="dinov2",
@@ -144,7 +169,9 @@ def _dinov2(arch: str, dims: tuple[int, int, int], ffn: str, registers: bool, dp
         dpt=dpt,
         mean=IMAGENET_MEAN,
         std=IMAGENET_STD,
-        weights=WeightsInfo("LVD-142M", file, f"{DINOV2_BASE_URL}/{base}/{file}", "Apache-2.0"),
+        weights=WeightsInfo(
+            "LVD-142M", file, f"{DINOV2_BASE_URL}/{base}/{file}", "Apache-2.0", hub
+        ),
     )
 
 
@@ -163,6 +190,15 @@ def _dinov3(
     """A DINOv3 description: ViT/16 with 4 storage tokens, RoPE, LayerNorm eps 1e-5."""
     embed_dim, depth, num_heads = dims
     kind, ratio, align = ffn
+    size = name.removeprefix("dinov3_").removesuffix("_sat")
+    hf, timm = _HUB_SIZES[size]
+    tag = "sat493m" if sat else "lvd1689m"
+    # timm has a _qkvb variant (with the q/v biases) of every distilled model.
+    variants = ("",) if size == "vit7b16" else ("", "_qkvb")
+    hub = (
+        f"facebook/dinov3-{hf}-pretrain-{tag}",
+        *(f"timm/vit_{timm}_patch16_dinov3{v}.{tag}" for v in variants),
+    )
     return BackboneSpec(
         name=name,
         family="dinov3",
@@ -190,7 +226,7 @@ def _dinov3(
         dpt=dpt,
         mean=SAT493M_MEAN if sat else IMAGENET_MEAN,
         std=SAT493M_STD if sat else IMAGENET_STD,
-        weights=WeightsInfo("SAT-493M" if sat else "LVD-1689M", file, None, "DINOv3 License"),
+        weights=WeightsInfo("SAT-493M" if sat else "LVD-1689M", file, None, "DINOv3 License", hub),
     )
 
 
@@ -322,3 +358,9 @@ def backbone_config(name: str, **overrides: Any) -> dict[str, Any]:
 def spec_for_hash(file_hash: str) -> BackboneSpec | None:
     """The backbone whose official file name ends with ``-<file_hash>.pth``, if any."""
     return next((s for s in _SPECS if s.weights.hash == file_hash), None)
+
+
+def spec_for_hub_id(repo_id: str) -> BackboneSpec | None:
+    """The backbone whose weights the hub repository ``repo_id`` holds, if it is a known one."""
+    lowered = repo_id.lower()
+    return next((s for s in _SPECS if lowered in (h.lower() for h in s.weights.hub)), None)

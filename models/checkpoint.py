@@ -6,7 +6,12 @@ Layout::
      "model_args": {... build_model arguments ...},
      "model": state dict (without "backbone.*" when the backbone came from a weights file),
      "backbone_included": bool,
-     ... whatever the caller adds (training state) ...}
+     "statistics": {"mean": [3 floats], "std": [3 floats]} (only when the model normalises
+         with other statistics than its backbone's: `Segmenter.set_statistics`),
+     ... whatever the caller adds (training state, the resolved training "config") ...}
+
+A model read back normalises uint8 input as it was trained: with the file's ``statistics``,
+else its training config's ``data.augment.mean/std``, else its backbone's own.
 """
 
 from __future__ import annotations
@@ -18,12 +23,13 @@ from typing import Any
 import torch
 
 from claravid.infra.files import atomic_save
+from claravid.models.onnx_metadata import config_get
 from claravid.models.segmenter import Segmenter, build_model
 from claravid.models.torchfile import read_tensor_file
 
 FORMAT = "claravid-model"
 VERSION = 1
-_RESERVED = {"format", "version", "model", "model_args", "backbone_included"}
+_RESERVED = {"format", "version", "model", "model_args", "backbone_included", "statistics"}
 
 
 class CheckpointError(ValueError):
@@ -75,6 +81,8 @@ def save_checkpoint(
         "backbone_included": include_backbone,
         **extra,
     }
+    if (model.mean, model.std) != (model.backbone.mean, model.backbone.std):
+        payload["statistics"] = {"mean": list(model.mean), "std": list(model.std)}
     return atomic_save(path, lambda tmp: _torch_save(payload, tmp))
 
 
@@ -156,4 +164,20 @@ def model_from_checkpoint(
     if shapes:
         raise CheckpointError(f"{path} does not match its model_args: {'; '.join(shapes[:5])}")
     model.load_state_dict(state, strict=included)
+    mean, std = recorded_statistics(ckpt)
+    if mean is not None:
+        try:
+            model.set_statistics(mean, std)
+        except ValueError as exc:
+            raise CheckpointError(f"{path} records unusable input statistics: {exc}") from None
     return model.to(map_location)
+
+
+def recorded_statistics(ckpt: dict[str, Any]) -> tuple[Any, Any]:
+    """``(mean, std)`` a checkpoint says its model was trained with: its ``statistics`` entry,
+    else its training config's ``data.augment.mean/std``; ``(None, None)`` when it says none."""
+    for keys in (("statistics",), ("config", "data", "augment")):
+        mean, std = config_get(ckpt, *keys, "mean"), config_get(ckpt, *keys, "std")
+        if mean is not None and std is not None:
+            return mean, std
+    return None, None

@@ -1,8 +1,10 @@
 """DINOv3 vision transformer in plain PyTorch, key-compatible with the official checkpoints.
 
-Parameter names follow ``facebookresearch/dinov3`` (``storage_tokens``, ``rope_embed.periods``,
-``blocks.N.attn.qkv.bias_mask``, ``ls1.gamma``, ``mlp.w1/w2/w3`` ...) so an official ``.pth``
-loads with a strict ``load_state_dict``. What differs from DINOv2 (`claravid.models.vit`):
+The trunk (blocks, checks, ``get_intermediate_layers``) is `claravid.models.trunk`'s, shared with
+DINOv2. Parameter names follow ``facebookresearch/dinov3`` (``storage_tokens``,
+``rope_embed.periods``, ``blocks.N.attn.qkv.bias_mask``, ``ls1.gamma``, ``mlp.w1/w2/w3`` ...) so
+an official ``.pth`` loads with a strict ``load_state_dict``. What differs from DINOv2
+(`claravid.models.vit`):
 
 - patches of 16 pixels and no learned positional embedding: queries and keys of the patch
   tokens are rotated by RoPE (`claravid.models.rope`), so any grid works without resizing a
@@ -16,107 +18,17 @@ loads with a strict ``load_state_dict``. What differs from DINOv2 (`claravid.mod
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
-from claravid.models.grid import check_image_size
-from claravid.models.inputs import check_image_batch, input_stats
-from claravid.models.layers import (
-    LayerScale,
-    Mlp,
-    PatchEmbed,
-    block_indices,
-    layer_outputs,
-    swiglu_hidden,
-)
-from claravid.models.rope import RopePositionEmbedding, rope_apply
-from claravid.models.tracing import is_exporting
+from claravid.models.attention import Attention
+from claravid.models.layers import Mlp, SwiGLU, swiglu_hidden
+from claravid.models.rope import RopePositionEmbedding
+from claravid.models.trunk import VisionTransformer
 
 
-class MaskedBiasLinear(nn.Linear):
-    """The fused q/k/v projection whose bias is multiplied by the buffer ``bias_mask``.
-
-    The official models train with the key bias masked (a key bias adds the same amount to every
-    score of a query, which softmax cancels), and store the mask with the weights.
-    """
-
-    def __init__(self, dim: int, bias: bool = True) -> None:
-        super().__init__(dim, 3 * dim, bias=bias)
-        if bias:
-            mask = torch.ones(3 * dim)
-            mask[dim : 2 * dim] = 0
-            self.register_buffer("bias_mask", mask, persistent=True)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        bias = None if self.bias is None else self.bias * self.bias_mask.to(self.bias.dtype)
-        return F.linear(x, self.weight, bias)
-
-
-class SelfAttention(nn.Module):
-    """Multi-head self-attention with RoPE on the patch tokens' queries and keys, and SDPA.
-
-    Args:
-        dim: Token width.
-        num_heads: Heads; ``dim / num_heads`` must be a multiple of 4 (RoPE).
-        qkv_bias: A (key-masked) bias on the q/k/v projection.
-        num_prefix_tokens: Leading tokens without a position (CLS and storage tokens).
-    """
-
-    def __init__(self, dim: int, num_heads: int, qkv_bias: bool, num_prefix_tokens: int) -> None:
-        super().__init__()
-        if dim % num_heads:
-            raise ValueError(f"embed_dim {dim} is not divisible by num_heads {num_heads}")
-        self.num_heads = num_heads
-        self.num_prefix_tokens = num_prefix_tokens
-        self.qkv = MaskedBiasLinear(dim, bias=qkv_bias)
-        self.proj = nn.Linear(dim, dim)
-
-    def forward(self, x: torch.Tensor, rope: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
-        b, n, c = x.shape
-        qkv = self.qkv(x).reshape(b, n, 3, self.num_heads, c // self.num_heads)
-        q, k, v = qkv.permute(2, 0, 3, 1, 4).unbind(0)  # each [B, heads, N, head_dim]
-        sin, cos = rope
-        p = self.num_prefix_tokens  # a Python int: the split stays static while exporting
-        q = torch.cat((q[:, :, :p], rope_apply(q[:, :, p:], sin, cos)), dim=2)
-        k = torch.cat((k[:, :, :p], rope_apply(k[:, :, p:], sin, cos)), dim=2)
-        x = F.scaled_dot_product_attention(q, k, v)
-        return self.proj(x.transpose(1, 2).reshape(b, n, c))
-
-
-class SwiGLU(nn.Module):
-    """w3(silu(w1 x) * w2 x): DINOv3's gated feed-forward (three separate matrices)."""
-
-    def __init__(self, dim: int, hidden: int) -> None:
-        super().__init__()
-        self.w1 = nn.Linear(dim, hidden)
-        self.w2 = nn.Linear(dim, hidden)
-        self.w3 = nn.Linear(hidden, dim)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.w3(F.silu(self.w1(x)) * self.w2(x))
-
-
-class Block(nn.Module):
-    """x += ls1(attn(norm1 x, rope)); x += ls2(mlp(norm2 x))."""
-
-    def __init__(self, dim: int, attn: SelfAttention, mlp: nn.Module, eps: float) -> None:
-        super().__init__()
-        self.norm1 = nn.LayerNorm(dim, eps=eps)
-        self.attn = attn
-        self.ls1 = LayerScale(dim)
-        self.norm2 = nn.LayerNorm(dim, eps=eps)
-        self.mlp = mlp
-        self.ls2 = LayerScale(dim)
-
-    def forward(self, x: torch.Tensor, rope: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
-        x = x + self.ls1(self.attn(self.norm1(x), rope))
-        return x + self.ls2(self.mlp(self.norm2(x)))
-
-
-class DinoV3VisionTransformer(nn.Module):
+class DinoV3VisionTransformer(VisionTransformer):
     """DINOv3 ViT backbone.
 
     The official sizes' arguments are in `claravid.models.backbones` (``build_backbone``).
@@ -162,23 +74,24 @@ class DinoV3VisionTransformer(nn.Module):
         norm_eps: float = 1e-5,
         local_cls_norm: bool = False,
     ) -> None:
-        super().__init__()
         if embed_dim % num_heads or (embed_dim // num_heads) % 4:
             raise ValueError(
                 f"embed_dim {embed_dim} / num_heads {num_heads} must be a whole multiple of 4 "
                 "(RoPE rotates pairs of y and x channels)"
             )
-        self.embed_dim = self.num_features = embed_dim
-        self.patch_size = patch_size
-        self.n_blocks = depth
-        self.num_heads = num_heads
+        super().__init__(
+            embed_dim=embed_dim,
+            depth=depth,
+            num_heads=num_heads,
+            patch_size=patch_size,
+            mean=mean,
+            std=std,
+        )
         self.num_storage_tokens = num_storage_tokens
-        self.mean = input_stats(mean, "mean")
-        self.std = input_stats(std, "std")
-        self.patch_embed = PatchEmbed(patch_size, 3, embed_dim)
-        self.cls_token = nn.Parameter(torch.zeros(1, 1, embed_dim))
         if num_storage_tokens:
-            self.storage_tokens = nn.Parameter(torch.zeros(1, num_storage_tokens, embed_dim))
+            self.storage_tokens: nn.Parameter | None = nn.Parameter(
+                torch.zeros(1, num_storage_tokens, embed_dim)
+            )
         else:
             self.storage_tokens = None
         self.rope_embed = RopePositionEmbedding(embed_dim // num_heads, rope_base, rope_dtype)
@@ -189,19 +102,13 @@ class DinoV3VisionTransformer(nn.Module):
         else:
             raise ValueError(f"unknown ffn {ffn!r}: use 'mlp' or 'swiglu'")
         feed_forward = Mlp if ffn == "mlp" else SwiGLU
-        self.blocks = nn.ModuleList(
-            Block(
-                embed_dim,
-                SelfAttention(embed_dim, num_heads, qkv_bias, 1 + num_storage_tokens),
-                feed_forward(embed_dim, hidden),
-                norm_eps,
-            )
-            for _ in range(depth)
+        prefix = 1 + num_storage_tokens
+        self._add_blocks(
+            lambda: Attention(embed_dim, num_heads, qkv_bias, True, prefix),
+            lambda: feed_forward(embed_dim, hidden),
+            norm_eps,
         )
-        self.norm = nn.LayerNorm(embed_dim, eps=norm_eps)
         self.local_cls_norm = nn.LayerNorm(embed_dim, eps=norm_eps) if local_cls_norm else None
-        # Unused at inference (masked-image pre-training); kept so official files load strictly.
-        self.mask_token = nn.Parameter(torch.zeros(1, embed_dim))
         self._init_weights()
 
     def _init_weights(self) -> None:
@@ -218,19 +125,6 @@ class DinoV3VisionTransformer(nn.Module):
     def num_prefix_tokens(self) -> int:
         """CLS plus storage tokens, ahead of the patch tokens."""
         return 1 + self.num_storage_tokens
-
-    def check_input_size(self, height: int, width: int) -> None:
-        """Raise ``ValueError`` naming the nearest valid sizes unless H, W are patch multiples."""
-        check_image_size(height, width, self.patch_size)
-
-    def check_input(self, x: Any) -> None:
-        """Raise ``TypeError``/``ValueError`` unless ``x`` is float [B,3,H,W] on the patch grid.
-
-        Skipped while tracing or exporting (shapes may be symbolic there); it holds under
-        ``torch.compile``.
-        """
-        if not is_exporting():
-            check_image_batch(x, self.patch_size, torch.Tensor, mean=self.mean, std=self.std)
 
     def freeze_pos_embed(self, height: int | None, width: int | None = None) -> None:
         """Precompute the RoPE sin/cos for one input size (``None`` clears them).
@@ -256,54 +150,7 @@ class DinoV3VisionTransformer(nn.Module):
             prefix.append(self.storage_tokens.expand(b, -1, -1))
         return torch.cat([*(t.to(tokens.dtype) for t in prefix), tokens], dim=1)
 
-    def _rope(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def positions(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """RoPE's (sin, cos) of the patch grid of ``x``, handed to every block."""
         h, w = x.shape[-2:]
         return self.rope_embed(h // self.patch_size, w // self.patch_size)
-
-    def get_intermediate_layers(
-        self,
-        x: torch.Tensor,
-        n: int | Sequence[int] = 1,
-        reshape: bool = False,
-        return_class_token: bool = False,
-        norm: bool = True,
-    ) -> tuple[Any, ...]:
-        """Outputs of chosen blocks, with the official (DINOv2 and DINOv3) meaning.
-
-        Args:
-            x: Images [B, 3, H, W], H and W multiples of the patch size.
-            n: The last ``n`` blocks if an int, else the block indices to return.
-            reshape: Return patch tokens as [B, D, H/p, W/p] instead of [B, N, D].
-            return_class_token: Return (patch tokens, CLS token) pairs.
-            norm: Pass each output through the final LayerNorm.
-
-        Returns:
-            One entry per requested block, in block order; storage tokens are dropped.
-        """
-        take = block_indices(n, len(self.blocks))
-        self.check_input(x)
-        h, w = x.shape[-2:]
-        tokens = self.prepare_tokens(x)
-        rope = self._rope(x)
-        outputs = []
-        for i, blk in enumerate(self.blocks[: max(take) + 1]):
-            tokens = blk(tokens, rope)
-            if i in take:
-                outputs.append(tokens)
-        grid = (h // self.patch_size, w // self.patch_size)
-        return layer_outputs(
-            outputs,
-            self.norm if norm else None,
-            self.num_prefix_tokens,
-            grid,
-            reshape,
-            return_class_token,
-        )
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Normalised CLS token [B, D] (the official ``forward`` without a head)."""
-        tokens = self.prepare_tokens(x)
-        rope = self._rope(x)
-        for blk in self.blocks:
-            tokens = blk(tokens, rope)
-        return self.norm(tokens)[:, 0]

@@ -99,6 +99,7 @@ class DPTHead(nn.Module):
             raise ValueError(f"out_channels needs 4 entries (one per level), got {out_channels}")
         if num_classes < 1:
             raise ValueError(f"num_classes must be >= 1, got {num_classes}")
+        self.num_classes = num_classes
         self.reassemble = nn.ModuleList(
             Reassemble(embed_dim, c, s, use_cls)
             for c, s in zip(out_channels, (4, 2, 1, 0), strict=True)

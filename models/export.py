@@ -21,7 +21,7 @@ import os
 import shutil
 import tempfile
 import warnings
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +31,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from claravid.models.onnx_grid import guard_patch_grid
 from claravid.models.onnx_metadata import (
     PRECISIONS,
     build_metadata,
@@ -54,7 +55,7 @@ class ExportCheckError(RuntimeError):
 
 
 @contextmanager
-def _export_mode(model: Segmenter, size: tuple[int, int] | None):
+def _export_mode(model: Segmenter, size: tuple[int, int] | None) -> Iterator[None]:
     """Eval mode, and for a fixed size a stored positional embedding; restored afterwards."""
     was_training = model.training
     model.eval()
@@ -82,7 +83,8 @@ class ExportSettings:
     Attributes:
         height: example (and, unless dynamic, the only) input height; a patch multiple.
         width: example input width.
-        dynamic: also make H and W dynamic (multiples of the patch size).
+        dynamic: also make H and W dynamic (multiples of the patch size: other sizes fail in
+            ONNX Runtime itself, see `claravid.models.onnx_grid`).
         precision: ``fp32``, ``fp16`` (float16 graph, float32 input and output) or ``int8``
             (`claravid.models.quantize`).
         check: run ``onnx.checker`` and compare ONNX Runtime with PyTorch after export.
@@ -202,6 +204,7 @@ def export_onnx(
             config=record.config,
             step=record.step,
             palette=record.palette,
+            statistics=(model.mean, model.std),
         )
         _write_metadata(staged, document)
         result.update(max_abs_diff=None, agreement=None, check_shape=None)
@@ -224,13 +227,15 @@ def export_onnx(
 
 def _check_settings(model: Segmenter, height: object, width: object, tolerance: object) -> None:
     """Reject nonsense sizes and tolerances before the (slow) export."""
+    sizes = []
     for name, value in (("height", height), ("width", width)):
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value <= 0:
             raise ValueError(
                 f"{name} must be a positive multiple of the patch size {model.patch_size}, "
                 f"got {value!r}"
             )
-    model.backbone.check_input_size(int(height), int(width))  # type: ignore[arg-type]
+        sizes.append(int(value))
+    model.backbone.check_input_size(*sizes)
     if tolerance is not None and (
         not isinstance(tolerance, (int, float))
         or isinstance(tolerance, bool)
@@ -246,6 +251,10 @@ def _check_settings(model: Segmenter, height: object, width: object, tolerance: 
 def _export(model: Segmenter, path: Path, height: int, width: int, dynamic: bool) -> None:
     p = model.patch_size
     param = next(model.parameters())
+    if dynamic:
+        # torch.export specialises a size of 1 in the traced example: UperNet's coarsest level
+        # (half the grid) would freeze at 1. Four patches a side keep every level symbolic.
+        height, width = max(height, 4 * p), max(width, 4 * p)
     example = torch.randn(2, 3, height, width, device=param.device)
     batch = torch.export.Dim("batch", min=1, max=4096)
     shapes: dict[int, Any] = {0: batch}
@@ -267,6 +276,8 @@ def _export(model: Segmenter, path: Path, height: int, width: int, dynamic: bool
             opset_version=OPSET,
             verbose=False,
         )
+    if dynamic:  # sizes off the patch grid fail in ONNX Runtime too, not only in our runner
+        guard_patch_grid(path, p)
 
 
 def _write_metadata(path: Path, document: dict[str, Any]) -> None:

@@ -1,17 +1,18 @@
-"""Building blocks shared by the DINOv2 and DINOv3 vision transformers.
+"""Building blocks shared by the DINOv2 and DINOv3 vision transformers (attention is
+`claravid.models.attention`).
 
 Parameter names are the official ones of both ``facebookresearch/dinov2`` and
-``facebookresearch/dinov3`` (``patch_embed.proj``, ``mlp.fc1``/``fc2``, ``ls1.gamma``), so the
-official checkpoints load without renaming.
+``facebookresearch/dinov3`` (``patch_embed.proj``, ``mlp.fc1``/``fc2``, ``mlp.w12``,
+``mlp.w1``/``w2``/``w3``, ``ls1.gamma``), so the official checkpoints load without renaming.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
-
 import torch
+import torch.nn.functional as F
 from torch import nn
+
+from claravid.models.attention import Attention
 
 
 class PatchEmbed(nn.Module):
@@ -38,6 +39,32 @@ class Mlp(nn.Module):
         return self.fc2(self.act(self.fc1(x)))
 
 
+class SwiGLUFused(nn.Module):
+    """w12 -> (silu(x1) * x2) -> w3: DINOv2 giant's feed-forward (one fused input matrix)."""
+
+    def __init__(self, dim: int, hidden: int) -> None:
+        super().__init__()
+        self.w12 = nn.Linear(dim, 2 * hidden)
+        self.w3 = nn.Linear(hidden, dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x1, x2 = self.w12(x).chunk(2, dim=-1)
+        return self.w3(F.silu(x1) * x2)
+
+
+class SwiGLU(nn.Module):
+    """w3(silu(w1 x) * w2 x): DINOv3's gated feed-forward (three separate matrices)."""
+
+    def __init__(self, dim: int, hidden: int) -> None:
+        super().__init__()
+        self.w1 = nn.Linear(dim, hidden)
+        self.w2 = nn.Linear(dim, hidden)
+        self.w3 = nn.Linear(hidden, dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.w3(F.silu(self.w1(x)) * self.w2(x))
+
+
 def swiglu_hidden(dim: int, mlp_ratio: float = 4.0, align: int = 8) -> int:
     """Hidden width of the official SwiGLU feed-forwards.
 
@@ -60,35 +87,27 @@ class LayerScale(nn.Module):
         return x * self.gamma
 
 
-def block_indices(n: int | Sequence[int], depth: int) -> list[int]:
-    """``get_intermediate_layers``' ``n``: the last ``n`` blocks if an int, else the indices."""
-    take = list(range(depth - n, depth)) if isinstance(n, int) else [int(i) for i in n]
-    bad = [i for i in take if not 0 <= i < depth]
-    if bad or not take:
-        raise ValueError(f"block indices {take} must be in [0, {depth - 1}] and non-empty")
-    return take
+class Block(nn.Module):
+    """Pre-norm transformer block: x += ls1(attn(norm1 x, rope)); x += ls2(mlp(norm2 x)).
 
+    Args:
+        dim: Token width.
+        attn: The attention module.
+        mlp: The feed-forward module.
+        eps: LayerNorm epsilon (1e-6 in DINOv2, 1e-5 in DINOv3).
+    """
 
-def layer_outputs(
-    outputs: list[torch.Tensor],
-    norm: nn.Module | None,
-    num_prefix_tokens: int,
-    grid: tuple[int, int],
-    reshape: bool,
-    return_class_token: bool,
-) -> tuple[Any, ...]:
-    """Block outputs [B, T, D] as ``get_intermediate_layers`` returns them (both ViT families):
-    through ``norm`` when given, prefix tokens (CLS, registers) dropped from the patch tokens,
-    [B, D, h, w] when ``reshape``, (patches, CLS) pairs when ``return_class_token``."""
-    if norm is not None:
-        outputs = [norm(o) for o in outputs]
-    cls = [o[:, 0] for o in outputs]
-    patches = [o[:, num_prefix_tokens:] for o in outputs]
-    if reshape:
-        gh, gw = grid
-        patches = [
-            p.reshape(p.shape[0], gh, gw, -1).permute(0, 3, 1, 2).contiguous() for p in patches
-        ]
-    if return_class_token:
-        return tuple(zip(patches, cls, strict=True))
-    return tuple(patches)
+    def __init__(self, dim: int, attn: Attention, mlp: nn.Module, eps: float) -> None:
+        super().__init__()
+        self.norm1 = nn.LayerNorm(dim, eps=eps)
+        self.attn = attn
+        self.ls1 = LayerScale(dim)
+        self.norm2 = nn.LayerNorm(dim, eps=eps)
+        self.mlp = mlp
+        self.ls2 = LayerScale(dim)
+
+    def forward(
+        self, x: torch.Tensor, rope: tuple[torch.Tensor, torch.Tensor] | None = None
+    ) -> torch.Tensor:
+        x = x + self.ls1(self.attn(self.norm1(x), rope))
+        return x + self.ls2(self.mlp(self.norm2(x)))

@@ -7,40 +7,18 @@ message; `check_memory` says how much is needed and how much is available instea
 
 from __future__ import annotations
 
-import re
-from pathlib import Path
-
-MEMINFO = Path("/proc/meminfo")
-GIB = 1 << 30
+from claravid.infra.memory import GIB, available_memory
 
 
 class NotEnoughMemoryError(MemoryError):
     """What is about to be allocated does not fit in the available memory."""
 
 
-def _read_meminfo() -> str | None:
-    """The text of ``/proc/meminfo`` (Linux), or None where there is none."""
-    try:
-        return MEMINFO.read_text()
-    except OSError:
-        return None
-
-
-def available_memory() -> int | None:
-    """Bytes of memory available to new allocations without swapping, or None when unknown.
-
-    ``MemAvailable`` of ``/proc/meminfo``: the kernel's estimate of free memory plus the caches
-    it can drop (not ``MemFree``, which leaves those out and reads far too low).
-    """
-    text = _read_meminfo()
-    match = re.search(r"^MemAvailable:\s+(\d+)\s*kB", text or "", re.M)
-    return int(match.group(1)) * 1024 if match else None
-
-
 def check_memory(needed: int, what: str) -> None:
     """Raise `NotEnoughMemoryError` when ``needed`` bytes exceed the available memory.
 
-    Nothing is checked where the available memory is unknown (not Linux).
+    Nothing is checked where the available memory is unknown (not Linux). The available memory
+    is the kernel's ``MemAvailable`` (`claravid.infra.memory`).
 
     Args:
         needed: Bytes about to be allocated.

@@ -144,6 +144,7 @@ def build_metadata(
     config: Mapping[str, Any] | None = None,
     step: int | None = None,
     palette: Mapping[str, Any] | None = None,
+    statistics: tuple[Any, Any] | None = None,
 ) -> dict[str, Any]:
     """The ``claravid`` document for an export.
 
@@ -157,12 +158,14 @@ def build_metadata(
             config without ``data.augment.mean/std`` records the backbone's statistics.
         step: The training step the checkpoint was written at.
         palette: ``{"name", "names", "colors", "ignore_index"}`` (plain lists), or None.
+        statistics: ``(mean, std)`` the model normalises with when the config records none
+            (a segmenter's ``mean``/``std``); None: its backbone's.
     """
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     training: dict[str, Any] = {}
     if _positive_int(step) or step == 0:
-        training["step"] = int(step)  # type: ignore[arg-type]
+        training["step"] = int(step)  # type: ignore[arg-type]  # an int, checked just above
     digest = config_hash(config)
     if digest is not None:
         training["config_sha256"] = digest
@@ -175,8 +178,10 @@ def build_metadata(
         "input_size": list(input_size) if input_size is not None else None,
         "model_args": dict(model_args),
         "palette": _plain_palette(palette) if palette is not None else None,
-        # The model owns its statistics: a config that records none gets the backbone's.
-        "normalisation": normalisation_from_config(config, backbone_statistics(model_args)),
+        # The model owns its statistics: a config that records none gets the model's.
+        "normalisation": normalisation_from_config(
+            config, statistics or backbone_statistics(model_args)
+        ),
         "window": window_from_config(config),
         "training": training,
     }

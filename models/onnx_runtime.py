@@ -8,8 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from claravid.models.backbones import BACKBONES, DEFAULT_BACKBONE
+from claravid.models.backbones import BACKBONES
 from claravid.models.inputs import check_image_batch
+from claravid.models.onnx_grid import patch_size_from_file
 from claravid.models.onnx_metadata import read_input_size, read_metadata
 
 META_PREFIX = "claravid."
@@ -89,7 +90,8 @@ class OnnxSegmenter:
         threads: Intra-op threads (default: ONNX Runtime's choice).
 
     Attributes:
-        patch_size: H and W must be multiples of it.
+        patch_size: H and W must be multiples of it (read from the graph of a file exported
+            elsewhere; None when it cannot be told).
         num_classes: K.
         input_size: (H, W) of a fixed-size export, or None when H/W are dynamic.
         model_args: The ``build_model`` arguments of the exported model.
@@ -124,7 +126,7 @@ class OnnxSegmenter:
         self.metadata: dict[str, Any] | None = read_metadata(meta)
         self.num_classes = int(meta.get(META_PREFIX + "num_classes", 0)) or None
         self.model_args: dict[str, Any] = json.loads(meta.get(META_PREFIX + "model_args", "{}"))
-        self.patch_size = _patch_size(meta, self.model_args)
+        self.patch_size: int | None = _patch_size(meta, self.model_args, path)
         self.input_size: tuple[int, int] | None = read_input_size(meta)
         if self.num_classes is None:  # a foreign file: K from the output shape when static
             dim = self.session.get_outputs()[0].shape[1]
@@ -157,13 +159,13 @@ class OnnxSegmenter:
     def window(self) -> tuple[int, int] | None:
         """The validation window (H, W) of the training config."""
         size = self._meta("window", "size")
-        return tuple(size) if size else None  # type: ignore[return-value]
+        return tuple(size) if size else None
 
     @property
     def stride(self) -> tuple[int, int] | None:
         """The validation window step (H, W) of the training config."""
         stride = self._meta("window", "stride")
-        return tuple(stride) if stride else None  # type: ignore[return-value]
+        return tuple(stride) if stride else None
 
     @property
     def scale(self) -> float | None:
@@ -202,10 +204,15 @@ class OnnxSegmenter:
         return self.session.run(None, {self.input_name: images})[0]
 
 
-def _patch_size(meta: dict[str, str], model_args: dict[str, Any]) -> int:
-    """The recorded patch size; else the recorded backbone's; else the default backbone's (a file
-    exported elsewhere, assumed to be the toolkit's default model)."""
+def _patch_size(
+    meta: dict[str, str], model_args: dict[str, Any], path: str | os.PathLike
+) -> int | None:
+    """The recorded patch size; else the recorded backbone's; else, for a file exported
+    elsewhere, the one its graph shows (`patch_size_from_graph`); None when it shows none (the
+    window must then be given: nothing is assumed)."""
     if META_PREFIX + "patch_size" in meta:
         return int(meta[META_PREFIX + "patch_size"])
-    spec = BACKBONES.get(str(model_args.get("backbone")), BACKBONES[DEFAULT_BACKBONE])
-    return spec.patch_size
+    spec = BACKBONES.get(str(model_args.get("backbone")))
+    if spec is not None:
+        return spec.patch_size
+    return patch_size_from_file(path)

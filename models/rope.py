@@ -104,6 +104,8 @@ class RopePositionEmbedding(nn.Module):
     the buffer but keeps it float32, so the periods are never rounded again.
     """
 
+    periods: torch.Tensor  # a buffer
+
     def __init__(self, head_dim: int, base: float = 100.0, dtype: str = "fp32") -> None:
         super().__init__()
         self.head_dim = head_dim

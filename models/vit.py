@@ -1,10 +1,11 @@
 """DINOv2 vision transformer in plain PyTorch, key-compatible with the official checkpoints.
 
-Parameter names follow ``facebookresearch/dinov2`` (``blocks.N.attn.qkv``, ``ls1.gamma``,
-``mlp.w12`` ...) so an official ``.pth`` loads with ``load_state_dict`` unchanged. The numerics
-follow the official code too: token order [CLS, registers, patches], bicubic positional-embedding
-interpolation in float32 with the ``+0.1`` offset (no registers) or exact size plus antialias
-(registers), and ``get_intermediate_layers`` with the official argument meaning.
+The trunk (blocks, checks, ``get_intermediate_layers``) is `claravid.models.trunk`'s; DINOv2
+brings its tokens and positions: a learned positional table added to [CLS, patches], then the
+registers, giving [CLS, registers, patches]. The table is resized as the official code does:
+bicubic in float32 with the ``+0.1`` offset (no registers) or to the exact size with antialias
+(registers). Parameter names follow ``facebookresearch/dinov2`` (``blocks.N.attn.qkv``,
+``ls1.gamma``, ``mlp.w12`` ...) so an official ``.pth`` loads unchanged.
 """
 
 from __future__ import annotations
@@ -17,17 +18,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from claravid.models.grid import check_image_size
-from claravid.models.inputs import check_image_batch, input_stats
-from claravid.models.layers import (
-    LayerScale,
-    Mlp,
-    PatchEmbed,
-    block_indices,
-    layer_outputs,
-    swiglu_hidden,
-)
+from claravid.models.attention import Attention
+from claravid.models.layers import Mlp, SwiGLUFused, swiglu_hidden
 from claravid.models.tracing import is_exporting, length_tensor
+from claravid.models.trunk import VisionTransformer
 
 
 def bicubic_matrix(out_size: Any, in_size: int, offset: float) -> torch.Tensor:
@@ -66,61 +60,7 @@ def _identity(size: Any, in_size: int) -> torch.Tensor:
     return F.one_hot(rows, in_size).to(torch.float32)
 
 
-class Attention(nn.Module):
-    """Multi-head self-attention with a fused qkv projection (rows q, k, v) and SDPA."""
-
-    def __init__(self, dim: int, num_heads: int) -> None:
-        super().__init__()
-        if dim % num_heads:
-            raise ValueError(f"embed_dim {dim} is not divisible by num_heads {num_heads}")
-        self.num_heads = num_heads
-        self.qkv = nn.Linear(dim, 3 * dim)
-        self.proj = nn.Linear(dim, dim)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        b, n, c = x.shape
-        qkv = self.qkv(x).reshape(b, n, 3, self.num_heads, c // self.num_heads)
-        q, k, v = qkv.permute(2, 0, 3, 1, 4).unbind(0)
-        x = F.scaled_dot_product_attention(q, k, v)
-        return self.proj(x.transpose(1, 2).reshape(b, n, c))
-
-
-class SwiGLU(nn.Module):
-    """w12 -> (silu(x1) * x2) -> w3, the giant model's feed-forward (``SwiGLUFFNFused``)."""
-
-    def __init__(self, dim: int, hidden: int) -> None:
-        super().__init__()
-        self.w12 = nn.Linear(dim, 2 * hidden)
-        self.w3 = nn.Linear(hidden, dim)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x1, x2 = self.w12(x).chunk(2, dim=-1)
-        return self.w3(F.silu(x1) * x2)
-
-
-class Block(nn.Module):
-    """Pre-norm transformer block: x += ls1(attn(norm1 x)); x += ls2(mlp(norm2 x))."""
-
-    def __init__(self, dim: int, num_heads: int, ffn: str, mlp_ratio: float = 4.0) -> None:
-        super().__init__()
-        self.norm1 = nn.LayerNorm(dim, eps=1e-6)
-        self.attn = Attention(dim, num_heads)
-        self.ls1 = LayerScale(dim)
-        self.norm2 = nn.LayerNorm(dim, eps=1e-6)
-        if ffn == "mlp":
-            self.mlp: nn.Module = Mlp(dim, int(dim * mlp_ratio))
-        elif ffn == "swiglu":
-            self.mlp = SwiGLU(dim, swiglu_hidden(dim, mlp_ratio))
-        else:
-            raise ValueError(f"unknown ffn {ffn!r}: use 'mlp' or 'swiglu'")
-        self.ls2 = LayerScale(dim)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = x + self.ls1(self.attn(self.norm1(x)))
-        return x + self.ls2(self.mlp(self.norm2(x)))
-
-
-class DinoVisionTransformer(nn.Module):
+class DinoVisionTransformer(VisionTransformer):
     """DINOv2 ViT backbone.
 
     The official sizes' arguments are in `claravid.models.backbones` (``build_backbone``).
@@ -157,32 +97,39 @@ class DinoVisionTransformer(nn.Module):
         interpolate_offset: float = 0.1,
         interpolate_antialias: bool = False,
     ) -> None:
-        super().__init__()
         if img_size % patch_size:
             raise ValueError(f"img_size {img_size} is not a multiple of patch_size {patch_size}")
-        self.embed_dim = self.num_features = embed_dim
-        self.patch_size = patch_size
-        self.n_blocks = depth
-        self.num_heads = num_heads
+        super().__init__(
+            embed_dim=embed_dim,
+            depth=depth,
+            num_heads=num_heads,
+            patch_size=patch_size,
+            mean=mean,
+            std=std,
+        )
         self.num_register_tokens = num_register_tokens
         self.interpolate_offset = interpolate_offset
         self.interpolate_antialias = interpolate_antialias
-        self.mean = input_stats(mean, "mean")
-        self.std = input_stats(std, "std")
         grid = img_size // patch_size
-        self.patch_embed = PatchEmbed(patch_size, 3, embed_dim)
-        self.cls_token = nn.Parameter(torch.zeros(1, 1, embed_dim))
         self.pos_embed = nn.Parameter(torch.zeros(1, 1 + grid * grid, embed_dim))
         if num_register_tokens:
-            self.register_tokens = nn.Parameter(torch.zeros(1, num_register_tokens, embed_dim))
+            self.register_tokens: nn.Parameter | None = nn.Parameter(
+                torch.zeros(1, num_register_tokens, embed_dim)
+            )
         else:
             self.register_tokens = None
-        self.blocks = nn.ModuleList(
-            Block(embed_dim, num_heads, ffn, mlp_ratio) for _ in range(depth)
+        if ffn == "mlp":
+            hidden = int(embed_dim * mlp_ratio)
+        elif ffn == "swiglu":
+            hidden = swiglu_hidden(embed_dim, mlp_ratio)
+        else:
+            raise ValueError(f"unknown ffn {ffn!r}: use 'mlp' or 'swiglu'")
+        feed_forward = Mlp if ffn == "mlp" else SwiGLUFused
+        self._add_blocks(
+            lambda: Attention(embed_dim, num_heads),
+            lambda: feed_forward(embed_dim, hidden),
+            norm_eps=1e-6,
         )
-        self.norm = nn.LayerNorm(embed_dim, eps=1e-6)
-        # Unused at inference; kept so official checkpoints load strictly.
-        self.mask_token = nn.Parameter(torch.zeros(1, embed_dim))
         # Positional embedding precomputed for one grid (see `freeze_pos_embed`), or None.
         self._frozen_pos: tuple[tuple[int, int], torch.Tensor] | None = None
         self._init_weights()
@@ -197,18 +144,10 @@ class DinoVisionTransformer(nn.Module):
                 nn.init.trunc_normal_(m.weight, std=0.02)
                 nn.init.zeros_(m.bias)
 
-    def check_input_size(self, height: int, width: int) -> None:
-        """Raise ``ValueError`` naming the padded size when H or W is not a patch multiple."""
-        check_image_size(height, width, self.patch_size)
-
-    def check_input(self, x: Any) -> None:
-        """Raise ``TypeError``/``ValueError`` unless ``x`` is float [B,3,H,W] on the patch grid.
-
-        Skipped while tracing or exporting (shapes may be symbolic there); it holds under
-        ``torch.compile``.
-        """
-        if not is_exporting():
-            check_image_batch(x, self.patch_size, torch.Tensor, mean=self.mean, std=self.std)
+    @property
+    def num_prefix_tokens(self) -> int:
+        """CLS plus registers, ahead of the patch tokens."""
+        return 1 + self.num_register_tokens
 
     def interpolate_pos_encoding(self, grid_h: int, grid_w: int) -> torch.Tensor:
         """Positional embedding [1, 1 + grid_h*grid_w, D] for a patch grid, official semantics."""
@@ -283,49 +222,3 @@ class DinoVisionTransformer(nn.Module):
             regs = self.register_tokens.expand(tokens.shape[0], -1, -1).to(tokens.dtype)
             tokens = torch.cat((tokens[:, :1], regs, tokens[:, 1:]), dim=1)
         return tokens
-
-    def get_intermediate_layers(
-        self,
-        x: torch.Tensor,
-        n: int | Sequence[int] = 1,
-        reshape: bool = False,
-        return_class_token: bool = False,
-        norm: bool = True,
-    ) -> tuple[Any, ...]:
-        """Outputs of chosen blocks, official DINOv2 semantics.
-
-        Args:
-            x: Images [B, 3, H, W], H and W multiples of the patch size.
-            n: The last ``n`` blocks if an int, else the block indices to return.
-            reshape: Return patch tokens as [B, D, H/p, W/p] instead of [B, N, D].
-            return_class_token: Return (patch tokens, CLS token) pairs.
-            norm: Pass each output through the final LayerNorm.
-
-        Returns:
-            One entry per requested block, in block order; registers are dropped.
-        """
-        take = block_indices(n, len(self.blocks))
-        self.check_input(x)
-        h, w = x.shape[-2:]
-        tokens = self.prepare_tokens(x)
-        outputs = []
-        for i, blk in enumerate(self.blocks[: max(take) + 1]):
-            tokens = blk(tokens)
-            if i in take:
-                outputs.append(tokens)
-        grid = (h // self.patch_size, w // self.patch_size)
-        return layer_outputs(
-            outputs,
-            self.norm if norm else None,
-            1 + self.num_register_tokens,
-            grid,
-            reshape,
-            return_class_token,
-        )
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Normalised CLS token [B, D] (the official ``forward`` without a head)."""
-        tokens = self.prepare_tokens(x)
-        for blk in self.blocks:
-            tokens = blk(tokens)
-        return self.norm(tokens)[:, 0]

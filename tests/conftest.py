@@ -22,6 +22,9 @@ def _isolated_caches(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("TORCH_HOME", str(cache / "torch"))
     monkeypatch.setenv("CLARAVID_CACHE", str(cache / "claravid"))
     monkeypatch.setenv("XDG_CACHE_HOME", str(cache / "xdg"))
+    # Hub ids read a prepared cache only: never the network, never the user's cache.
+    monkeypatch.setenv("HF_HUB_CACHE", str(cache / "huggingface"))
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
 
 
 @pytest.fixture(scope="session")

@@ -1,7 +1,11 @@
-"""Every console script spells the shared flags the same way (issue 12 §3, claravid.infra.cli).
+"""Every console script spells the shared flags the same way, with the same help
+(claravid.infra.cli), and refuses a bad value of one in one line, exit 2.
 
-Parsed, not run: what each flag then does is tested with its command.
+Parsed (or refused before any work), not run: what each flag then does is tested with its
+command.
 """
+
+import re
 
 import pytest
 
@@ -10,13 +14,14 @@ from claravid.data import cache_cli
 from claravid.dsp import cli as dsp
 from claravid.eval import cli as evaluate
 from claravid.eval import export_cli, predict
+from claravid.infra.cli import SHARED_HELP
 from claravid.synth import demo
 from claravid.train import cli as train
 
 # Each command's parser and the arguments it needs besides the ones under test.
 MODULES = {
     "claravid-synth": (synth, []),
-    "claravid-cache": (cache_cli, ["ROOT"]),
+    "claravid-cache": (cache_cli, ["--data", "ROOT"]),
     "claravid-demo": (demo, []),
     "claravid-dsp": (dsp, []),
     "claravid-export": (export_cli, ["--checkpoint", "m.pt"]),
@@ -24,6 +29,21 @@ MODULES = {
     "claravid-predict": (predict, ["a.jpg"]),
     "claravid-train": (train, ["--config", "demo"]),
 }
+EVERYWHERE = ("--output",)
+#: The shared flags (besides -o/--output) each command has: one spelling, one help text.
+SHARED = {
+    "claravid-synth": ("--missions", "--altitude", "--direction"),
+    "claravid-cache": ("--data", "--missions", "--altitude", "--direction"),
+    "claravid-demo": (),
+    "claravid-dsp": ("--data",),
+    "claravid-export": ("--checkpoint",),  # its --precision is the file's, not an autocast
+    "claravid-eval": ("--data", "--checkpoint", "--missions", "--altitude", "--direction",
+                      "--window", "--stride", "--scale", "--batch-size", "--device",
+                      "--precision"),
+    "claravid-predict": ("--checkpoint", "--window", "--stride", "--scale", "--batch-size",
+                         "--device", "--precision"),
+    "claravid-train": ("--data", "--precision"),
+}  # fmt: skip
 COMMANDS = {name: (module.build_parser, needed) for name, (module, needed) in MODULES.items()}
 WITH_PROGRESS = list(COMMANDS)  # export shows no bar: its --no-progress leaves out the numbers
 WITH_WORKERS = [
@@ -116,29 +136,92 @@ def test_the_checkpoint_is_given_with_checkpoint(command):
     assert str(_parse(command, "-o", "x", "--checkpoint", "m.pt").checkpoint) == "m.pt"
 
 
-SELECTING = {  # the commands that select ClaraVid frames by flags, and how each reads them
-    "claravid-cache": (cache_cli.main, cache_cli.selection_flags),
-    # claravid-eval hands the flags to DataChoice, which splits them (the API's rule too).
-    "claravid-eval": (evaluate.main, lambda args: evaluate._data_choice(args).selection),
+def _shared_flags(command):
+    """``{flag: help}`` of the shared flags a command's parser has."""
+    helps = {}
+    for action in COMMANDS[command][0]()._actions:
+        for flag in action.option_strings:
+            if flag in SHARED_HELP:
+                helps[flag] = action.help
+    return helps
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_the_shared_flags_have_one_help_text_everywhere(command):
+    """Each command has the shared flags it should, each with the one help text, and its
+    ``--help`` shows that text."""
+    helps = _shared_flags(command)
+    if command == "claravid-export":  # the same name, another concept: the file's precision
+        assert helps.pop("--precision").startswith("the file's precision: fp32 (default)")
+    assert sorted(helps) == sorted([*EVERYWHERE, *SHARED[command]])
+    text = " ".join(COMMANDS[command][0]().format_help().split())
+    for flag, help in helps.items():
+        assert help == SHARED_HELP[flag], (command, flag)
+        assert " ".join(help.split()) in text, (command, flag)
+
+
+def test_every_shared_flag_is_used_by_two_commands_or_more():
+    counts = {flag: sum(flag in (*EVERYWHERE, *s) for s in SHARED.values()) for flag in SHARED_HELP}
+    assert min(counts.values()) >= 2, counts
+
+
+#: A bad value of each shared flag that argparse refuses, and what the line says.
+BAD_VALUES = {
+    "--window": ("0x630", "width and height must be positive, got '0x630'"),
+    "--stride": ("wide", "expected WxH (width x height, e.g. 640x480) or N for N x N"),
+    "--scale": ("0", "expected a finite number > 0, got '0'"),
+    "--batch-size": ("-2", "expected a positive integer, got '-2'"),
+    "--precision": ("fp8", "invalid choice: 'fp8' (choose from "),
+}
+
+
+@pytest.mark.parametrize(
+    ("command", "flag"),
+    [(c, f) for c, flags in SHARED.items() for f in flags if f in BAD_VALUES],
+)
+def test_a_bad_value_of_a_shared_flag_is_one_line_exit_2(command, flag, capsys):
+    module, needed = MODULES[command]
+    value, message = BAD_VALUES[flag]
+    with pytest.raises(SystemExit) as info:  # argparse's error, before any work
+        module.main([*needed, "-o", "x", flag, value])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"argument {flag}: {message}" in err[0], err
+
+
+#: What each selecting command needs to reach its selection check (nothing is read before it).
+SELECTING = {
+    "claravid-synth": [],
+    "claravid-cache": ["--data", "R"],
+    "claravid-eval": ["--predictions", "P"],
 }
 
 
 @pytest.mark.parametrize("command", SELECTING)
-def test_selection_flags_are_one_comma_separated_list(command, capsys):
-    """``--missions rural_1,urban_1`` everywhere; ``--missions rural_1 urban_1`` is a one-line
-    usage error everywhere, not a second spelling some commands accept."""
-    main, selection = SELECTING[command]
-    args = _parse(command, "--missions", "rural_1,urban_1", "--altitude", "high,low",
-                  "--direction", "v")  # fmt: skip
-    assert selection(args) == {
-        "missions": ["rural_1", "urban_1"], "altitude": ["high", "low"], "direction": ["v"]
-    }  # fmt: skip
-    needed = COMMANDS[command][1]
+def test_selection_flags_are_one_comma_separated_list(command, capsys, tmp_path):
+    """``--missions rural_1,urban_1`` everywhere; ``--missions rural_1 urban_1`` and an empty
+    list are one-line usage errors everywhere, not a second spelling some commands accept."""
+    main = MODULES[command][0].main
+    needed = [*SELECTING[command], "-o", str(tmp_path / "out")]
     with pytest.raises(SystemExit) as info:
-        main([*needed, "-o", "x", "--missions", "rural_1", "urban_1"])
+        main([*needed, "--missions", "rural_1", "urban_1"])
     assert info.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "unrecognized arguments: urban_1" in err[0]
+    for flag, example in (("--missions", "rural_1,urban_2"), ("--direction", "h")):
+        assert main([*needed, flag, " , "]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f"{command}: error: {flag} is empty; give e.g. {flag} {example}"]
+    assert not (tmp_path / "out").exists()
+
+
+def test_train_flags_are_config_keys():
+    """``claravid-train --data``, ``-o``, ``--precision``: ``data.root``, ``out_dir``,
+    ``train.precision`` (the paths as given, quoted for YAML)."""
+    from claravid.train.cli import overrides
+
+    args = _parse("claravid-train", "--data", "/d/x y", "-o", "r", "--precision", "bf16")
+    assert overrides(args) == ["data.root='/d/x y'", "out_dir='r'", "train.precision=bf16"]
 
 
 def _runnable_modules() -> list[str]:
@@ -179,3 +262,13 @@ def test_every_python_m_path_runs(capsys, monkeypatch):
             runpy.run_module(name, run_name="__main__", alter_sys=True)
         assert info.value.code == 0, name
         assert capsys.readouterr().out.startswith("usage: claravid-"), name
+
+
+def test_docs_show_one_table_of_the_shared_flags():
+    """docs/cli.md's table of shared flags states each flag's help, as the commands print it."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "cli.md").read_text(encoding="utf-8")
+    section = text.split("## Shared flags", 1)[1].split("\n## ", 1)[0]
+    rows = re.findall(r"^\| `(?:-o/)?(--[a-z-]+)[^`]*` \| ([^|]+) \|", section, re.M)
+    assert dict((flag, meaning.strip()) for flag, meaning in rows) == SHARED_HELP

@@ -48,6 +48,9 @@ assert load_config("claravid_dpt_vitl14").model.backbone == "dinov2_vitl14"
 sat = load_config("claravid_dpt_dinov3_vitl16_sat", ["model.weights=/w.pth"])  # DINOv3, shipped
 assert tuple(sat.data.augment.mean) == (0.430, 0.411, 0.296) and sat.val.window == 640, sat
 assert load_config("claravid_dpt_dinov3_vitl16", ["model.weights=/w.pth"]).val.window == 640
+for head in ("linear", "upernet"):  # the heads' configs, shipped
+    cfg = load_config(f"claravid_{head}_dinov3_vitl16_sat", ["model.weights=/w.pth"])
+    assert cfg.model.head == head, cfg
 print("OK", ",".join(names), ",".join(shipped_names()))
 """
 
@@ -59,7 +62,8 @@ def test_wheel_installed_outside_checkout_loads_palettes_and_a_sample(tmp_path):
     source = shutil.copytree(
         ROOT, tmp_path / "source",
         ignore=shutil.ignore_patterns(".git", ".venv", "runs", "build", "*.egg-info", "*.so",
-                                      "__pycache__", ".pytest_cache", ".ruff_cache"),
+                                      "__pycache__", ".pytest_cache", ".ruff_cache",
+                                      ".mypy_cache"),
     )  # fmt: skip
     wheels = tmp_path / "wheels"
     build = subprocess.run(
@@ -75,10 +79,14 @@ def test_wheel_installed_outside_checkout_loads_palettes_and_a_sample(tmp_path):
     assert "claravid/models/vit.py" in names and "claravid/train/loop.py" in names
     assert "claravid/eval/cli.py" in names
     assert "claravid/configs/palettes/uavid.yaml" in names
+    assert {"claravid/py.typed", "claravid/dsp/_deldensity.pyi"} <= set(names)  # typed
     assert "claravid/configs/augment.yaml" in names
     assert "claravid/configs/demo.yaml" in names
     assert "claravid/configs/claravid_dpt_dinov3_vitl16.yaml" in names
     assert "claravid/configs/claravid_dpt_dinov3_vitl16_sat.yaml" in names
+    for head in ("linear", "upernet"):
+        for weights in ("", "_sat"):
+            assert f"claravid/configs/claravid_{head}_dinov3_vitl16{weights}.yaml" in names
 
     target = tmp_path / "site"
     install = subprocess.run(

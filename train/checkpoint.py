@@ -28,7 +28,9 @@ from claravid.models.checkpoint import read_checkpoint
 def rng_state() -> dict[str, Any]:
     """torch, CUDA, numpy and python RNG states as tensors and plain lists."""
     # The legacy global numpy RNG: we draw from our own generators, but libraries may not.
-    kind, keys, pos, has_gauss, cached = np.random.get_state()  # noqa: NPY002
+    state = np.random.get_state(legacy=True)  # noqa: NPY002
+    assert isinstance(state, tuple)  # the global generator is MT19937: the legacy tuple
+    kind, keys, pos, has_gauss, cached = state
     version, internal, gauss = random.getstate()
     return {
         "torch": torch.get_rng_state(),

@@ -1,9 +1,9 @@
 """``claravid-train --config CONFIG [key=value ...] [--resume]`` (``python -m claravid.train``).
 
-``-o DIR`` is ``out_dir=DIR`` (the path as given: a ``${`` in it is no interpolation),
-``--workers N`` ``data.num_workers=N`` and ``--no-progress`` ``log.progress=false``, the flags
-every console script shares. ``key=value`` overrides may stand
-before or after the flags.
+``--data DIR`` is ``data.root=DIR`` and ``-o DIR`` ``out_dir=DIR`` (the paths as given: a ``${``
+in them is no interpolation), ``--workers N`` ``data.num_workers=N``, ``--precision P``
+``train.precision=P`` and ``--no-progress`` ``log.progress=false``: the flags every console
+script shares. ``key=value`` overrides may stand before or after the flags.
 
 CONFIG is a YAML file or the name of a shipped config (``demo``, ``claravid_dpt_vitl14``, ...).
 Multi-GPU: ``torchrun --nproc_per_node=N -m claravid.train --config ...``. The last lines say
@@ -18,7 +18,10 @@ import sys
 
 from claravid.infra.cli import (
     UsageError,
+    add_data_flag,
     add_debug_flag,
+    add_output_flag,
+    add_precision_flag,
     add_progress_flag,
     non_negative_int,
     run_cli,
@@ -32,7 +35,7 @@ class _IntermixedParser(argparse.ArgumentParser):
     """``key=value`` overrides before, between or after the flags (``--resume out_dir=x``):
     argparse alone takes positionals in one run only."""
 
-    def parse_args(self, args=None, namespace=None):  # type: ignore[override]
+    def parse_args(self, args=None, namespace=None):
         return self.parse_intermixed_args(args, namespace)
 
 
@@ -40,9 +43,12 @@ def build_parser() -> argparse.ArgumentParser:
     configs = ", ".join(n for n in shipped_names() if n != "augment")
     parser = _IntermixedParser(
         prog=PROG,
-        description="Train a DPT segmentation head on a frozen DINOv2 backbone from a YAML config.",
+        description="Train a segmenter (a DINOv2 or DINOv3 backbone, frozen by default, and a "
+        "DPT head) from a YAML config. --data, -o, --workers, --precision and --no-progress are "
+        "the config's data.root, out_dir, data.num_workers, train.precision and log.progress "
+        "(unset: the config's).",
         epilog="Examples: claravid-train --config demo --resume; claravid-train --config "
-        "claravid_dpt_vitl14 data.root=/data/claravid out_dir=runs/vitl14 train.steps=20000",
+        "claravid_dpt_vitl14 --data /data/claravid -o runs/vitl14 train.steps=20000",
     )
     parser.add_argument("--config", required=True, help=f"YAML path or shipped name ({configs})")
     parser.add_argument("overrides", nargs="*", metavar="key=value", help="dotted overrides")
@@ -51,9 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="continue out_dir/last.pt (a fresh start when there is none)",
     )
-    parser.add_argument(
-        "-o", "--output", metavar="DIR", help="run folder (the same as out_dir=DIR)"
-    )
+    add_data_flag(parser)
+    add_output_flag(parser)
     parser.add_argument(
         "--workers",
         type=non_negative_int,
@@ -61,6 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="worker processes for data loading, the same as data.num_workers=N "
         "(default: the config's; 0: all in this process)",
     )
+    add_precision_flag(parser)
     add_progress_flag(parser)
     add_debug_flag(parser)
     return parser
@@ -101,14 +107,19 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def overrides(args: argparse.Namespace) -> list[str]:
-    """The ``key=value`` overrides with ``-o``, ``--workers`` and ``--no-progress`` spelled as
-    keys."""
+    """The ``key=value`` overrides with ``--data``, ``-o``, ``--workers``, ``--precision`` and
+    ``--no-progress`` spelled as keys."""
     given = list(args.overrides)
     flags = []
-    if args.output is not None:
-        # YAML single quotes keep the path as given; OmegaConf reads ``\${`` as a literal ``${``.
-        path = str(args.output).replace("'", "''").replace("${", "\\${")
-        flags.append(("-o/--output", "out_dir", f"'{path}'"))
+    for flag, path, key in (("--data", args.data, "data.root"),
+                            ("-o/--output", args.output, "out_dir")):  # fmt: skip
+        if path is not None:
+            # YAML single quotes keep the path as given; OmegaConf reads ``\${`` as a literal
+            # ``${``.
+            quoted = str(path).replace("'", "''").replace("${", "\\${")
+            flags.append((flag, key, f"'{quoted}'"))
+    if args.precision is not None:
+        flags.append(("--precision", "train.precision", args.precision))
     if getattr(args, "workers", None) is not None:
         flags.append(("--workers", "data.num_workers", str(args.workers)))
     if args.no_progress:

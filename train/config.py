@@ -22,15 +22,17 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn, cast
 
 import yaml
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
 
-from claravid.data.transforms import AugmentConfig
+from claravid.data.transforms import AugmentConfig, statistics_problem
+from claravid.infra.precision import PRECISIONS
 from claravid.infra.resources import shipped_file, shipped_names
 from claravid.models.grid import natural_size, nearest_multiples
 
@@ -38,7 +40,6 @@ CLASS_WEIGHTS = ("none", "inverse", "median_frequency", "log_inverse")
 SCHEDULES = ("poly", "cosine")
 DATASETS = ("claravid", "uavid")
 SAMPLERS = ("uniform", "complexity_balanced")
-AMP_MODES = ("auto", "bf16", "fp16", "off")
 
 
 class ConfigError(ValueError):
@@ -89,10 +90,12 @@ class DataConfig:
 class ModelConfig:
     backbone: str = "dinov2_vitl14"
     weights: str | None = "official"  # a .pth/.safetensors path, "official", or null (random)
-    layers: list[int] | None = None  # null: the DPT defaults of the backbone size
-    features: int | None = None
-    out_channels: list[int] | None = None
-    use_cls: bool = False
+    head: str = "dpt"  # dpt (the paper's) | linear (DINOv3's linear protocol) | upernet
+    # Head settings; a setting the chosen head does not take is an error (docs/models.md).
+    layers: list[int] | None = None  # null: dpt/upernet the backbone's 4 taps, linear the last
+    features: int | None = None  # dpt: fusion width; upernet: its width (null: 512)
+    out_channels: list[int] | None = None  # dpt only: reassemble widths
+    use_cls: bool = False  # dpt: CLS readout; linear: CLS concatenated to each token
     backbone_kwargs: dict[str, Any] = field(default_factory=dict)  # tiny test backbones
     freeze_backbone: bool = True  # the paper's protocol; false trains the backbone too
 
@@ -115,8 +118,8 @@ class TrainConfig:
     min_lr_ratio: float = 0.0  # the decay ends at lr × min_lr_ratio
     grad_clip: float = 1.0  # max global gradient norm (0: off)
     # auto: bf16 on GPUs that support it, else fp16 + GradScaler, float32 on CPU;
-    # bf16 | fp16 (+ GradScaler) on any device; off: float32 (old configs: true=auto, false=off)
-    amp: str = "auto"
+    # bf16 | fp16 (+ GradScaler) on any device; fp32: no autocast (claravid-train --precision)
+    precision: str = "auto"
     compile: bool = False  # torch.compile the trained module
     device: str | None = None  # null: cuda when available, else cpu
     threads: int | None = None  # intra-op CPU threads of each process (null: PyTorch's default)
@@ -207,8 +210,9 @@ def _read_text(path: Path) -> str:
         ) from None
 
 
-def _check_loaded(loaded: Any, source: str) -> None:
-    """The file is a mapping of sections, each section a mapping (as the schema has it)."""
+def _check_loaded(loaded: Any, source: str) -> DictConfig:
+    """The file is a mapping of sections, each section a mapping (as the schema has it): the
+    file's config, checked."""
     if not isinstance(loaded, DictConfig):
         kind = "a list" if isinstance(loaded, ListConfig) else "no mapping"
         raise ConfigError(
@@ -217,14 +221,16 @@ def _check_loaded(loaded: Any, source: str) -> None:
         )
     schema = OmegaConf.structured(Config)
     for key in loaded:
-        node = schema._get_node(str(key)) if str(key) in schema else None
+        section = str(key)
+        node = schema._get_node(section) if section in schema else None
         value = loaded._get_node(key)
         if isinstance(node, DictConfig) and not isinstance(value, DictConfig):
-            got = OmegaConf.to_container(loaded)[key]  # type: ignore[index]
+            got = to_plain(loaded, resolve=False)[section]
             raise ConfigError(
-                f"{source}: section {key!s} must be a mapping of keys, e.g. "
-                f"{key}: {{{next(iter(node))}: ...}}; got {got!r}"
+                f"{source}: section {section} must be a mapping of keys, e.g. "
+                f"{section}: {{{next(iter(node))!s}: ...}}; got {got!r}"
             )
+    return loaded
 
 
 def _merge(base: DictConfig, other: Any, source: str) -> DictConfig:
@@ -236,10 +242,7 @@ def _merge(base: DictConfig, other: Any, source: str) -> DictConfig:
         key = getattr(exc, "full_key", None)
         msg = str(exc).splitlines()[0]
         raise ConfigError(f"bad value for {key} ({source}): {msg}") from None
-    # YAML 1.1 reads `off` (like `no` and `false`) as a boolean: the str field then holds "False".
-    if str(merged.train.amp) == "False":
-        merged.train.amp = "off"
-    return merged  # type: ignore[return-value]
+    return merged  # type: ignore[return-value]  # a structured config merges into a DictConfig
 
 
 def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] | str = ()) -> DictConfig:
@@ -263,20 +266,56 @@ def load_config(name: str | Path, overrides: list[str] | tuple[str, ...] | str =
                 "model:, train:, val:, log:)"
             ) from None
         raise ConfigError(f"cannot parse {source}: {exc}") from None
-    _check_loaded(loaded, source)
-    _one_item_lists(cfg, loaded)
-    cfg = _merge(cfg, loaded, source)
+    sections = _check_loaded(loaded, source)
+    _check_statistics_given(sections, source)
+    _one_item_lists(cfg, sections)
+    cfg = _merge(cfg, sections, source)
     if isinstance(overrides, str):  # "train.steps=5 val.every=0": one string, split on spaces
         overrides = overrides.split()
     bad = [o for o in overrides if "=" not in o or o.startswith("=")]
     if bad:
         raise ConfigError(f"override {bad[0]!r} is not key=value (e.g. train.steps=100)")
     given = OmegaConf.from_dotlist(list(overrides))
+    _check_statistics_given(given, "command line")
     _one_item_lists(cfg, given)
     cfg = _merge(cfg, given, "command line")
     check_config(cfg)
     resolve_backbone(cfg)
     return cfg
+
+
+def _check_statistics_given(given: DictConfig, source: str) -> None:
+    """``data.augment.mean/std`` as given must be three numbers each (or null): said here, by
+    key, instead of OmegaConf's "bad value for None ... '$VALUE'" from the merge."""
+    augment = given.get("data", {}).get("augment", {}) if "data" in given else {}
+    if not isinstance(augment, DictConfig):
+        return  # not a mapping: _check_loaded and the merge name it
+    for name in ("mean", "std"):
+        if name not in augment:
+            continue
+        container = OmegaConf.to_container(augment, resolve=False)
+        if not isinstance(container, dict):  # a DictConfig always converts to a dict
+            raise TypeError(f"data.augment converted to a {type(container).__name__}, not a dict")
+        value = container[name]
+        if value is None or _three_numbers(value):
+            continue  # the merge converts them; check_config checks their values
+        problem = statistics_problem(value if name == "mean" else None,
+                                     value if name == "std" else None)  # fmt: skip
+        raise ConfigError(f"bad value for data.augment.{problem} ({source})")
+
+
+def _three_numbers(value: Any) -> bool:
+    if (
+        not isinstance(value, list | tuple)
+        or len(value) != 3
+        or any(isinstance(v, bool) for v in value)
+    ):
+        return False
+    try:
+        [float(v) for v in value]
+    except (TypeError, ValueError):
+        return False
+    return True
 
 
 def _one_item_lists(schema: DictConfig, given: DictConfig) -> None:
@@ -303,14 +342,18 @@ def _safe_load(text: str) -> Any:
 
 def _require(ok: bool, key: str, value: Any, rule: str) -> None:
     if not ok:
-        raise ConfigError(f"bad value for {key}: {value!r} ({rule})")
+        _refuse(key, value, rule)
+
+
+def _refuse(key: str, value: Any, rule: str) -> NoReturn:
+    raise ConfigError(f"bad value for {key}: {value!r} ({rule})")
 
 
 def _check_split(split: DictConfig) -> None:
     """``data.split`` as ``claravid.data.splits.SplitConfig`` checks it, named ``data.split.*``."""
     from claravid.data.splits import SplitConfigError, make_split_config
 
-    values = OmegaConf.to_container(split, resolve=True)
+    values = to_plain(split)
     try:
         make_split_config(values, "data.split.")
     except SplitConfigError as exc:
@@ -369,7 +412,10 @@ def check_config(cfg: DictConfig) -> None:
         list(t.betas),
         "two numbers in [0, 1)",
     )
-    _require(t.amp in AMP_MODES, "train.amp", t.amp, f"one of {', '.join(AMP_MODES)}")
+    # YAML reads off, no and false (on, yes, true) as a boolean: "False" here.
+    boolean = " (YAML read a boolean)" if t.precision in ("True", "False") else ""
+    _require(t.precision in PRECISIONS, "train.precision", t.precision,
+             f"one of {', '.join(PRECISIONS)}{boolean}")  # fmt: skip
     _require(t.warmup_steps >= 0, "train.warmup_steps", t.warmup_steps, ">= 0")
     _require(0 <= t.min_lr_ratio <= 1, "train.min_lr_ratio", t.min_lr_ratio, "in [0, 1]")
     _require(t.grad_clip >= 0, "train.grad_clip", t.grad_clip, ">= 0 (0: off)")
@@ -387,13 +433,31 @@ def check_config(cfg: DictConfig) -> None:
     _require(v.stride is None or v.stride >= 1, "val.stride", v.stride, ">= 1 or null")
     _require(v.bins >= 1, "val.bins", v.bins, ">= 1")
     _require(math.isfinite(v.scale) and 0 < v.scale <= 8, "val.scale", v.scale, "in (0, 8]")
-    _require(
-        m.layers is None or len(m.layers) == 4, "model.layers", m.layers, "4 block indices or null"
-    )
+    _check_head(m)
     a = d.augment
     _require(
         a.crop_height >= 1 and a.crop_width >= 1, "data.augment.crop_height", a.crop_height, ">= 1"
     )
+    problem = statistics_problem(a.mean, a.std)  # before any data is read, not at validation
+    if problem is not None:
+        raise ConfigError(
+            f"bad value for data.augment.{problem}; leave data.augment.mean/std unset for the "
+            "backbone's statistics"
+        )
+
+
+def _check_head(m: DictConfig) -> None:
+    """``model.head`` is a head, and the head settings given are that head's."""
+    from claravid.models.heads import HEAD_NAMES, SETTING_DEFAULTS, check_head_settings
+
+    _require(m.head in HEAD_NAMES, "model.head", m.head, f"one of {', '.join(HEAD_NAMES)}")
+    settings = {key: m[key] for key in SETTING_DEFAULTS}
+    if settings["layers"] is not None:
+        settings["layers"] = list(settings["layers"])
+    try:
+        check_head_settings(m.head, settings, prefix="model.")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def resolve_backbone(cfg: DictConfig) -> None:
@@ -404,7 +468,8 @@ def resolve_backbone(cfg: DictConfig) -> None:
     - ``data.augment.crop_height``/``crop_width`` and ``val.window`` must be multiples of the
       backbone's patch size (its ``model.backbone_kwargs.patch_size`` when overridden);
     - ``model.weights``: licence-gated weights (DINOv3) cannot be ``official`` and must be
-      given as a path.
+      given as a path; a path is recorded absolute (``~`` expanded, symbolic links kept), so
+      the checkpoints that record it are evaluated and exported from any folder.
 
     Raises:
         ConfigError: an unknown backbone, a size off the patch grid (naming the two nearest
@@ -414,8 +479,11 @@ def resolve_backbone(cfg: DictConfig) -> None:
 
     m, a, v = cfg.model, cfg.data.augment, cfg.val
     spec = BACKBONES.get(m.backbone)
-    _require(spec is not None, "model.backbone", m.backbone, f"one of {', '.join(BACKBONE_NAMES)}")
+    if spec is None:
+        _refuse("model.backbone", m.backbone, f"one of {', '.join(BACKBONE_NAMES)}")
     _check_weights(cfg, spec)
+    if _weights_path(m) is not None:
+        m.weights = os.path.abspath(os.path.expanduser(m.weights))
     patch = int(m.backbone_kwargs.get("patch_size", spec.patch_size))
     if a.mean is None:
         a.mean = tuple(spec.mean)
@@ -443,10 +511,40 @@ def _check_weights(cfg: DictConfig, spec: Any) -> None:
     from claravid.models.backbones import DINOV3_REQUEST_URL
 
     # A shipped config's `weights: ???` leaves the default ("official") in place when merged.
+    timm = next((h for h in spec.weights.hub if h.startswith("timm/")), None)
+    ungated = f", or timm's ungated copy: model.weights={timm}" if timm else ""
     raise ConfigError(
         f"model.weights: the {spec.family_name} weights of {spec.name} are licence-gated, with "
         f"no official download; request them at {DINOV3_REQUEST_URL} and pass "
-        f"model.weights=/path/to/{spec.weights.file}"
+        f"model.weights=/path/to/{spec.weights.file}{ungated}"
+    )
+
+
+def _weights_path(m: DictConfig) -> str | None:
+    """``model.weights`` when it names a file (not null, ``official`` or missing)."""
+    if OmegaConf.is_missing(m, "weights") or m.weights in (None, "official"):
+        return None
+    return str(m.weights)
+
+
+def check_weights_file(cfg: DictConfig) -> None:
+    """Refuse a ``model.weights`` path that is no file, before any data is indexed or cached
+    and before the run folder is written.
+
+    Raises:
+        ConfigError: one line naming the path and what to pass instead.
+    """
+    path = _weights_path(cfg.model)
+    if path is None or os.path.isfile(path):
+        return
+    from claravid.models.backbones import BACKBONES
+
+    spec = BACKBONES.get(cfg.model.backbone)
+    what = "a folder, not a file" if os.path.isdir(path) else "no such file"
+    instead = "" if spec is None or spec.weights.url is None else ", model.weights=official"
+    raise ConfigError(
+        f"model.weights={path}: {what}; pass the path of {cfg.model.backbone}'s .pth or "
+        f".safetensors weights file{instead} or model.weights=null (a random backbone)"
     )
 
 
@@ -490,9 +588,10 @@ def to_yaml(cfg: DictConfig) -> str:
     return OmegaConf.to_yaml(cfg)
 
 
-def to_plain(cfg: DictConfig) -> dict[str, Any]:
-    """Plain dict/list/str/number container (storable in a ``weights_only`` checkpoint)."""
-    return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+def to_plain(cfg: DictConfig, resolve: bool = True) -> dict[str, Any]:
+    """Plain dict/list/str/number container (storable in a ``weights_only`` checkpoint); the keys
+    of a config's sections are strings."""
+    return cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=resolve))
 
 
 def from_plain(data: dict[str, Any]) -> DictConfig:

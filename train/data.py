@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import shlex
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeAlias
 
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from torch.utils.data import DataLoader, Dataset
 
 from claravid.data.label_cache import CacheWriteError
@@ -20,7 +20,19 @@ from claravid.data.splits import SPLITS
 from claravid.data.targets import UAVidSegmentation
 from claravid.data.transforms import AugmentConfig, train_transforms
 from claravid.io import jpeg_region
+from claravid.models.heads import head_spec
+from claravid.train.config import to_plain
 from claravid.train.sampler import StepSampler
+
+#: A training or validation split, as the builders below make it.
+SegmentationSplit: TypeAlias = ClaraVidSegmentation | UAVidSegmentation
+
+
+class SampleDataset(Protocol):
+    """A map-style dataset of samples (dicts) with a length: what the crops read."""
+
+    def __len__(self) -> int: ...
+    def __getitem__(self, index: int) -> Any: ...  # fmt: skip
 
 
 class EmptySplitError(ValueError):
@@ -39,10 +51,10 @@ CACHE_ADVICE = (
 
 
 def _augment(cfg: DictConfig) -> AugmentConfig:
-    return AugmentConfig(**OmegaConf.to_container(cfg.data.augment))  # type: ignore[arg-type]
+    return AugmentConfig(**to_plain(cfg.data.augment, resolve=False))
 
 
-def _claravid(cfg: DictConfig, root: str | Path, split: str) -> Dataset:
+def _claravid(cfg: DictConfig, root: str | Path, split: str) -> ClaraVidSegmentation:
     d = cfg.data
     return ClaraVidSegmentation(
         root,
@@ -72,7 +84,7 @@ def _check_root(root: str | None, key: str) -> Path:
     return Path(root)
 
 
-def _split(cfg: DictConfig, kind: str, root: Path, split: str) -> Dataset:
+def _split(cfg: DictConfig, kind: str, root: Path, split: str) -> SegmentationSplit:
     """One split of UAVid or ClaraVid, uint8 images and masks without transforms (the one
     branch both builders share: training crops them in `CropDataset`, validation normalises
     them on the model's device)."""
@@ -83,7 +95,7 @@ def _split(cfg: DictConfig, kind: str, root: Path, split: str) -> Dataset:
     return _claravid(cfg, root, split)
 
 
-def build_train_dataset(cfg: DictConfig) -> Dataset:
+def build_train_dataset(cfg: DictConfig) -> SegmentationSplit:
     """The training split, without transforms (`CropDataset` augments it).
 
     Raises:
@@ -100,7 +112,7 @@ def build_train_dataset(cfg: DictConfig) -> Dataset:
     return ds
 
 
-def build_val_dataset(cfg: DictConfig) -> Dataset:
+def build_val_dataset(cfg: DictConfig) -> SegmentationSplit:
     """The validation split, uint8 frames without transforms: the validation windows normalise
     them on the model's device (``val_window``'s mean and std are ``data.augment``'s)."""
     key = "data.val_root" if cfg.data.val_root is not None else "data.root"
@@ -154,10 +166,10 @@ def prepare_label_caches(datasets: list[Dataset], workers: int, say: Any = print
     if unreadable:
         pan, reason = next(iter(unreadable.items()))
         first = reason if pan in reason else f"{pan}: {reason}"
-        more = f"; and {len(unreadable) - 1} more" if len(unreadable) > 1 else ""
+        others = f"; and {len(unreadable) - 1} more" if len(unreadable) > 1 else ""
         raise UnreadableLabelsError(
             f"the label files of {len(unreadable)} frame(s) cannot be read, and training would "
-            f"stop at them: {first}{more} (claravid-cache {roots[0]} lists them all)"
+            f"stop at them: {first}{others} (claravid-cache --data {roots[0]} lists them all)"
         )
 
 
@@ -168,11 +180,11 @@ def split_table(dataset: Dataset) -> str | None:
     return None
 
 
-def image_paths(dataset: Dataset) -> list[str]:
+def image_paths(dataset: SegmentationSplit) -> list[str]:
     """Each sample's RGB file, without decoding anything (for complexity)."""
     if isinstance(dataset, ClaraVidSegmentation):
         return [str(f.paths["rgb"]) for f in dataset.frames]
-    return [str(p) for p in dataset.images]  # type: ignore[attr-defined]
+    return [str(p) for p in dataset.images]
 
 
 class CropDataset(Dataset):
@@ -199,7 +211,7 @@ class CropDataset(Dataset):
 
     def __init__(
         self,
-        base: Dataset,
+        base: SampleDataset,
         augment: AugmentConfig,
         crops_per_frame: int = 1,
         by_window: bool | None = None,
@@ -213,18 +225,20 @@ class CropDataset(Dataset):
         self.by_window = by_window
 
     def __len__(self) -> int:
-        return len(self.base)  # type: ignore[arg-type]
+        return len(self.base)
 
     def __getitem__(self, item: tuple[int, int]) -> dict[str, torch.Tensor]:
         index, seed = item
+        # By_window: a dataset that reads windows.
         size = self.base.frame_size(index) if self.by_window else None  # type: ignore[attr-defined]
-        frame = None if self.by_window else self.base[index]
+        frame = {} if self.by_window else self.base[index]
         images, masks = [], []
         for j in range(self.k):
             # Seeding the pipeline per crop makes the crop a function of (position, j) alone.
             self.transform.pipeline.set_random_seed((seed + j) % 2**32)
             if size is not None:
                 window = self.transform.draw_window(*size)
+                # By_window: a dataset that reads windows.
                 sample = self.base.read_window(index, window)  # type: ignore[attr-defined]
             else:
                 sample = {"image": frame["image"], "mask": frame["mask"]}
@@ -248,11 +262,20 @@ def check_batch(cfg: DictConfig, world_size: int) -> int:
             f"train.batch_size={t.batch_size} must be a multiple of ranks ({world_size}) × "
             f"train.grad_accum ({t.grad_accum}) × data.crops_per_frame ({k}) = {per_step}"
         )
+    least = head_spec(cfg.model.head).min_micro_batch
+    micro = t.batch_size // (world_size * t.grad_accum)
+    if micro < least:
+        raise ValueError(
+            f"model.head={cfg.model.head} trains BatchNorm on pooled features and needs at least "
+            f"{least} crops per forward pass; train.batch_size={t.batch_size} over {world_size} "
+            f"rank(s) × train.grad_accum={t.grad_accum} gives {micro}: raise train.batch_size or "
+            "lower train.grad_accum"
+        )
     return t.batch_size // k
 
 
 def build_train_loader(
-    dataset: Dataset,
+    dataset: SampleDataset,
     cfg: DictConfig,
     *,
     rank: int = 0,
@@ -285,12 +308,12 @@ def build_train_loader(
     )
 
 
-def class_frequencies(dataset: Dataset, num_classes: int) -> np.ndarray:
+def class_frequencies(dataset: SampleDataset, num_classes: int) -> np.ndarray:
     """Pixels per class of the training split (ClaraVid's are cached; others counted here)."""
     if isinstance(dataset, ClaraVidSegmentation):
         return dataset.class_frequencies(progress=False)
     counts = np.zeros(num_classes, dtype=np.int64)
-    for i in range(len(dataset)):  # type: ignore[arg-type]
+    for i in range(len(dataset)):
         if isinstance(dataset, UAVidSegmentation):  # the label file alone, not the image
             path = dataset.label_path(dataset.images[i])
             mask = read_mask(path, dataset.palette).ravel()

@@ -4,14 +4,14 @@
 
     claravid-train --config demo                                  # one process
     torchrun --nproc_per_node=8 -m claravid.train --config claravid_dpt_vitl14 \
-        data.root=/data/claravid
+        --data /data/claravid
 
 One optimiser step takes ``train.batch_size`` crops over all ranks and ``train.grad_accum``
 micro-batches; its loss is the mean of the micro-batches' losses (each the pixel mean of
 weighted cross-entropy over non-ignored pixels), so W ranks × A micro-batches compute the same
-gradient as one process with W·A micro-batches. Precision (``train.amp``): ``auto`` is bf16
-autocast where the GPU supports it, else fp16 with a GradScaler, float32 on CPU; ``bf16`` and
-``fp16`` (with a GradScaler) autocast on any device, CPU included; ``off`` is float32.
+gradient as one process with W·A micro-batches. Precision (``train.precision``): ``auto`` is
+bf16 autocast where the GPU supports it, else fp16 with a GradScaler, float32 on CPU; ``bf16``
+and ``fp16`` (with a GradScaler) autocast on any device, CPU included; ``fp32`` is float32.
 Validation runs at the training precision. A NaN/inf loss stops the run before the step is
 applied.
 
@@ -27,6 +27,7 @@ import random
 import shlex
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,6 +44,7 @@ from claravid import models
 from claravid.data.masks import check_palette_fit
 from claravid.data.palettes import load_palette
 from claravid.data.samples import normalise
+from claravid.data.targets import UAVidSegmentation
 from claravid.eval import IGNORE_INDEX, WindowConfig
 from claravid.infra.cli import check_device
 from claravid.infra.distributed import DistInfo, barrier, init_distributed
@@ -90,33 +92,12 @@ class RunResult:
     already_finished: bool = False
 
 
-class EndToEnd(nn.Module):
-    """The segmenter with gradients through its backbone (``model.freeze_backbone: false``).
-
-    ``Segmenter.forward`` runs the backbone under ``no_grad`` (the paper's frozen protocol);
-    this module repeats its three lines with gradients, so models/ keeps one behaviour.
-    """
-
-    def __init__(self, model: models.Segmenter) -> None:
-        super().__init__()
-        self.model = model.requires_grad_(True)
-        # The mask token (both families) and DINOv3's local_cls_norm (SAT ViT-L, 7B) serve
-        # pre-training only: no gradient ever reaches them (and DDP refuses parameters that
-        # never get one).
-        model.backbone.mask_token.requires_grad_(False)
-        if getattr(model.backbone, "local_cls_norm", None) is not None:
-            model.backbone.local_cls_norm.requires_grad_(False)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        m = self.model
-        feats = m.backbone.get_intermediate_layers(x, m.layers, return_class_token=True)
-        h, w = x.shape[-2:]
-        return m.head(feats, h // m.patch_size, w // m.patch_size, (h, w))
-
-
-def amp_dtype(amp: str, device: torch.device) -> torch.dtype | None:
-    """The autocast type ``train.amp`` means on ``device`` (None: float32, no autocast)."""
-    return autocast_dtype("fp32" if amp == "off" else amp, device)
+def segmentation_loss(
+    logits: torch.Tensor, target: torch.Tensor, weights: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Cross-entropy in float32, (weighted) mean over the pixels whose train id is not
+    ``IGNORE_INDEX``: a crop's padding and the classes a palette ignores never train."""
+    return F.cross_entropy(logits.float(), target, weight=weights, ignore_index=IGNORE_INDEX)
 
 
 def _seed_everything(seed: int) -> None:
@@ -148,7 +129,7 @@ class Run:
     start: int
     total: int
     model: models.Segmenter
-    module: nn.Module  # what the steps call: the model, end to end, under DDP, compiled
+    module: nn.Module  # what the steps call: the model, under DDP, compiled
     ddp: nn.parallel.DistributedDataParallel | None
     optimizer: torch.optim.Optimizer
     scheduler: torch.optim.lr_scheduler.LRScheduler
@@ -183,7 +164,9 @@ class Run:
         )  # fmt: skip
 
 
-def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
+def train(
+    cfg: DictConfig, *, resume: bool = False, say: Callable[[str], object] = print
+) -> RunResult:
     """Run (or resume) the training a resolved config describes; rank 0 writes ``out_dir``.
 
     Args:
@@ -204,7 +187,7 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     run.tick = time.perf_counter()
     try:
         for step in range(run.start, run.total):
-            lr = run.scheduler.get_last_lr()[-1]
+            lr = float(run.scheduler.get_last_lr()[-1])
             loss, grad_norm = optimiser_step(run, step, lr)
             after_step(run, step + 1, loss, lr, grad_norm, bar)
     finally:
@@ -217,12 +200,15 @@ def train(cfg: DictConfig, *, resume: bool = False, say=print) -> RunResult:
     return RunResult(run.out, run.total, run.total, run.best_miou, run.best_step, run.last_val)
 
 
-def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
+def build_run(
+    cfg: DictConfig, resume: bool, say: Callable[[str], object] = print
+) -> Run | RunResult:
     """Data, model, optimiser, checkpoint state and logs of a run, ready for its first step.
 
     Returns a :class:`RunResult` instead when ``out_dir`` holds a finished run (nothing to do).
     """
     C.resolve_backbone(cfg)  # idempotent: a config not from load_config gets it too
+    C.check_weights_file(cfg)  # before indexing, the label cache and config.yaml
     info, say = _start_process(cfg, say)
     device, main = info.device, info.is_main
     if main and (message := C.statistics_warning(cfg)) is not None:
@@ -233,7 +219,7 @@ def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
     total = int(cfg.train.steps)
     out, ckpt = _claim_out_dir(cfg, resume, info, say)
     start = int(ckpt["step"]) if ckpt else 0
-    if start >= total:
+    if ckpt is not None and start >= total:  # total >= 1: only a checkpoint gets there
         return _finished(out, ckpt, start, total, say)
     val_set, palette = _validation_data(cfg, train_set, say)
     if info.is_main:  # one process builds the label cache; the others wait and then read it
@@ -241,18 +227,22 @@ def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
         say(f"RGB crops: {jpeg_region.decoder()}")
     barrier()
     model = _build_model(cfg, palette.num_classes)
-    dtype = amp_dtype(cfg.train.amp, device)
+    dtype = autocast_dtype(cfg.train.precision, device)
     # Checked before the first step, not at the first validation.
     window = _val_window(cfg, model.patch_size, precision_name(dtype))
-    trained: nn.Module = model if cfg.model.freeze_backbone else EndToEnd(model)
+    if not cfg.model.freeze_backbone:
+        model.unfreeze_backbone()  # before the optimiser collects what trains
     model.to(device)
     optimizer = build_optimizer(model, cfg)
     scheduler = build_scheduler(optimizer, cfg, total)
     # fp16 overflows without loss scaling; bf16 has float32's range and needs none.
     scaler = torch.amp.GradScaler(device.type, enabled=dtype == torch.float16)
-    say(f"precision: {precision_name(dtype)} (train.amp={cfg.train.amp}, {device.type})")
+    say(
+        f"precision: {precision_name(dtype)} (train.precision={cfg.train.precision}, {device.type})"
+    )
     weights = _class_weights(cfg, train_set, palette.num_classes, info)
-    best_miou, best_step, last_val = None, None, {}
+    best_miou, best_step = None, None
+    last_val: dict[str, Any] = {}
     if ckpt:
         restore_model(model, ckpt)
         optimizer.load_state_dict(ckpt["optimizer"])
@@ -262,7 +252,7 @@ def build_run(cfg: DictConfig, resume: bool, say=print) -> Run | RunResult:
         best_miou, best_step = ckpt.get("best_miou"), ckpt.get("best_step")
         last_val = ckpt.get("metrics") or {}
         say(f"resuming {out / 'last.pt'} at step {start}/{total}")
-    module, ddp = _wrap(trained, cfg, info)
+    module, ddp = _wrap(model, cfg, info)
     validator = Validator(val_set, list(palette.names), window, cfg.val.bins, cfg.data.val_limit,
                           device)  # fmt: skip
     batches = _batches(cfg, train_set, info, start)
@@ -292,7 +282,7 @@ def _start_process(cfg: DictConfig, say: Any) -> tuple[DistInfo, Any]:
 def _training_data(cfg: DictConfig) -> Any:
     """The training split, its UAVid labels checked against ``data.palette``."""
     train_set = build_train_dataset(cfg)
-    if cfg.data.dataset == "uavid":  # label files in a palette: the right one?
+    if isinstance(train_set, UAVidSegmentation):  # label files in a palette: the right one?
         check_palette_fit([train_set.label_path(p) for p in train_set.images],
                           load_palette(cfg.data.palette), "data.palette")  # fmt: skip
     return train_set
@@ -325,7 +315,7 @@ def _validation_data(cfg: DictConfig, train_set: Any, say: Any) -> tuple[Any, An
     if (shares := split_table(train_set)) is not None:
         say(shares)
     palette = load_palette(cfg.data.palette)
-    if cfg.data.val_dataset == "uavid":  # UAVid val labels in data.palette: the right one?
+    if isinstance(val_set, UAVidSegmentation):  # UAVid val labels in data.palette: right one?
         check_palette_fit([val_set.label_path(p) for p in val_set.images], palette,
                           "data.palette")  # fmt: skip
     return val_set, palette
@@ -337,6 +327,7 @@ def _build_model(cfg: DictConfig, num_classes: int) -> models.Segmenter:
         m.backbone,
         num_classes=num_classes,
         weights=m.weights,
+        head=m.head,
         layers=list(m.layers) if m.layers is not None else None,
         features=m.features,
         out_channels=list(m.out_channels) if m.out_channels is not None else None,
@@ -357,20 +348,27 @@ def _class_weights(
     barrier()
     if not info.is_main:
         counts = class_frequencies(train_set, num_classes)
+    # None only for `none`, returned above.
     return class_weights(counts, cfg.data.class_weights).to(info.device)  # type: ignore[union-attr]
 
 
 def _wrap(
-    trained: nn.Module, cfg: DictConfig, info: DistInfo
+    model: models.Segmenter, cfg: DictConfig, info: DistInfo
 ) -> tuple[nn.Module, nn.parallel.DistributedDataParallel | None]:
     """What the steps call: the model under DDP (several ranks) and compiled (train.compile)."""
-    module: nn.Module = trained
+    module: nn.Module = model
     ddp = None
     if info.world_size > 1:
         ids = [info.device.index] if info.device.type == "cuda" else None
-        module = ddp = nn.parallel.DistributedDataParallel(trained, device_ids=ids)
+        if info.device.type == "cuda":
+            # The heads' BatchNorms (linear, UperNet) normalise over every rank's micro-batch, as
+            # the official protocols train them. SyncBatchNorm needs CUDA; it keeps the module's
+            # parameters (the optimiser's) and state-dict keys.
+            model = nn.SyncBatchNorm.convert_sync_batchnorm(model)
+        module = ddp = nn.parallel.DistributedDataParallel(model, device_ids=ids)
     if cfg.train.compile:
-        module = torch.compile(module)
+        # A compiled Module is a Module (OptimizedModule); torch's stubs say a callable.
+        module = torch.compile(module)  # type: ignore[assignment]
     module.train()
     return module, ddp
 
@@ -406,7 +404,7 @@ def optimiser_step(run: Run, step: int, lr: float) -> tuple[float, float]:
         with contextlib.nullcontext() if run.ddp is None or last else run.ddp.no_sync():
             with torch.autocast(device.type, dtype=dtype, enabled=dtype is not None):
                 logits = run.module(x)
-            loss = F.cross_entropy(logits.float(), y, weight=run.weights, ignore_index=IGNORE_INDEX)
+            loss = segmentation_loss(logits, y, run.weights)
             run.scaler.scale(loss / accum).backward()
         losses.append(loss.detach())
         run.images += x.shape[0]
@@ -428,11 +426,11 @@ def optimiser_step(run: Run, step: int, lr: float) -> tuple[float, float]:
 def after_step(run: Run, done: int, loss: float, lr: float, grad_norm: float, bar: Any) -> None:
     """What follows step ``done``: the log row, validation (and ``best.pt``), ``last.pt``."""
     cfg, main, out = run.cfg, run.info.is_main, run.out
-    if main and (done % cfg.train.log_every == 0 or done == run.total):
+    if run.log is not None and (done % cfg.train.log_every == 0 or done == run.total):
         now = time.perf_counter()
         rate = run.images * run.info.world_size / max(now - run.tick, 1e-9)
         run.tick, run.images = now, 0
-        run.log.write({"step": done, "loss": loss, "lr": lr, "images_per_s": rate,  # type: ignore[union-attr]
+        run.log.write({"step": done, "loss": loss, "lr": lr, "images_per_s": rate,
                        "grad_norm": grad_norm})  # fmt: skip
         bar.set_postfix(loss=f"{loss:.4f}", lr=f"{lr:.2e}", img_s=f"{rate:.1f}")
     bar.update(1)
@@ -452,8 +450,8 @@ def after_step(run: Run, done: int, loss: float, lr: float, grad_norm: float, ba
         began = time.perf_counter()
         run.last_val = {"step": done, **run.validator(run.model)}
         run.tick += time.perf_counter() - began  # images/s counts training time only
-        if main:
-            run.log.write(run.last_val)  # type: ignore[union-attr]
+        if run.log is not None:  # rank 0's
+            run.log.write(run.last_val)
             bins = " ".join(f"{k} {_fmt(x)}" for k, x in run.last_val["miou_bins"].items())
             edges = " ".join(
                 f"{k} {_fmt(x)}" for k, x in run.last_val["boundary_miou_bins"].items()

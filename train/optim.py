@@ -76,6 +76,6 @@ def clip_gradients(model: nn.Module, max_norm: float) -> float:
     """Clip the global gradient norm (0: off); returns the norm before clipping."""
     params = [p for p in model.parameters() if p.grad is not None]
     if max_norm <= 0:
-        norms = [p.grad.detach().norm() for p in params]  # type: ignore[union-attr]
+        norms = [grad.detach().norm() for p in params if (grad := p.grad) is not None]
         return float(torch.stack(norms).norm()) if norms else 0.0
     return float(torch.nn.utils.clip_grad_norm_(params, max_norm))

@@ -82,6 +82,9 @@ def started(out: Path) -> bool:
 def _load(path: Path) -> DictConfig | None:
     """A run's saved config, or None when it no longer parses (an older schema)."""
     try:
-        return C.from_plain(OmegaConf.to_container(OmegaConf.load(path)))  # type: ignore[arg-type]
+        loaded = OmegaConf.load(path)
+        if not isinstance(loaded, DictConfig):  # a list: no config of ours
+            return None
+        return C.from_plain(C.to_plain(loaded, resolve=False))
     except Exception:
         return None

@@ -73,7 +73,8 @@ class StepSampler(Sampler):
         self.rank, self.world_size, self.grad_accum = rank, world_size, grad_accum
         self.micro = frames_per_step // (world_size * grad_accum)
         self.start_step = start_step
-        self.groups = [np.asarray(g, dtype=np.int64) for g in groups or [range(num_frames)]]
+        every = [list(range(num_frames))]
+        self.groups = [np.asarray(g, dtype=np.int64) for g in groups or every]
         self._perms: dict[tuple[int, int], np.ndarray] = {}
 
     def frame(self, position: int) -> int:
@@ -92,7 +93,7 @@ class StepSampler(Sampler):
 
     def positions(self, step: int) -> list[int]:
         """This rank's global positions of ``step``, micro-batch after micro-batch."""
-        out = []
+        out: list[int] = []
         for m in range(self.grad_accum):
             first = step * self.frames_per_step + (m * self.world_size + self.rank) * self.micro
             out.extend(range(first, first + self.micro))

@@ -15,7 +15,6 @@ from typing import Any
 import numpy as np
 import torch
 from torch import nn
-from torch.utils.data import Dataset
 
 from claravid.eval import (
     ImageMeasures,
@@ -26,7 +25,7 @@ from claravid.eval import (
     stratify,
 )
 from claravid.infra.distributed import gather_in_order, shard_indices
-from claravid.train.data import image_paths
+from claravid.train.data import SegmentationSplit, image_paths
 from claravid.train.sampler import sharded_delentropy
 
 
@@ -44,14 +43,14 @@ class Validator:
 
     def __init__(
         self,
-        dataset: Dataset,
+        dataset: SegmentationSplit,
         classes: list[str],
         window: WindowConfig,
         bins: int = 3,
         limit: int | None = None,
         device: torch.device | str = "cpu",
     ) -> None:
-        n = len(dataset)  # type: ignore[arg-type]
+        n = len(dataset)
         self.dataset, self.classes, self.window, self.bins = dataset, classes, window, bins
         self.device = torch.device(device)
         if limit is not None and limit < n:
@@ -85,9 +84,12 @@ class Validator:
         finally:
             model.train(was_training)
         rows = gather_in_order([(s.confusion, s.boundary) for s in scores], mine)
-        quality = QualityTable(
-            {"boundary_iou": "computed"}, boundary=np.stack([b for _, b in rows])
-        )
+        boundaries = []
+        for _, sums in rows:
+            if sums is None:  # asked for with ImageMeasures(boundary=True)
+                raise RuntimeError("evaluate_model returned an image without its boundary sums")
+            boundaries.append(sums)
+        quality = QualityTable({"boundary_iou": "computed"}, boundary=np.stack(boundaries))
         report = stratify(self.paths, np.stack([c for c, _ in rows]), self.classes,
                           {"delent": self.delent}, bins=self.bins, quality=quality)  # fmt: skip
         overall = report["overall"]

@@ -50,6 +50,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from claravid.data.index import Frame
 from claravid.io.layout import MISSIONS
@@ -134,7 +135,7 @@ def group_blocks(
     frames: Sequence[Frame],
     positions: np.ndarray,
     block_size: float,
-    origins: Mapping[str, Sequence[float]] | None = None,
+    origins: Mapping[str, ArrayLike] | None = None,
 ) -> Blocks:
     """Group frames into the ``block_size``-metre squares of their camera positions (N×2 m).
 
@@ -168,7 +169,7 @@ def block_ids(
     frames: Sequence[Frame],
     positions: np.ndarray,
     block_size: float,
-    origins: Mapping[str, Sequence[float]] | None = None,
+    origins: Mapping[str, ArrayLike] | None = None,
 ) -> list[str]:
     """The spatial block of each frame, e.g. ``"003_urban_1/3_2"``.
 
@@ -252,7 +253,7 @@ def deal_blocks(
     held = np.bincount(split, minlength=k)
     open_splits = np.flatnonzero(~closed)
     if count >= len(open_splits):
-        for t in open_splits:
+        for t in open_splits.tolist():
             if held[t] == 0:
                 delta = moves()[:, t]
                 delta[held[split] < 2] = np.inf
@@ -274,25 +275,25 @@ def deal_blocks(
         move[:, closed] = np.inf
         move[np.arange(count), split] = np.inf
         move[held[split] < 2] = np.inf  # never empty a split
-        b, t = np.unravel_index(int(np.argmin(move)), move.shape)
+        b, t = (int(v) for v in np.unravel_index(int(np.argmin(move)), move.shape))
         best = move[b, t]
         swap = None
         if swaps:
             across = delta[:, split]  # [i, j]: i moved to j's split
             pair = across + across.T - cross
             pair[split[:, None] == split[None, :]] = np.inf
-            i, j = np.unravel_index(int(np.argmin(pair)), pair.shape)
+            i, j = (int(v) for v in np.unravel_index(int(np.argmin(pair)), pair.shape))
             if pair[i, j] < best:
-                best, swap = pair[i, j], (int(i), int(j))
+                best, swap = pair[i, j], (i, j)
         if not best < -tolerance:
             break
         if swap is None:
             held[split[b]] -= 1
             held[t] += 1
-            apply_move(int(b), int(t))
+            apply_move(b, t)
         else:
             i, j = swap
-            si, sj = split[i], split[j]
+            si, sj = int(split[i]), int(split[j])
             apply_move(i, sj)
             apply_move(j, si)
     return split

@@ -2,9 +2,9 @@
 
 Examples::
 
-    claravid-cache /data/ClaraVid --workers 8
-    claravid-cache /data/ClaraVid --missions urban_1,urban_2 --altitude low --cache-dir /fast/c
-    claravid-cache /data/ClaraVid --shard $SLURM_ARRAY_TASK_ID/16 --no-progress
+    claravid-cache --data /data/ClaraVid --workers 8
+    claravid-cache --data /data/ClaraVid --missions urban_1,urban_2 --altitude low -o /fast/c
+    claravid-cache --data /data/ClaraVid --shard $SLURM_ARRAY_TASK_ID/16 --no-progress
 
 Label codes are palette-independent, so one preparation serves every palette: a frame's codes
 carry the dynamic flag whenever the frame has a dynamic mask, the entries every
@@ -12,8 +12,8 @@ carry the dynamic flag whenever the frame has a dynamic mask, the entries every
 :meth:`ClaraVidSegmentation.prepare_label_cache`). Running it again builds only what is missing
 or invalid.
 
-``--missions``, ``--altitude`` and ``--direction`` take one comma-separated list each, as
-``claravid-eval``'s do.
+``--data``, ``-o/--output``, ``--missions``, ``--altitude`` and ``--direction`` are the flags
+every command shares (one comma-separated list each for the selection).
 
 Exit status: 0 ok, 1 some frames' label files could not be read or their entry location
 refused the write (listed), 2 bad arguments, a root that is not ClaraVid, or a cache folder
@@ -24,16 +24,19 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from claravid.infra.cli import (
     EXIT_OK,
     EXIT_PARTIAL,
     UsageError,
+    add_data_flag,
     add_debug_flag,
+    add_output_flag,
     add_progress_flag,
+    add_selection_flags,
     add_workers_flag,
     run_cli,
+    selection_names,
 )
 
 PROG = "claravid-cache"
@@ -44,59 +47,22 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG,
         description="Prepare the label-code cache of a ClaraVid selection (tiled TIFFs read by "
-        "window), so training never decodes a panoptic PNG.",
+        "window), so training never decodes a panoptic PNG. --data is the ClaraVid root; "
+        "-o/--output the cache root (default $CLARAVID_CACHE, else ~/.cache/claravid; the "
+        "label_cache= folder of ClaraVidSegmentation); the selection defaults to every frame.",
         epilog="Exit status: 0 ok, 1 some label files could not be read or entries written "
         "(listed), 2 bad arguments, no ClaraVid root, or a cache that cannot be written.",
     )
-    parser.add_argument("root", type=Path, metavar="ROOT", help="the ClaraVid root folder")
-    parser.add_argument(
-        "--missions", metavar="LIST", help="ClaraVid missions, e.g. urban_1,urban_2 (default all)"
-    )
-    parser.add_argument(
-        "--altitude", metavar="LIST", help="ClaraVid altitudes, e.g. low,mid (default all)"
-    )
-    parser.add_argument(
-        "--direction", metavar="LIST", help="ClaraVid directions h,v (default both)"
-    )
+    add_data_flag(parser, required=True)
+    add_selection_flags(parser)
     add_workers_flag(parser, "building the cache")
     parser.add_argument(
         "--shard", help="k/n: prepare only every n-th frame from the k-th (0-based)"
     )
-    parser.add_argument(
-        "--cache-dir",
-        "-o",
-        "--output",
-        dest="output",
-        type=Path,
-        metavar="DIR",
-        help="cache root (default $CLARAVID_CACHE or ~/.cache/claravid; the label_cache= "
-        "folder of ClaraVidSegmentation)",
-    )
+    add_output_flag(parser)
     add_progress_flag(parser)
     add_debug_flag(parser)
     return parser
-
-
-_EXAMPLE = {"missions": "urban_1,urban_2", "altitude": "low,mid", "direction": "h"}
-
-
-def selection_flags(args: argparse.Namespace) -> dict[str, list[str]]:
-    """``--missions a,b`` -> ``{"missions": [a, b]}`` (and ``--altitude``, ``--direction``): one
-    comma-separated list per flag, the spelling of ``claravid-eval``.
-
-    Raises:
-        UsageError: a flag given with nothing in it.
-    """
-    out = {}
-    for name in _EXAMPLE:
-        text = getattr(args, name)
-        if text is None:
-            continue
-        values = [v.strip() for v in text.split(",") if v.strip()]
-        if not values:
-            raise UsageError(f"--{name} is empty; give e.g. --{name} {_EXAMPLE[name]}")
-        out[name] = values
-    return out
 
 
 def _size(n: float) -> str:
@@ -114,23 +80,31 @@ def _run(args: argparse.Namespace) -> int:
 
     # Cheap errors first. An empty --shard (an unset variable) is an error, not "every frame".
     shard = parse_shard(args.shard) if args.shard is not None else (0, 1)
-    selection = selection_flags(args)
+    selection = {name: selection_names(name, getattr(args, name))
+                 for name in ("missions", "altitude", "direction")
+                 if getattr(args, name) is not None}  # fmt: skip
     if args.output is not None and args.output.exists() and not args.output.is_dir():
-        raise UsageError(f"--cache-dir {args.output} is a file; give a folder")
+        raise UsageError(f"--output {args.output} is a file; give a folder")
     dataset = ClaraVidSegmentation(
-        args.root, split="all", label_cache=args.output or True, **selection
+        args.data,
+        split="all",
+        missions=selection.get("missions"),
+        altitude=selection.get("altitude"),
+        direction=selection.get("direction"),
+        label_cache=args.output or True,
     )
     try:
         summary = dataset.prepare_label_cache(
             workers=args.workers, progress=not args.no_progress, shard=shard
         )
     except CacheWriteError as exc:
-        where = "CLARAVID_CACHE=DIR or --cache-dir DIR" if args.output is None else "--cache-dir"
+        where = "CLARAVID_CACHE=DIR or --output DIR" if args.output is None else "--output"
         raise UsageError(
             f"{exc.reason}; {exc.written} entries were written before it, none is half-written; "
             f"free some space or choose a writable folder ({where})"
         ) from None
     cache = dataset.label_cache
+    assert cache is not None  # label_cache= was given
     failures = summary.failed + summary.unwritten
     order = {str(f.paths["pan_seg"]): i for i, f in enumerate(dataset.frames)}
     for pan, reason in sorted(failures, key=lambda failure: order[failure[0]]):

@@ -19,6 +19,7 @@ import errno
 import os
 import re
 import socket
+import stat
 import struct
 import threading
 import uuid
@@ -29,12 +30,46 @@ from claravid.io.labels import identity_fingerprint, source_identity
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _HOST = re.sub(r"[^A-Za-z0-9.-]", "_", socket.gethostname()) or "host"
-_FULL_ERRNOS = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)}
+#: No room for any entry: a full disk, or the user's quota exceeded (EDQUOT, where it exists).
+_EDQUOT = getattr(errno, "EDQUOT", None)
+_FULL_ERRNOS = {errno.ENOSPC} | ({_EDQUOT} if _EDQUOT is not None else set())
 _FOLDER_ERRNOS = {errno.EROFS, *_FULL_ERRNOS}
 
 
 class LabelCacheWarning(UserWarning):
     """The label cache could not be written (labels decoded instead) or an entry was rebuilt."""
+
+
+class NotAnEntry(OSError):
+    """Something other than a file or folder (a FIFO, socket or device) where an entry should
+    be: never opened for reading (a FIFO would block forever) nor replaced; its frame is decoded
+    from the sources instead."""
+
+
+_KINDS = {stat.S_IFIFO: "a FIFO", stat.S_IFSOCK: "a socket", stat.S_IFCHR: "a character device",
+          stat.S_IFBLK: "a block device"}  # fmt: skip
+
+
+def open_entry(path: Path) -> int:
+    """A read-only descriptor on the entry file ``path``, opened without blocking.
+
+    Raises:
+        OSError: no entry there (missing, or a folder in its place).
+        NotAnEntry: a FIFO, socket or device in its place, naming it and what to do.
+    """
+    flags = os.O_RDONLY | getattr(os, "O_BINARY", 0) | getattr(os, "O_NONBLOCK", 0)
+    fd = os.open(path, flags)
+    mode = os.fstat(fd).st_mode
+    if stat.S_ISREG(mode):
+        return fd
+    os.close(fd)
+    if stat.S_ISDIR(mode):  # a folder in its place: no entry there (its write fails alone)
+        raise IsADirectoryError(errno.EISDIR, "not a file", str(path))
+    kind = _KINDS.get(stat.S_IFMT(mode), "not a regular file")
+    raise NotAnEntry(
+        f"the label cache entry {path} is {kind}, not a file, and is left alone; remove it to "
+        "cache this frame"
+    )
 
 
 class CacheWriteError(OSError):
@@ -111,7 +146,7 @@ def folder_refuses(exc: OSError, directory: Path) -> bool:
     (a folder where one entry should be, one sub-folder without permission, a transient I/O
     error) concerns that entry alone.
     """
-    if exc.errno in _FOLDER_ERRNOS:
+    if exc.errno in _FOLDER_ERRNOS or broken_link(directory) is not None:
         return True
     anchor = Path(directory)
     while not anchor.exists() and anchor != anchor.parent:
@@ -119,10 +154,30 @@ def folder_refuses(exc: OSError, directory: Path) -> bool:
     return not anchor.is_dir() or not os.access(anchor, os.W_OK | os.X_OK)
 
 
+def broken_link(directory: Path) -> Path | None:
+    """The symbolic link on the way to ``directory`` (itself or a folder above it) that leads
+    nowhere, dangling or in a loop; None when there is none. Nothing can be written below it."""
+    path = Path(directory)
+    while not path.exists():  # False for a dangling link and for a loop (ELOOP)
+        if path.is_symlink():
+            return path
+        if path == path.parent:
+            return None
+        path = path.parent
+    return None
+
+
 def write_error(exc: OSError, directory: Path) -> str:
     """Why writing the cache failed, in words, naming the folder."""
     if exc.errno in _FULL_ERRNOS:
-        return f"the disk is full (no space left for the label cache in {directory})"
+        full = "disk quota is exceeded" if exc.errno == _EDQUOT else "disk is full"
+        return f"the {full} (no space left for the label cache in {directory})"
+    link = broken_link(directory)
+    if link is not None:
+        return (
+            f"the label cache folder {directory} cannot be made: {link} is a symbolic link "
+            "that leads nowhere (dangling, or a loop)"
+        )
     if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
         return f"the label cache folder {directory} is not writable ({exc.strerror})"
     return f"cannot write the label cache in {directory} ({exc.strerror or exc})"

@@ -23,6 +23,7 @@ from tqdm.auto import tqdm
 
 from claravid.data.cache_entries import (
     CacheWriteError,
+    NotAnEntry,
     entry_error,
     entry_path_of,
     folder_refuses,
@@ -127,9 +128,12 @@ def prepare_entries(
         except OSError as exc:
             summary.failed.append((str(pan), f"cannot read it ({exc})"))
             continue
+        entry = entry_path_of(cache.directory, identity)
         try:
-            entry = entry_path_of(cache.directory, identity)
             fd, _ = cache.open_valid(entry, pan, identity, verify=True)
+        except NotAnEntry as exc:  # a FIFO or device in its place: listed, left alone
+            summary.unwritten.append((str(pan), str(exc)))
+            continue
         except (OSError, InvalidEntry):  # missing, unreadable or invalid: (re)build it
             jobs.append((str(pan), None if dyn is None else str(dyn), cache.tile_size))
             continue

@@ -83,8 +83,7 @@ def choose_keys(
     return requested
 
 
-def _stems(folder: Path, ext: str) -> set[str]:
-    suffix = f".{ext}"
+def _stems(folder: Path, suffix: str) -> set[str]:
     with os.scandir(folder) as entries:
         return {e.name[: -len(suffix)] for e in entries if e.name.endswith(suffix)}
 
@@ -93,7 +92,7 @@ def _viewpoints(mission_dir: Path, file_fields: Sequence[str]) -> set[str]:
     """Viewpoint folders present in any requested modality folder of a mission."""
     found: set[str] = set()
     for key in file_fields:
-        with os.scandir(mission_dir / MODALITIES[key].folder) as entries:
+        with os.scandir(MODALITIES[key].folder_in(mission_dir)) as entries:
             found |= {e.name for e in entries if e.name in _VIEWPOINTS and e.is_dir()}
     return found
 
@@ -179,7 +178,7 @@ def list_frames(
         if not mission_dir.is_dir():
             raise DatasetNotFoundError(f"mission {mission!r}", mission_dir, _GET_DATA)
         for key in file_fields:
-            modality_dir = mission_dir / MODALITIES[key].folder
+            modality_dir = MODALITIES[key].folder_in(mission_dir)
             if not modality_dir.is_dir():
                 raise DatasetNotFoundError(f"modality {key!r} of mission {mission!r}", modality_dir)
         present[mission] = _viewpoints(mission_dir, file_fields)
@@ -199,8 +198,9 @@ def list_frames(
                 # Stems of each modality; a viewpoint folder absent in one modality is empty.
                 stems = {}
                 for key in file_fields:
-                    folder = mission_dir / MODALITIES[key].folder / view
-                    stems[key] = _stems(folder, MODALITIES[key].ext) if folder.is_dir() else set()
+                    modality = MODALITIES[key]
+                    folder = modality.folder_in(mission_dir) / view
+                    stems[key] = _stems(folder, f".{modality.ext}") if folder.is_dir() else set()
                 for stem in sorted(set().union(*stems.values())):
                     paths = {key: frame_file(mission_dir, view, stem, key) for key in file_fields}
                     absent = [paths[k] for k in file_fields if stem not in stems[k]]
@@ -227,7 +227,7 @@ def list_frames(
         raise DatasetNotFoundError(
             f"frames of fields {file_fields} for missions {chosen}, altitude {altitudes}, "
             f"direction {directions}",
-            root / MISSIONS[chosen[0]] / MODALITIES[file_fields[0]].folder,
+            MODALITIES[file_fields[0]].folder_in(root / MISSIONS[chosen[0]]),
             "Check the selection against the viewpoint folders present",
         )
     return frames

@@ -24,9 +24,7 @@ behind.
 
 from __future__ import annotations
 
-import errno
 import os
-import stat
 import threading
 import warnings
 from collections import OrderedDict
@@ -38,10 +36,12 @@ import numpy as np
 from claravid.data.cache_entries import (
     CacheWriteError,
     LabelCacheWarning,
+    NotAnEntry,
     entry_error,
     entry_path,
     entry_path_of,
     folder_refuses,
+    open_entry,
     png_shape,
     write_atomic,
     write_error,
@@ -49,7 +49,7 @@ from claravid.data.cache_entries import (
 from claravid.data.cache_prepare import PrepareSummary, Sources, prepare_entries
 from claravid.infra.cachedir import cache_dir
 from claravid.io import label_tiff
-from claravid.io.label_tiff import InvalidEntry, SourceIdentity, TileLayout
+from claravid.io.label_tiff import InvalidEntry, OtherVersion, SourceIdentity, TileLayout
 from claravid.io.labels import read_label_codes, source_identity
 
 __all__ = [
@@ -68,10 +68,11 @@ __all__ = [
 LAYOUTS = 1024
 # Per process, for every LabelCache: folders that cannot take an entry (warned once, not
 # written again), entries whose write failed (warned once, not retried), invalid entries that
-# could not be rebuilt (warned once).
+# could not be rebuilt (warned once), folders holding entries of another version (warned once).
 _unwritable_folders: set[str] = set()
 _unwritable_entries: set[str] = set()
 _unrepaired_entries: set[str] = set()
+_other_versions: set[str] = set()  # folders whose entries of another version were warned about
 
 
 class LabelCache:
@@ -79,8 +80,14 @@ class LabelCache:
 
     Args:
         directory: the cache root; None: ``$CLARAVID_CACHE`` or ``~/.cache/claravid``.
-        tile_size: tile side of the entries this cache writes (reading takes any).
-        layouts: how many parsed entry headers to keep (least recently used dropped first).
+        tile_size: tile side of the entries this cache writes (reading takes any): a positive
+            multiple of 16, as TIFF tiles are.
+        layouts: how many parsed entry headers to keep (least recently used dropped first);
+            0 keeps none.
+
+    Raises:
+        ValueError: a tile size or a number of layouts it cannot use, said when it is made
+            rather than at the first read.
     """
 
     def __init__(
@@ -89,6 +96,16 @@ class LabelCache:
         tile_size: int = label_tiff.TILE,
         layouts: int = LAYOUTS,
     ):
+        if not _is_int(tile_size) or tile_size < 16 or tile_size % 16:
+            raise ValueError(
+                f"tile_size={tile_size!r}: TIFF tiles are a positive multiple of 16 pixels, "
+                f"e.g. {label_tiff.TILE} (the default)"
+            )
+        if not _is_int(layouts) or layouts < 0:
+            raise ValueError(
+                f"layouts={layouts!r}: how many parsed entry headers to keep, an integer >= 0 "
+                f"(default {LAYOUTS})"
+            )
         #: Whether the folder came from $CLARAVID_CACHE (what a message advises to change).
         self.from_environment = directory is None
         self.directory = Path(directory) if directory is not None else cache_dir()
@@ -189,14 +206,13 @@ class LabelCache:
             verify: check every tile's CRC too (nothing inflated).
 
         Raises:
-            OSError: no entry there (or not a file).
+            OSError: no entry there (or a folder in its place).
+            NotAnEntry: a FIFO, socket or device in its place (never read: a FIFO would block).
             InvalidEntry: an entry that must not be served.
         """
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_BINARY", 0))
+        fd = open_entry(path)
         try:
             st = os.fstat(fd)
-            if not stat.S_ISREG(st.st_mode):  # a folder in its place: no entry there
-                raise IsADirectoryError(errno.EISDIR, "not a file", str(path))
             file_id = (st.st_ino, st.st_size, st.st_mtime_ns)
             key = str(path)
             with self._lock:
@@ -233,6 +249,9 @@ class LabelCache:
         problem = None
         try:
             fd, layout = self.open_valid(path, pan_seg, identity)
+        except NotAnEntry as exc:  # left alone: decoded, never written over
+            self._warn_not_an_entry(path, exc)
+            return _window_of(read_label_codes(pan_seg, dyn), window)
         except OSError:  # missing, or a cache folder we cannot even read: decode instead
             pass
         except InvalidEntry as exc:
@@ -252,11 +271,7 @@ class LabelCache:
         stored = self._store(path, codes, identity)
         if problem is not None:
             self._warn_invalid(path, problem, stored)
-        if window is None:
-            return codes
-        x, y, w, h = window
-        _check_window(x, y, w, h, codes.shape[1], codes.shape[0])
-        return codes[y : y + h, x : x + w].copy()
+        return _window_of(codes, window)
 
     def _store(self, path: Path, codes: np.ndarray, identity: SourceIdentity) -> bool:
         """Write the entry unless its folder or itself refused a write before; True if written."""
@@ -274,6 +289,19 @@ class LabelCache:
         return True
 
     def _warn_invalid(self, path: Path, exc: InvalidEntry, stored: bool) -> None:
+        if stored and isinstance(exc, OtherVersion):
+            # Every entry of an older cache is one: said once per folder, not once per entry.
+            if str(self.directory) in _other_versions:
+                return
+            _other_versions.add(str(self.directory))
+            warnings.warn(
+                f"label cache entries in {self.directory} were {exc}: each is rebuilt from its "
+                "sources when first read (this warning is given once); claravid-cache rebuilds "
+                "them all ahead of time",
+                LabelCacheWarning,
+                stacklevel=5,
+            )
+            return
         if stored:
             warnings.warn(
                 f"label cache entry {path} is invalid ({exc}); rebuilt from the sources",
@@ -287,6 +315,17 @@ class LabelCache:
         warnings.warn(
             f"label cache entry {path} is invalid ({exc}) and the cache cannot be written to "
             "rebuild it: this frame's labels are decoded from the sources instead",
+            LabelCacheWarning,
+            stacklevel=5,
+        )
+
+    def _warn_not_an_entry(self, path: Path, exc: NotAnEntry) -> None:
+        # Once per entry and process, like an entry that cannot be written.
+        if str(path) in _unwritable_entries:
+            return
+        _unwritable_entries.add(str(path))
+        warnings.warn(
+            f"{exc}; its labels are decoded from the sources meanwhile (slower)",
             LabelCacheWarning,
             stacklevel=5,
         )
@@ -314,6 +353,19 @@ class LabelCache:
             LabelCacheWarning,
             stacklevel=5,
         )
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def _window_of(codes: np.ndarray, window: tuple[int, int, int, int] | None) -> np.ndarray:
+    """The whole codes, or a copy of their window (checked to lie inside)."""
+    if window is None:
+        return codes
+    x, y, w, h = window
+    _check_window(x, y, w, h, codes.shape[1], codes.shape[0])
+    return codes[y : y + h, x : x + w].copy()
 
 
 def _check_window(x: int, y: int, width: int, height: int, frame_w: int, frame_h: int) -> None:

@@ -33,7 +33,7 @@ def _ids(mask: Any) -> np.ndarray:
 def _legend(palette: Palette, present: set[int]) -> list[Patch]:
     """Legend entries for the train ids present (ignore last)."""
     handles = [
-        Patch(facecolor=np.asarray(palette.colors[i]) / 255.0, edgecolor="k", label=name)
+        Patch(facecolor=palette.colors[i] / 255.0, edgecolor="k", label=name)
         for i, name in enumerate(palette.names)
         if i in present
     ]

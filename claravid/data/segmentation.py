@@ -231,6 +231,7 @@ class ClaraVidSegmentation(Dataset):
             # (and the label PNG's), the crop drawn from it and decoded alone.
             photo = open_photo(frame.paths["rgb"])
             self._check_label_size(frame, photo.size)
+            # The crop check above found transforms.
             window = self.transforms.draw_window(*photo.size)  # type: ignore[union-attr]
             sample = self.read_window(index, window, photo)
             return finish_sample(sample, self.transforms, self.mask_dtype)

@@ -176,17 +176,20 @@ def make_split_config(
     try:
         return SplitConfig(**values)
     except SplitConfigError as exc:
+        if exc.setting is None:  # rebuilt from its message alone: nothing to prefix
+            raise
         raise SplitConfigError(prefix + exc.setting, exc.detail) from None
 
 
-def _missions(setting: str, missions: object) -> tuple[str, ...]:
-    """Canonical mission keys of a held-out list (a single string is one mission)."""
+def _missions(setting: str, missions: Any) -> tuple[str, ...]:
+    """Canonical mission keys of a held-out list (a single string is one mission); ``missions``
+    is any value a config holds, checked here."""
     if missions is None:
         return ()
     if isinstance(missions, str):
         missions = (missions,)
     try:
-        items = tuple(missions)  # type: ignore[arg-type]
+        items = tuple(missions)
     except TypeError:
         items = (missions,)
     out = []

@@ -151,6 +151,7 @@ class FolderSegmentation(Dataset):
         image = modalities.read_rgb(path)
         sample: Sample = {"image": image_tensor(image), "path": str(path), "key": self.keys[index]}
         if self.masks is not None:
+            assert self.palette is not None  # __init__ requires one with masks
             mask = masks.read_mask(self.masks[index], self.palette)
             _check_same_size(image, mask, path, self.masks[index])
             sample["mask"] = torch.from_numpy(mask)

@@ -1,7 +1,7 @@
 """Augmentation pipelines over sample dicts (albumentations 2.x).
 
 Training: a random crop at native resolution first (padded at a random position with the
-ignore index when the image is smaller), then colour jitter, brightness/contrast, rotation,
+ignore index, 255, when the image is smaller), then colour jitter, brightness/contrast, rotation,
 optical or grid distortion and a horizontal flip. Cropping first is what makes this cheap:
 augmenting a 630×630 crop takes a few ms, the full 4032×3024 frame hundreds.
 The crop window can be drawn before anything is decoded (:meth:`SegmentationTransform.draw_window`
@@ -25,9 +25,11 @@ leave it to the dataset (int64, what a loss takes).
 
 from __future__ import annotations
 
+import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")  # it phones home at import otherwise
 
@@ -35,9 +37,10 @@ import albumentations as A
 import cv2
 import numpy as np
 import torch
-from omegaconf import OmegaConf
+from omegaconf import Container, OmegaConf
 
 from claravid.io.headers import MAX_PIXELS
+from claravid.io.layout import UNLABELED_ID
 from claravid.io.yamlfile import YamlFileError, load_yaml
 
 #: The largest crop side: no JPEG frame is larger (libjpeg's JPEG_MAX_DIMENSION).
@@ -75,7 +78,6 @@ class AugmentConfig:
     # ImageNet's for normalize=True without a model).
     mean: tuple[float, float, float] | None = None
     std: tuple[float, float, float] | None = None
-    ignore_index: int = 255
 
     def __post_init__(self) -> None:
         """Refuse values the pipelines cannot use, naming the setting (they failed deep inside
@@ -98,18 +100,53 @@ class AugmentConfig:
             value = getattr(self, name)
             if not 0 <= value <= 1:
                 raise ValueError(f"{name}={value}: a probability, must be between 0 and 1")
-        # None: the backbone's statistics (filled in by claravid-train), checked there.
-        mean = None if self.mean is None else list(self.mean)
-        std = None if self.std is None else list(self.std)
-        if (mean is not None and len(mean) != 3) or (
-            std is not None and (len(std) != 3 or any(s == 0 for s in std))
-        ):
-            raise ValueError(
-                f"mean={mean}, std={std}: three values each (R, G, B), std non-zero, "
-                "or null for the backbone's statistics"
+        # None: the backbone's statistics (filled in by claravid-train).
+        problem = statistics_problem(self.mean, self.std)
+        if problem is not None:
+            raise ValueError(f"{problem}; or null for the backbone's statistics")
+
+
+def statistics_problem(mean: Any, std: Any) -> str | None:
+    """What makes input statistics unusable, in words; None when they are usable (or None).
+
+    A mean and a std are three finite numbers each (R, G, B) for pixels in [0, 1]: a mean in
+    [0, 1], a std in (0, 1]. Statistics on the 0–255 scale (``mean=[123.7, 116.3, 103.5]``)
+    would leave inputs a hundred times off their range; a zero or negative std, or NaN, would
+    make every input infinite or NaN.
+    """
+    for name, values in (("mean", mean), ("std", std)):
+        if values is None:
+            continue
+        numbers = isinstance(values, Sequence) and not isinstance(values, str)
+        listed = list(values) if numbers else values
+        if not numbers or len(listed) != 3 or not all(_is_number(v) for v in listed):
+            return (
+                f"{name}={listed!r}: three numbers (R, G, B) for pixels in [0, 1], e.g. "
+                "[0.5, 0.4, 0.3]"
             )
-        if not 0 <= self.ignore_index <= 255:
-            raise ValueError(f"ignore_index={self.ignore_index}: masks are uint8, 0..255")
+        if not all(math.isfinite(v) for v in listed):
+            return f"{name}={listed}: not finite"
+    given = {name: list(v) for name, v in (("mean", mean), ("std", std)) if v is not None}
+    if any(v > 1 for values in given.values() for v in values):
+        named = ", ".join(f"{name}={values}" for name, values in given.items())
+        return (
+            f"{named}: statistics on the 0–255 scale? they are for pixels in [0, 1]: divide "
+            "them by 255"
+        )
+    if mean is not None and min(mean) < 0:
+        return f"mean={list(mean)}: must lie in [0, 1]"
+    if std is not None and min(std) <= 0:
+        return f"std={list(std)}: must be positive"
+    return None
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _fields(config: Container) -> dict[str, Any]:
+    """A structured config's values as plain Python, keyed by the dataclass's field names."""
+    return cast(dict[str, Any], OmegaConf.to_container(config))
 
 
 def augment_config(overrides: Any = None) -> AugmentConfig:
@@ -119,7 +156,7 @@ def augment_config(overrides: Any = None) -> AugmentConfig:
     """
     base = OmegaConf.structured(AugmentConfig)
     if overrides is None:
-        return AugmentConfig(**OmegaConf.to_container(base))
+        return AugmentConfig(**_fields(base))
     if isinstance(overrides, str | os.PathLike):
         try:  # the strict loader names the file, and a duplicate key with its lines
             overrides = load_yaml(overrides) or {}
@@ -129,7 +166,7 @@ def augment_config(overrides: Any = None) -> AugmentConfig:
         merged = OmegaConf.merge(base, overrides)
     except Exception as error:  # omegaconf raises several unrelated types
         raise ValueError(f"invalid augmentation config: {error}") from None
-    return AugmentConfig(**OmegaConf.to_container(merged))
+    return AugmentConfig(**_fields(merged))
 
 
 class CropWindow(NamedTuple):
@@ -144,7 +181,8 @@ class CropWindow(NamedTuple):
 
 def _train_ops(cfg: AugmentConfig) -> list[A.BasicTransform]:
     """The augmentations after the crop (the crop itself is `SegmentationTransform`'s)."""
-    fill = {"border_mode": cv2.BORDER_CONSTANT, "fill": 0, "fill_mask": cfg.ignore_index}
+    # Masks are filled with the one ignore id (every palette's, the loss's and the metrics').
+    fill = {"border_mode": cv2.BORDER_CONSTANT, "fill": 0, "fill_mask": UNLABELED_ID}
     nearest = {"mask_interpolation": cv2.INTER_NEAREST}
     ops: list[A.BasicTransform] = []
     if cfg.color_jitter_p > 0:
@@ -183,7 +221,7 @@ class SegmentationTransform:
 
     Args:
         ops: the augmentations after the crop.
-        cfg: the config (normalisation, ignore index, crop size).
+        cfg: the config (normalisation, crop size).
         crop: ``(height, width)`` of the random crop; None: no crop (evaluation).
         normalize: end with the normalisation (float32 images, with ``cfg.mean``/``std``, else
             ImageNet's); False (default): uint8 images, normalised where the model runs (the
@@ -253,9 +291,8 @@ class SegmentationTransform:
                 np.ascontiguousarray(image), *pad, cv2.BORDER_CONSTANT, value=(0, 0, 0)
             )
             if mask is not None:
-                fill = self.cfg.ignore_index
                 mask = cv2.copyMakeBorder(
-                    np.ascontiguousarray(mask), *pad, cv2.BORDER_CONSTANT, value=fill
+                    np.ascontiguousarray(mask), *pad, cv2.BORDER_CONSTANT, value=UNLABELED_ID
                 )
         return image, mask, window
 
@@ -315,7 +352,9 @@ def train_transforms(config: Any = None, normalize: bool = False) -> Segmentatio
     segmenter normalises with its own statistics on its device.
 
     With ``normalize=True`` the pipeline ends with the normalisation (float32 crops, with the
-    config's ``mean``/``std``, else ImageNet's), for models that do not normalise themselves.
+    config's ``mean``/``std``, else ImageNet's), for models that do not normalise themselves;
+    not inside a torchgeo data module, which divides images by 255 again on the device (keep
+    uint8 there: docs/data.md, "With torchgeo and Lightning").
     """
     cfg = config if isinstance(config, AugmentConfig) else augment_config(config)
     crop = (cfg.crop_height, cfg.crop_width)

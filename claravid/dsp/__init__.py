@@ -12,50 +12,102 @@ OpenCV and no file reader, so the numpy-only ``claravid.eval.analysis`` can take
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from typing import TYPE_CHECKING
 
-# Public name -> module that defines it, imported on first access (PEP 562).
-_LAZY = {
-    "ComplexityCache": "claravid.dsp.cache",
-    "ImageError": "claravid.dsp.collection",
-    "ImageResult": "claravid.dsp.collection",
-    "MeasuredImage": "claravid.dsp.collection",
-    "NoImagesError": "claravid.dsp.collection",
-    "ProfileRun": "claravid.dsp.collection",
-    "compute_complexities": "claravid.dsp.collection",
-    "compute_measures": "claravid.dsp.collection",
-    "find_images": "claravid.dsp.collection",
-    "load_results": "claravid.dsp.collection",
-    "merge_runs": "claravid.dsp.collection",
-    "profile_images": "claravid.dsp.collection",
-    "compare_table": "claravid.dsp.compare",
-    "METRICS": "claravid.dsp.measures",
-    "ImageReadError": "claravid.dsp.metrics",
-    "deldensity_counts": "claravid.dsp.metrics",
-    "delentropy": "claravid.dsp.metrics",
-    "glcm_entropy": "claravid.dsp.metrics",
-    "gray_complexity": "claravid.dsp.metrics",
-    "image_complexity": "claravid.dsp.metrics",
-    "pixel_entropy": "claravid.dsp.metrics",
-    "read_gray": "claravid.dsp.metrics",
-    "plot_profile": "claravid.dsp.plot",
-    "DegenerateProfileWarning": "claravid.dsp.profile",
-    "Profile": "claravid.dsp.profile",
-    "fit_profile": "claravid.dsp.profile",
-    "tile_bounds": "claravid.dsp.tiles",
-    "tile_complexities": "claravid.dsp.tiles",
-}
+from claravid.infra.lazy import lazy_exports
 
-__all__ = sorted(_LAZY)
+__all__ = [
+    "METRICS",
+    "ComplexityCache",
+    "DegenerateProfileWarning",
+    "ImageError",
+    "ImageReadError",
+    "ImageResult",
+    "MeasuredImage",
+    "NoImagesError",
+    "Profile",
+    "ProfileRun",
+    "compare_table",
+    "compute_complexities",
+    "compute_measures",
+    "deldensity_counts",
+    "delentropy",
+    "find_images",
+    "fit_profile",
+    "glcm_entropy",
+    "gray_complexity",
+    "image_complexity",
+    "load_results",
+    "merge_runs",
+    "pixel_entropy",
+    "plot_profile",
+    "profile_images",
+    "read_gray",
+    "tile_bounds",
+    "tile_complexities",
+]
 
-
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'claravid.dsp' has no attribute {name!r}")
-    return getattr(importlib.import_module(module), name)
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_LAZY])
+if TYPE_CHECKING:
+    from claravid.dsp.cache import ComplexityCache
+    from claravid.dsp.collection import (
+        ImageError,
+        ImageResult,
+        MeasuredImage,
+        NoImagesError,
+        ProfileRun,
+        compute_complexities,
+        compute_measures,
+        find_images,
+        load_results,
+        merge_runs,
+        profile_images,
+    )
+    from claravid.dsp.compare import compare_table
+    from claravid.dsp.measures import METRICS
+    from claravid.dsp.metrics import (
+        ImageReadError,
+        deldensity_counts,
+        delentropy,
+        glcm_entropy,
+        gray_complexity,
+        image_complexity,
+        pixel_entropy,
+        read_gray,
+    )
+    from claravid.dsp.plot import plot_profile
+    from claravid.dsp.profile import DegenerateProfileWarning, Profile, fit_profile
+    from claravid.dsp.tiles import tile_bounds, tile_complexities
+else:
+    __getattr__, __dir__ = lazy_exports(
+        __name__,
+        {
+            "ComplexityCache": "claravid.dsp.cache",
+            "ImageError": "claravid.dsp.collection",
+            "ImageResult": "claravid.dsp.collection",
+            "MeasuredImage": "claravid.dsp.collection",
+            "NoImagesError": "claravid.dsp.collection",
+            "ProfileRun": "claravid.dsp.collection",
+            "compute_complexities": "claravid.dsp.collection",
+            "compute_measures": "claravid.dsp.collection",
+            "find_images": "claravid.dsp.collection",
+            "load_results": "claravid.dsp.collection",
+            "merge_runs": "claravid.dsp.collection",
+            "profile_images": "claravid.dsp.collection",
+            "compare_table": "claravid.dsp.compare",
+            "METRICS": "claravid.dsp.measures",
+            "ImageReadError": "claravid.dsp.metrics",
+            "deldensity_counts": "claravid.dsp.metrics",
+            "delentropy": "claravid.dsp.metrics",
+            "glcm_entropy": "claravid.dsp.metrics",
+            "gray_complexity": "claravid.dsp.metrics",
+            "image_complexity": "claravid.dsp.metrics",
+            "pixel_entropy": "claravid.dsp.metrics",
+            "read_gray": "claravid.dsp.metrics",
+            "plot_profile": "claravid.dsp.plot",
+            "DegenerateProfileWarning": "claravid.dsp.profile",
+            "Profile": "claravid.dsp.profile",
+            "fit_profile": "claravid.dsp.profile",
+            "tile_bounds": "claravid.dsp.tiles",
+            "tile_complexities": "claravid.dsp.tiles",
+        },
+    )

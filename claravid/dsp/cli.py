@@ -2,10 +2,10 @@
 
 Examples::
 
-    claravid-dsp /data/ClaraVid/003_urban_1 --pattern 'left_rgb/**/*.jpg' --plot urban_1.png
-    claravid-dsp frames.txt --metric glcment --workers 8 --output glcm.json
-    claravid-dsp complexity_results.json --plot profile.png      # official JSON: no recompute
-    claravid-dsp /data/big --pattern '**/*.jpg' --shard $SLURM_ARRAY_TASK_ID/16 --output part.json
+    claravid-dsp --data /data/ClaraVid/003_urban_1 --pattern 'left_rgb/**/*.jpg' --plot urban_1.png
+    claravid-dsp --data frames.txt --metric glcment --workers 8 --output glcm.json
+    claravid-dsp --data complexity_results.json --plot profile.png   # official JSON: no recompute
+    claravid-dsp --data /data/big --pattern '**/*.jpg' --shard $SLURM_ARRAY_TASK_ID/16 -o part.json
     claravid-dsp --merge part_*.json --output all.json --plot all.png
     claravid-dsp --compare claravid.json uavid.json
 
@@ -31,7 +31,9 @@ from claravid.dsp.measures import METRICS
 from claravid.dsp.metrics import check_blur_ksize
 from claravid.infra.cli import (
     UsageError,
+    add_data_flag,
     add_debug_flag,
+    add_output_flag,
     add_progress_flag,
     add_workers_flag,
     run_cli,
@@ -47,24 +49,19 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="claravid-dsp",
         description="Delentropic Scene Profile (and GLCM / pixel entropy baselines) of a "
-        "collection of images, with the official ClaraVid values.",
+        "collection of images, with the official ClaraVid values. --data is a folder (searched "
+        "with --pattern), a text file of image paths, or a results JSON (official or ours) to "
+        f"profile and plot again without recomputing; -o/--output is the results JSON (default "
+        f"{DEFAULT_OUTPUT} when computing).",
         epilog="Exit status: 0 ok, 1 no image could be read, 2 bad arguments or no input images.",
     )
-    parser.add_argument(
-        "input",
-        nargs="?",
-        type=Path,
-        help="a folder (searched with --pattern), a text file of image paths, or a results JSON "
-        "(official or ours) to profile and plot without recomputing",
-    )
+    add_data_flag(parser)
     parser.add_argument(
         "--pattern", default="*.jpg", help="glob inside a folder; '**' recurses (default *.jpg)"
     )
     parser.add_argument("--metric", default="delent", choices=METRICS, help="default delent")
     add_workers_flag(parser, "the measurement")
-    parser.add_argument(
-        "--output", "-o", type=Path, help=f"results JSON (default {DEFAULT_OUTPUT} when computing)"
-    )
+    add_output_flag(parser, metavar="JSON")
     parser.add_argument("--plot", type=Path, help="save the profile plot here (PNG)")
     parser.add_argument("--no-blur", action="store_true", help="skip the Gaussian blur")
     parser.add_argument(
@@ -125,8 +122,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.compare:
         from claravid.dsp.compare import compare_table
 
-        if args.input is not None:
-            raise UsageError("--compare takes JSON files only; drop the INPUT argument")
+        if args.data is not None:
+            raise UsageError("--compare takes JSON files only; drop --data")
         if args.output is not None or args.plot is not None:
             raise UsageError("--compare prints a table; --output and --plot do not apply")
         runs = [load_results(p) for p in args.compare]
@@ -135,14 +132,16 @@ def _run(args: argparse.Namespace) -> int:
 
     output = args.output
     json_input = (
-        args.input is not None and args.input.is_file() and args.input.suffix.lower() == ".json"
+        args.data is not None and args.data.is_file() and args.data.suffix.lower() == ".json"
     )
     if args.merge:
-        if args.input is not None:
-            raise UsageError("--merge takes JSON files only; drop the INPUT argument")
+        if args.data is not None:
+            raise UsageError("--merge takes JSON files only; drop --data")
         output = output or Path(DEFAULT_OUTPUT)
-    elif args.input is None:
-        raise UsageError("give an INPUT (folder, list file or results JSON), --merge or --compare")
+    elif args.data is None:
+        raise UsageError(
+            "give --data (a folder, a list file or a results JSON), --merge or --compare"
+        )
     elif json_input:
         if args.shard is not None:
             raise UsageError("--shard applies to a folder or a list file, not to a results JSON")
@@ -159,10 +158,12 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.merge:
         run = merge_runs([load_results(p) for p in args.merge])
+    elif args.data is None:  # refused above, before the output checks
+        raise UsageError("give --data (a folder, a list file or a results JSON) or --merge")
     elif json_input:
-        run = load_results(args.input)
+        run = load_results(args.data)
     else:
-        paths = find_images(args.input, args.pattern)
+        paths = find_images(args.data, args.pattern)
         shard = None
         if args.shard is not None:
             shard = {"index": k, "count": n, "num_candidates": len(paths)}

@@ -17,7 +17,7 @@ from collections.abc import Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -67,13 +67,12 @@ class ProfileRun:
     blur_ksize: int
     results: list[ImageResult]
     errors: list[ImageError] = field(default_factory=list)
-    profile: Profile | None = None
     shard: dict[str, Any] | None = None
     source: str | None = None
+    profile: Profile = field(init=False)  # fitted to the results
 
     def __post_init__(self) -> None:
-        if self.profile is None:
-            self.profile = fit_profile([r.complexity for r in self.results])
+        self.profile = fit_profile([r.complexity for r in self.results])
 
     @property
     def values(self) -> list[float]:
@@ -201,6 +200,7 @@ def _measure(job: _Job) -> _Output:
             values = {m: gray_complexity(ready, m) for m in metrics}
         tiles = None
         if tile_size is not None:
+            assert stored is not None  # read with stored=True
             tiles = tile_complexities(stored, tile_size, "delent", blur, ksize)
     except ImageReadError as exc:
         return path, None, 0, 0, None, exc.reason
@@ -251,8 +251,8 @@ def compute_measures(
         check_tile_size(tile_size)
     if workers < 0:
         raise ValueError(f"workers must be >= 0 (0 or 1: in this process), got {workers}")
-    paths = [str(p) for p in paths]
-    unique = list(dict.fromkeys(paths))
+    files = [str(p) for p in paths]
+    unique = list(dict.fromkeys(files))
     store = ComplexityCache() if cache is True else (cache or None)
     keys = {(p, m): cache_key(p, m, blur, ksize) for p in unique for m in metrics}
     hits = store.get_many(k for k in keys.values() if k is not None) if store else {}
@@ -291,8 +291,8 @@ def compute_measures(
                 known[path].update(values)
                 size[path] = (h, w)
                 tiles[path] = tile_values
-                new_rows += [(keys[path, m], v, h, w) for m, v in values.items()
-                             if keys[path, m] is not None]  # fmt: skip
+                new_rows += [(key, v, h, w) for m, v in values.items()
+                             if (key := keys[path, m]) is not None]  # fmt: skip
                 if len(new_rows) >= 256 and store:
                     store.put_many(new_rows)  # an interrupted run keeps what it measured
                     new_rows = []
@@ -304,7 +304,7 @@ def compute_measures(
         if store and new_rows:
             store.put_many(new_rows)
     results, errors = [], []
-    for p in paths:
+    for p in files:
         if p in failed:
             errors.append(ImageError(p, failed[p]))
         else:
@@ -369,7 +369,7 @@ _FOREIGN_HINT = (
 _ERROR_KEYS = ("image_path", "error")
 
 
-def _is_int(value: object) -> bool:
+def _is_int(value: object) -> TypeGuard[int]:
     return isinstance(value, int) and not isinstance(value, bool)
 
 

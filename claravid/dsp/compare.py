@@ -41,8 +41,8 @@ def comparability_warnings(runs: Sequence[ProfileRun], names: Sequence[str]) -> 
         else:
             scale[name] = math.sqrt(res[0] * res[1])
     if len(scale) > 1:
-        lo_name = min(scale, key=scale.get)
-        hi_name = max(scale, key=scale.get)
+        lo_name = min(scale, key=scale.__getitem__)
+        hi_name = max(scale, key=scale.__getitem__)
         ratio = scale[hi_name] / scale[lo_name]
         if ratio > 1 + RESOLUTION_TOLERANCE:
             notes.append(

@@ -58,7 +58,7 @@ _BIN_LUT_U16[np.arange(-_GMAX, _GMAX + 1).astype(np.uint16)] = BIN_LUT
 try:  # the optional C histogram (built at install when a compiler is there): 2x faster
     from claravid.dsp import _deldensity as _native
 except ImportError:  # pragma: no cover - depends on the build
-    _native = None
+    _native = None  # type: ignore[assignment]  # mypy types a module name as never None
 # Bin of each low byte for core gradients in [-128, 127] (byte b <-> gradient b or b - 256).
 _LOW_BYTE = np.arange(256)
 _CORE_BIN = BIN_LUT[np.where(_LOW_BYTE < 128, _LOW_BYTE, _LOW_BYTE - 256) + _GMAX]

@@ -9,12 +9,17 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from claravid.dsp.measures import METRIC_NAMES
 from claravid.dsp.profile import Profile, fit_profile
 from claravid.infra.files import atomic_save
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure, SubFigure
 
 
 def plot_profile(
@@ -25,8 +30,8 @@ def plot_profile(
     title: str | None = None,
     metric: str = "delent",
     dpi: int = 150,
-    ax=None,
-):
+    ax: Axes | None = None,
+) -> Figure | SubFigure:
     """Draw (and save when ``path`` is given) a scene profile.
 
     Args:
@@ -40,7 +45,7 @@ def plot_profile(
         ax: a matplotlib Axes to draw into (e.g. one panel of a grid); default a new figure.
 
     Returns:
-        The matplotlib Figure.
+        The matplotlib Figure that holds the plot (a SubFigure when ``ax`` is in one).
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -52,9 +57,9 @@ def plot_profile(
     name = METRIC_NAMES.get(metric, metric)
 
     if ax is None:
-        fig = Figure(figsize=(7, 4.5), layout="constrained")
-        FigureCanvasAgg(fig)
-        ax = fig.add_subplot()
+        new = Figure(figsize=(7, 4.5), layout="constrained")
+        FigureCanvasAgg(new)
+        ax = new.add_subplot()
     fig = ax.figure
     if vals.size:
         bins = "auto" if vals.size > 1 and np.ptp(vals) > 0 else 10
@@ -81,7 +86,7 @@ def plot_profile(
     ax.legend(loc="best", fontsize=9)
     ax.set_title(title or f"Scene complexity profile - {name} ({vals.size} images)")
     if path is not None:
-        save_figure(fig, path, dpi=dpi)
+        save_figure(fig.figure, path, dpi=dpi)  # the root figure: a SubFigure cannot be saved
     return fig
 
 
@@ -102,7 +107,7 @@ def plot_format(path: str | Path) -> str:
     return suffix
 
 
-def save_figure(fig, path: str | Path, dpi: int = 150) -> Path:
+def save_figure(fig: Figure, path: str | Path, dpi: int = 150) -> Path:
     """Save ``fig`` to ``path`` atomically, in the format its suffix names."""
     fmt = plot_format(path)
     return atomic_save(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format=fmt))

@@ -6,10 +6,12 @@ traceback (``--debug`` or ``CLARAVID_DEBUG=1`` shows it). Output paths are check
 work starts and written atomically; nothing the tool did not write is replaced without
 ``--overwrite`` (:mod:`claravid.infra.files`).
 
-The same flag means the same thing on every command: a size is ``WxH`` (width x height) or ``N``
-for a square (`parse_size`); ``--no-progress`` hides the progress bar;
-``--workers N`` runs the work in N worker processes, 0 (the default) in the calling one;
-``-o/--output`` names what the command writes; ``--checkpoint`` names a model checkpoint.
+The same concept is the same flag, with the same help, on every command that has it, made by
+one builder here: ``--data`` (where the images are), ``-o/--output`` (what the command writes),
+``--checkpoint``, the ClaraVid selection ``--missions``/``--altitude``/``--direction`` (comma
+lists), the windows ``--window``/``--stride``/``--scale``/``--batch-size``, ``--device``,
+``--precision``, ``--workers``, ``--no-progress`` and ``--debug``. A size is ``WxH`` (width x
+height) or ``N`` for a square (`parse_size`).
 
 A console script is a thin ``main`` over importable functions::
 
@@ -26,15 +28,22 @@ import os
 import sys
 import traceback
 import warnings
-from collections.abc import Callable, Iterator
-from typing import TypeVar
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any, NoReturn, Protocol
+
+from claravid.infra.precision import PRECISIONS
 
 EXIT_OK = 0
 EXIT_PARTIAL = 1  # the work ran, some inputs could not be used (listed)
 EXIT_FAILED = 1  # the work ran and its result failed a check (nothing written)
 EXIT_USAGE = 2
 
-T = TypeVar("T")
+
+class FlagGroup(Protocol):
+    """What flags are added to: a parser, or one of its argument groups."""
+
+    def add_argument(self, *name_or_flags: str, **kwargs: Any) -> argparse.Action: ...
 
 
 class UsageError(Exception):
@@ -53,7 +62,7 @@ def add_debug_flag(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def add_progress_flag(parser: argparse.ArgumentParser, help: str = "no progress bar") -> None:
+def add_progress_flag(parser: FlagGroup, help: str = "no progress bar") -> None:
     """``--no-progress``: no progress bar.
 
     Sets ``args.no_progress``; ``claravid-train``'s flag means ``log.progress=false``;
@@ -62,7 +71,7 @@ def add_progress_flag(parser: argparse.ArgumentParser, help: str = "no progress 
     parser.add_argument("--no-progress", action="store_true", help=help)
 
 
-def add_workers_flag(parser: argparse.ArgumentParser, work: str) -> None:
+def add_workers_flag(parser: FlagGroup, work: str) -> None:
     """``--workers N``: ``work`` in N worker processes; 0, the default, runs it in this one."""
     parser.add_argument(
         "--workers",
@@ -71,6 +80,95 @@ def add_workers_flag(parser: argparse.ArgumentParser, work: str) -> None:
         metavar="N",
         help=f"worker processes for {work} (default 0: all in this process)",
     )
+
+
+#: The help of each shared flag, one text per concept (``docs/cli.md`` shows them in one table).
+SHARED_HELP = {
+    "--data": "where the images are: a ClaraVid or UAVid root, or a folder of images",
+    "--output": "what the command writes (checked before the work starts)",
+    "--checkpoint": "a model checkpoint written by claravid-train (models.save_checkpoint)",
+    "--missions": "ClaraVid missions, comma-separated: keys, aliases or folder names, e.g. "
+    "rural_1,urban_2",
+    "--altitude": "ClaraVid altitudes, comma-separated: low, mid, high, e.g. low,mid",
+    "--direction": "ClaraVid flight directions, comma-separated: h, v, e.g. h",
+    "--window": "sliding window, WxH or N for N x N (default: the model file's, else the "
+    "model's natural size: 630 for patches of 14, 640 for 16)",
+    "--stride": "step between windows, WxH or N (default: the model file's for its window, "
+    "else two thirds of the window)",
+    "--scale": "resize the images by this factor first (default: the model file's, else 1; the "
+    "paper reports at 0.5)",
+    "--batch-size": "windows per forward pass (default: the model file's, else 4)",
+    "--device": "cpu, cuda or cuda:N (default: cuda when available)",
+    "--precision": "autocast of a PyTorch model: auto (the default: float32 on a CPU, bf16 on a "
+    "GPU that supports it, else fp16), fp32, bf16 or fp16",
+}
+
+
+def _add(parser: Any, *names: str, **kwargs: Any) -> None:
+    """``add_argument`` with the shared help of ``names[-1]`` (a parser or an argument group)."""
+    parser.add_argument(*names, help=SHARED_HELP[names[-1]], **kwargs)
+
+
+def add_data_flag(parser: Any, *, required: bool = False) -> None:
+    """``--data PATH``: where the images are (``args.data``, a `Path`)."""
+    _add(parser, "--data", type=Path, metavar="PATH", required=required)
+
+
+def add_output_flag(parser: Any, *, metavar: str = "DIR", required: bool = False) -> None:
+    """``-o/--output``: what the command writes (``args.output``, a `Path`); ``metavar`` names
+    its kind (``DIR``, ``FILE``, ``JSON``)."""
+    _add(parser, "-o", "--output", type=Path, metavar=metavar, required=required)
+
+
+def add_checkpoint_flag(parser: Any, *, required: bool = False) -> None:
+    """``--checkpoint CKPT``: a model checkpoint (``args.checkpoint``, a `Path`)."""
+    _add(parser, "--checkpoint", type=Path, metavar="CKPT", required=required)
+
+
+def add_selection_flags(parser: Any) -> None:
+    """``--missions``, ``--altitude``, ``--direction``: one comma-separated list each, kept as
+    typed (`selection_names` splits them, with the message the Python API gives; the names are
+    checked where the frames are chosen)."""
+    for flag in ("--missions", "--altitude", "--direction"):
+        _add(parser, flag, metavar="LIST")
+
+
+def add_window_flags(parser: Any) -> None:
+    """``--window``, ``--stride`` (``(height, width)``, `window_size`), ``--scale`` and
+    ``--batch-size``: how images are cut into windows; unset, None (the model file's record,
+    else the defaults)."""
+    _add(parser, "--window", type=window_size, metavar="WxH")
+    _add(parser, "--stride", type=window_size, metavar="WxH")
+    _add(parser, "--scale", type=positive_float, metavar="S")
+    _add(parser, "--batch-size", type=positive_int, metavar="N")
+
+
+def add_device_flag(parser: Any) -> None:
+    """``--device DEV`` (checked with `check_device` before the work)."""
+    _add(parser, "--device", metavar="DEV")
+
+
+def add_precision_flag(parser: Any) -> None:
+    """``--precision P``, one of `PRECISIONS` (unset: None, which means ``auto``)."""
+    _add(parser, "--precision", choices=PRECISIONS, metavar="{" + ",".join(PRECISIONS) + "}")
+
+
+#: An example of each selection flag, for the message about an empty one.
+SELECTION_EXAMPLES = {"missions": "rural_1,urban_2", "altitude": "low,mid", "direction": "h"}
+
+
+def selection_names(name: str, given: str | Sequence[str]) -> list[str]:
+    """A selection's names: ``"rural_1,urban_2"`` (as typed) or a list -> ``["rural_1",
+    "urban_2"]``, blank names dropped.
+
+    Raises:
+        ValueError: no name left (``--missions ,``).
+    """
+    items = given.split(",") if isinstance(given, str) else list(given)
+    values = [str(v).strip() for v in items if str(v).strip()]
+    if not values:
+        raise ValueError(f"--{name} is empty; give e.g. --{name} {SELECTION_EXAMPLES[name]}")
+    return values
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -98,23 +196,6 @@ def window_size(text: str) -> tuple[int, int]:
     order of the tensors and of ``WindowConfig``."""
     width, height = parse_size(text)
     return height, width
-
-
-def given_once(
-    flag_value: T | None, positional_value: T | None, *, flag: str, metavar: str, what: str
-) -> T:
-    """The value given as ``flag`` or positionally (``claravid-synth OUT`` or ``-o OUT``).
-
-    Raises:
-        UsageError: both spellings given, or neither.
-    """
-    if flag_value is not None:
-        if positional_value is not None:
-            raise UsageError(f"{what} given twice, as {metavar} and as {flag}: give it once")
-        return flag_value
-    if positional_value is None:
-        raise UsageError(f"give {what}: {flag} {metavar} (or {metavar} alone)")
-    return positional_value
 
 
 def positive_int(text: str) -> int:
@@ -186,10 +267,10 @@ def _one_line_usage_errors(parser: argparse.ArgumentParser) -> None:
     """argparse's own errors (a bad number, a missing flag) as one line, not usage + error."""
     prog = parser.prog
 
-    def error(message: str):  # argparse's signature: never returns
+    def error(message: str) -> NoReturn:  # argparse's signature
         parser.exit(EXIT_USAGE, f"{prog}: error: {message} (see {prog} --help)\n")
 
-    parser.error = error  # type: ignore[method-assign]
+    parser.error = error  # type: ignore[method-assign]  # replaced on purpose: one line, exit 2
 
 
 def _debug(argv: list[str]) -> bool:

@@ -2,9 +2,10 @@
 
 ``auto`` runs float32 on a CPU and autocast on CUDA (bf16 where the GPU supports it, else
 fp16); ``fp32`` never autocasts; ``bf16`` and ``fp16`` autocast to that type on any device
-(bf16 is fast on CPUs with AVX512-BF16 or AMX). ``train.amp``, ``WindowConfig.precision`` and
-the ``--precision`` flags of ``claravid-eval`` / ``claravid-predict`` all resolve through
-:func:`autocast_dtype`, so a report and a training log name the same precision the same way.
+(bf16 is fast on CPUs with AVX512-BF16 or AMX). ``train.precision``, ``WindowConfig.precision``
+and the ``--precision`` flag of ``claravid-train``, ``claravid-eval`` and ``claravid-predict``
+take these four names and resolve through :func:`autocast_dtype`, so a report and a training log
+name the same precision the same way.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ if TYPE_CHECKING:
 # every command line reads this module (`flag_precision`), and ``claravid-eval --merge`` and
 # ``--compare`` must never pay for loading torch.
 
-#: The values of ``WindowConfig.precision``.
+#: The precision names: ``train.precision``, ``WindowConfig.precision``, every ``--precision``
+#: of a PyTorch model.
 PRECISIONS = ("auto", "fp32", "bf16", "fp16")
 
 
@@ -50,10 +52,6 @@ def precision_name(dtype: torch.dtype | None) -> str:
     return {None: "fp32", torch.bfloat16: "bf16", torch.float16: "fp16"}[dtype]
 
 
-#: What ``--precision`` of ``claravid-eval`` / ``claravid-predict`` takes (unset: ``auto``).
-FLAG_PRECISIONS = ("fp32", "bf16")
-
-
 def flag_precision(precision: str | None, *, pytorch: bool = True) -> str:
     """``--precision`` as a `WindowConfig` precision.
 
@@ -67,8 +65,8 @@ def flag_precision(precision: str | None, *, pytorch: bool = True) -> str:
             "--precision does nothing with --onnx: an ONNX file runs at the precision it was "
             "exported in (claravid-export --precision); drop it"
         )
-    if precision is not None and precision not in FLAG_PRECISIONS:
-        raise ValueError(f"--precision must be fp32 or bf16, got {precision!r}")
+    if precision is not None and precision not in PRECISIONS:
+        raise ValueError(f"--precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     return precision or "auto"
 
 

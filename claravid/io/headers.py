@@ -117,7 +117,8 @@ class BufferStream:
     """read/seek/tell over bytes already in memory, without copying them into a BytesIO."""
 
     def __init__(self, data: bytes | bytearray | memoryview | np.ndarray) -> None:
-        self._view = memoryview(data).cast("B")
+        # An ndarray is a buffer too (numpy's stubs say so from Python 3.12 on).
+        self._view = memoryview(data).cast("B")  # type: ignore[arg-type]
         self._pos = 0
 
     def read(self, count: int, /) -> bytes:
@@ -210,7 +211,8 @@ def read_header(data: bytes | np.ndarray, name: str | Path) -> ImageHeader | Non
     Raises:
         CorruptFileError: a JPEG whose header is truncated or corrupt.
     """
-    head = memoryview(data).cast("B")[:26].tobytes()
+    # An ndarray is a buffer too (numpy's stubs say so from Python 3.12 on).
+    head = memoryview(data).cast("B")[:26].tobytes()  # type: ignore[arg-type]
     if head.startswith(JPEG_SOI):
         return parse_jpeg(BufferStream(data), name)
     return parse_png(head)
@@ -339,6 +341,7 @@ def file_header(path: str | Path) -> tuple[ImageHeader | None, int]:
     with open(fd, "rb", closefd=True) as stream:
         size = os.fstat(stream.fileno()).st_size
         head = stream.read(26)
+        header: ImageHeader | None
         if head.startswith(JPEG_SOI):
             stream.seek(0)
             header = parse_jpeg(stream, path, to_scan=False)

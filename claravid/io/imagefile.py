@@ -43,7 +43,8 @@ def read_bytes(path: str | Path) -> np.ndarray:
         size = stream.seek(0, 2)
         stream.seek(0)
         data = np.empty(size, np.uint8)
-        view, done = memoryview(data), 0
+        # An ndarray is a buffer too (numpy's stubs say so from Python 3.12 on).
+        view, done = memoryview(data), 0  # type: ignore[arg-type]
         while done < size:
             count = stream.readinto(view[done:])
             if not count:  # the file shrank while being read
@@ -83,9 +84,27 @@ def check_bytes(data: np.ndarray, path: str | Path) -> ImageHeader | None:
     check_header(header, path, int(data.size))
     if header is not None and header.format == "jpeg":
         _check_jpeg_end(data, header, path)
-    elif data[:8].tobytes() == PNG_SIGNATURE and not data[-12:].tobytes().endswith(_PNG_IEND):
+    elif data[:8].tobytes() == PNG_SIGNATURE and not _png_complete(data):
         raise CorruptFileError(path, "truncated PNG (no IEND chunk)")
     return header
+
+
+def _png_complete(data: np.ndarray) -> bool:
+    """Whether a PNG's chunks reach its ``IEND`` chunk.
+
+    Usually the file ends with it (one look at the last 12 bytes). Bytes after it (a tool's
+    trailer, padding) do not make the image incomplete, so otherwise the chunk headers are
+    walked from the signature: a file cut short runs out of bytes before any ``IEND``.
+    """
+    if data[-12:].tobytes().endswith(_PNG_IEND):
+        return True
+    position, size = 8, int(data.size)
+    while position + 12 <= size:
+        length = int.from_bytes(data[position : position + 4].tobytes(), "big")
+        if data[position + 4 : position + 12].tobytes() == _PNG_IEND:
+            return True
+        position += 12 + length
+    return False
 
 
 def load(path: str | Path) -> tuple[np.ndarray, ImageHeader | None]:

@@ -45,7 +45,7 @@ from claravid.io.imagefile import decode_bytes, load
 try:  # the optional libjpeg window decoder (built at install when a compiler is there)
     from claravid.io import _jpeg_region as _native
 except ImportError:  # pragma: no cover - depends on the build
-    _native = None
+    _native = None  # type: ignore[assignment]  # mypy types a module name as never None
 
 REGION_DECODE = "libjpeg region decode"
 FULL_DECODE = "full decode (C extension not built)"
@@ -148,6 +148,7 @@ class Photo:
             return self._full
         full = None
         if self._by_window():
+            # _by_window() needs a header.
             full = self._native_window(0, 0, *self.header.size)  # type: ignore[union-attr]
         elif _native is not None and self.header is not None and self.header.progressive:
             # Decoding one pixel makes libjpeg read every scan first: refuses data that ends

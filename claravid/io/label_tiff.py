@@ -61,6 +61,11 @@ class InvalidEntry(Exception):
     """A cache entry that must not be served (truncated, corrupt, foreign, stale); rebuild it."""
 
 
+class OtherVersion(InvalidEntry):
+    """An entry written by another version of the cache format (every entry of an older cache
+    is one: readers say so once, not once per entry)."""
+
+
 @dataclass(frozen=True)
 class TileLayout:
     """Where each tile of an entry lies in its file, and what it must hold.
@@ -214,7 +219,7 @@ def read_layout(
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise InvalidEntry("not a label-code entry")
     if meta.get("version") != VERSION:
-        raise InvalidEntry(f"written by another version of the cache ({meta.get('version')})")
+        raise OtherVersion(f"written by another version of the cache ({meta.get('version')})")
     if meta.get("codes") != CODES_DIGEST:
         raise InvalidEntry(
             f"written under another class/code table (digest {meta.get('codes')}, this "
@@ -295,9 +300,11 @@ def read_window(fd: int, layout: TileLayout, x: int, y: int, width: int, height:
         chunk = memoryview(_pread(fd, span, start)) if span == sum(counts) else None
         top, bottom = max(y, row * th), min(y + height, (row + 1) * th)
         for index, offset, count in zip(range(first, last + 1), offsets, counts, strict=True):
-            data = chunk[offset - start : offset - start + count] if chunk else None
-            if data is None:
-                data = _pread(fd, count, offset)
+            data = (
+                chunk[offset - start : offset - start + count]
+                if chunk
+                else _pread(fd, count, offset)
+            )
             _check_crc(layout, index, data)
             try:
                 raw = zlib.decompress(data)

@@ -54,6 +54,12 @@ class Modality:
     folder: str | None
     ext: str | None
 
+    def folder_in(self, mission_dir: Path) -> Path:
+        """This modality's folder in a mission folder (ValueError for one without files)."""
+        if self.folder is None:
+            raise ValueError(f"the {self.key!r} field has no files, so no folder")
+        return mission_dir / self.folder
+
 
 #: SDK field key -> modality, in the SDK's default field order.
 MODALITIES: dict[str, Modality] = {
@@ -147,7 +153,7 @@ def canonical_mission(key: str) -> str:
 def frame_file(mission_dir: Path, viewpoint: str, stem: str, field: str) -> Path:
     """The file of one field of a frame: ``<mission_dir>/<modality>/<viewpoint>/<stem>.<ext>``."""
     modality = MODALITIES[field]
-    return mission_dir / modality.folder / viewpoint / f"{stem}.{modality.ext}"
+    return modality.folder_in(mission_dir) / viewpoint / f"{stem}.{modality.ext}"
 
 
 def viewpoint_folder(altitude: str, direction: str) -> str:

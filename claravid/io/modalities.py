@@ -16,6 +16,7 @@ The writers produce the exact on-disk encodings (used by the scene generator and
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -145,7 +146,8 @@ def read_intrinsics(*_args: object) -> np.ndarray:
     return INTRINSICS.copy()
 
 
-READERS = {
+#: SDK field key -> its reader (a file path in, the decoded array out).
+READERS: dict[str, Callable[[str | Path], np.ndarray]] = {
     "rgb": read_rgb,
     "depth": read_depth,
     "seg_color": read_seg_color,

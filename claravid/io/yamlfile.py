@@ -7,6 +7,7 @@ that refuses duplicate keys at any depth and names the key and both lines.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -57,7 +58,7 @@ def parse_yaml(text: str, source: str = "<string>") -> Any:
         raise YamlFileError(f"{source}: not valid YAML ({error})") from None
 
 
-def load_yaml(path: str | Path) -> Any:
+def load_yaml(path: str | os.PathLike[str]) -> Any:
     """Read a YAML file strictly (no duplicate keys, text only).
 
     Raises:

@@ -1,7 +1,7 @@
 """Synthetic ClaraVid: procedurally drawn aerial scenes written in the exact on-disk format.
 
-``claravid-synth OUT --seed S --frames-per-viewpoint N --size WxH [--missions ...] [--altitude
-...] [--direction ...]`` (or :func:`synthesize`) writes
+``claravid-synth -o OUT --seed S --frames-per-viewpoint N --size WxH [--missions a,b] [--altitude
+low,mid] [--direction h]`` (or :func:`synthesize`) writes
 ``OUT/<mission>/<modality>/<altitude>_<direction>/<stem>.<ext>`` for every file modality, and a
 :data:`MARKER` file at ``OUT`` so that it never writes over a tree it did not make. Each mission
 is a top-down world (roads with lane lines, buildings with shadows, trees, fields, water,
@@ -22,13 +22,15 @@ import numpy as np
 
 from claravid.infra.cli import (
     add_debug_flag,
+    add_output_flag,
     add_progress_flag,
+    add_selection_flags,
     add_workers_flag,
-    given_once,
     non_negative_int,
     parse_size,
     positive_int,
     run_cli,
+    selection_names,
 )
 from claravid.io import modalities
 from claravid.io.layout import (
@@ -41,8 +43,9 @@ from claravid.io.layout import (
     frame_file,
     viewpoint_folder,
 )
-from claravid.synth.render import flight_poses, render
+from claravid.synth.render import Frame, flight_poses, render
 from claravid.synth.scenery import build_world
+from claravid.synth.world import World
 
 __all__ = [
     "MARKER",
@@ -205,7 +208,7 @@ def synthesize(
 
 
 @functools.lru_cache(maxsize=1)
-def _world(key: str, seed: int, res: float):
+def _world(key: str, seed: int, res: float) -> World:
     """One mission's world, kept for its next viewpoint (in this process or a worker)."""
     return build_world(key, seed, res)
 
@@ -228,7 +231,7 @@ def _render_viewpoint(
     return len(poses)
 
 
-def _write(mission_dir: Path, viewpoint: str, stem: str, frame, pose: np.ndarray) -> None:
+def _write(mission_dir: Path, viewpoint: str, stem: str, frame: Frame, pose: np.ndarray) -> None:
     def path(key: str) -> Path:
         return frame_file(mission_dir, viewpoint, stem, key)
 
@@ -244,21 +247,17 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``claravid-synth`` argument parser."""
     parser = argparse.ArgumentParser(
         prog="claravid-synth",
-        description="Write a synthetic ClaraVid dataset tree.",
+        description="Write a synthetic ClaraVid dataset tree into the -o/--output folder (every "
+        "mission, altitude and direction unless selected).",
         epilog="Exit status: 0 ok; 2 a bad argument or an output folder that is not ours.",
     )
-    parser.add_argument("out", nargs="?", type=Path, metavar="OUT", help="root folder to write")
-    parser.add_argument("-o", "--output", type=Path, metavar="OUT", help="the same as OUT")
+    add_output_flag(parser, required=True)
     parser.add_argument("--seed", type=non_negative_int, default=0, help="scene seed (default 0)")
     parser.add_argument("--frames-per-viewpoint", type=positive_int, default=4, metavar="N",
                         help="frames per altitude and direction (default 4)")  # fmt: skip
     parser.add_argument("--size", type=parse_size, default=IMAGE_SIZE, metavar="WxH",
                         help="image size, width x height (default native 4032x3024)")  # fmt: skip
-    parser.add_argument("--missions", nargs="+", metavar="MISSION",
-                        help=f"default all: {' '.join(MISSIONS)}")  # fmt: skip
-    # Singular, like the datasets' altitude= and direction= arguments.
-    parser.add_argument("--altitude", nargs="+", choices=list(ALTITUDES), help="default all")
-    parser.add_argument("--direction", nargs="+", choices=list(DIRECTIONS), help="default both")
+    add_selection_flags(parser)
     parser.add_argument(
         "--overwrite", action="store_true", help="write into a non-empty folder that is not ours"
     )
@@ -269,16 +268,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    missions = [canonical_mission(m) for m in args.missions] if args.missions else None
-    out = given_once(args.output, args.out, flag="-o", metavar="OUT", what="the output folder")
+    chosen = {name: selection_names(name, getattr(args, name))
+              for name in ("missions", "altitude", "direction")
+              if getattr(args, name) is not None}  # fmt: skip
+    missions = [canonical_mission(m) for m in chosen["missions"]] if "missions" in chosen else None
     root = synthesize(
-        out,
+        args.output,
         seed=args.seed,
         frames_per_viewpoint=args.frames_per_viewpoint,
         size=args.size,
         missions=missions,
-        altitude=args.altitude,
-        direction=args.direction,
+        altitude=chosen.get("altitude"),
+        direction=chosen.get("direction"),
         progress=not args.no_progress,
         overwrite=args.overwrite,
         workers=args.workers,
@@ -288,5 +289,5 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Command line: ``claravid-synth OUT --seed S --frames-per-viewpoint N --size WxH ...``."""
+    """Command line: ``claravid-synth -o OUT --seed S --frames-per-viewpoint N --size WxH ...``."""
     return run_cli("claravid-synth", _run, build_parser(), argv)

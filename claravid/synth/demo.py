@@ -22,9 +22,9 @@ from claravid.dsp.plot import save_figure
 from claravid.infra.cli import (
     UsageError,
     add_debug_flag,
+    add_output_flag,
     add_progress_flag,
     add_workers_flag,
-    given_once,
     non_negative_int,
     parse_size,
     positive_int,
@@ -108,7 +108,7 @@ def print_profiles(data: Path, out: Path, workers: int) -> None:
     """Profile each mission's RGB frames (delentropy), print the table and save the plots."""
     runs = {}
     for mission, folder in MISSIONS.items():
-        paths = sorted((data / folder / MODALITIES["rgb"].folder).glob("*/*.jpg"))
+        paths = sorted(MODALITIES["rgb"].folder_in(data / folder).glob("*/*.jpg"))
         if paths:
             runs[mission] = profile_images(paths, workers=workers)
             runs[mission].save(out / f"dsp_{mission}.json")
@@ -145,7 +145,7 @@ def run(
     print_summary(dataset, progress)
     # One frame per mission, in the UAVid taxonomy (moving and static cars apart).
     uavid = ClaraVidSegmentation(data, split="all", palette="uavid", altitude="mid", direction="h")
-    firsts = {}
+    firsts: dict[str, int] = {}
     for index, frame in enumerate(uavid.frames):
         firsts.setdefault(frame.mission, index)
     samples = [uavid[i] for i in firsts.values()]
@@ -157,11 +157,12 @@ def run(
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``claravid-demo`` argument parser."""
-    parser = argparse.ArgumentParser(prog="claravid-demo", description=__doc__.split("\n")[0])
-    parser.add_argument(
-        "out", nargs="?", type=Path, metavar="OUT", help="output folder, e.g. runs/demo"
+    parser = argparse.ArgumentParser(
+        prog="claravid-demo",
+        description="The toolkit end to end on a generated ClaraVid-format scene, written into "
+        "the -o/--output folder (e.g. runs/demo).",
     )
-    parser.add_argument("-o", "--output", type=Path, metavar="OUT", help="the same as OUT")
+    add_output_flag(parser, required=True)
     parser.add_argument("--size", type=parse_size, default=(640, 480), metavar="WxH",
                         help="image size, width x height (default 640x480)")  # fmt: skip
     parser.add_argument("--frames-per-viewpoint", type=positive_int, default=3)
@@ -182,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def _run(args: argparse.Namespace) -> None:
         run(
-            given_once(args.output, args.out, flag="-o", metavar="OUT", what="the output folder"),
+            args.output,
             args.size,
             args.frames_per_viewpoint,
             args.seed,

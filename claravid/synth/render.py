@@ -117,10 +117,10 @@ def render(
     hit = _first_hits(world, pose, size)
     depth = np.clip(hit.depth, 0.01, DEPTH_MAX_M)
     border = UNLABELED_ID * 65536.0  # sky, and ground beyond the world: Unlabeled
-    look = dict(interpolation=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
-    packed = cv2.remap(world.packed, hit.col, hit.row, borderValue=border, **look)
-    packed = packed.astype(np.int32)
-    semantic, instance = (packed >> 16).astype(np.uint8), (packed & 0xFFFF).astype(np.uint16)
+    packed = cv2.remap(world.packed, hit.col, hit.row, interpolation=cv2.INTER_NEAREST,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=border)  # fmt: skip
+    codes = packed.astype(np.int32)
+    semantic, instance = (codes >> 16).astype(np.uint8), (codes & 0xFFFF).astype(np.uint16)
     rgb = cv2.remap(world.color, hit.col, hit.row, interpolation=cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_CONSTANT, borderValue=_SKY.tolist())  # fmt: skip
     # Walls (the ray came in through a prism's side) take the top's colour, darker.
@@ -130,7 +130,8 @@ def render(
     haze = np.clip(depth * np.float32(1 / 1500), 0, 0.3)
     rgb = cv2.blendLinear(rgb, np.broadcast_to(_SKY, rgb.shape).copy(), 1 - haze, haze)
     grain = rng.integers(0, 5, (height, width), dtype=np.uint8)
-    rgb = cv2.subtract(cv2.add(rgb, cv2.merge([grain, grain, grain])), (2, 2, 2, 0))
+    # OpenCV takes a scalar for the second operand; its stubs know arrays only.
+    rgb = cv2.subtract(cv2.add(rgb, cv2.merge([grain, grain, grain])), (2, 2, 2, 0))  # type: ignore[call-overload]
 
     dynamic = world.dynamic[instance] if len(world.dynamic) else np.zeros_like(semantic, bool)
     mask = np.where(dynamic, DYNAMIC_MASK_DYNAMIC, DYNAMIC_MASK_STATIC).astype(np.uint8)

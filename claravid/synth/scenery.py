@@ -8,6 +8,7 @@ and the cast shadows.
 from __future__ import annotations
 
 import itertools
+from typing import overload
 
 import cv2
 import numpy as np
@@ -20,6 +21,7 @@ from claravid.synth.world import (
     ID,
     PROFILES,
     WORLD_HALF_M,
+    Colour,
     Profile,
     World,
     _along,
@@ -56,10 +58,19 @@ class _Builder:
             self.dynamic.append(self.next_id - 1)
         return self.next_id - 1
 
-    def jitter(self, base, spread: float = 12.0) -> np.ndarray:
+    def jitter(self, base: Colour, spread: float = 12.0) -> np.ndarray:
         return np.clip(np.asarray(base, float) + self.rng.normal(0, spread, 3), 0, 255)
 
-    def u(self, lo: float = -WORLD_HALF_M, hi: float = WORLD_HALF_M, n=None):
+    @overload
+    def u(self, lo: float = ..., hi: float = ..., n: None = None) -> float: ...
+    @overload
+    def u(self, lo: float = ..., hi: float = ..., *, n: int) -> np.ndarray: ...
+    @overload
+    def u(self, lo: float, hi: float, n: int) -> np.ndarray: ...
+    def u(
+        self, lo: float = -WORLD_HALF_M, hi: float = WORLD_HALF_M, n: int | None = None
+    ) -> float | np.ndarray:
+        """A uniform draw in [lo, hi): a float, or ``n`` of them in an array."""
         return self.rng.uniform(lo, hi, n)
 
     # ---------------------------------------------------------------- ground
@@ -72,14 +83,14 @@ class _Builder:
             cv.color[:] = (98, 122, 62)
         if self.p.fields:
             for _ in range(40):
-                pts = _rect(*self.u(n=2), *rng.uniform(50, 140, 2), rng.uniform(-0.3, 0.3))
+                pts = _rect(self.u(n=2), rng.uniform(50, 140, 2), rng.uniform(-0.3, 0.3))
                 colour = self.jitter(
                     [(150, 140, 80), (110, 135, 60), (135, 110, 75)][rng.integers(3)], 8
                 )
                 cv.poly(pts, "Terrain", colour)
                 # Crop rows: faint parallel lines across the field.
                 d = pts[1] - pts[0]
-                for t in np.arange(0.05, 1, 4.0 / max(np.linalg.norm(d), 1)):
+                for t in np.arange(0.05, 1, 4.0 / max(float(np.linalg.norm(d)), 1.0)):
                     cv.line(
                         np.stack([pts[0] + t * d, pts[3] + t * d]), 0.6, "Terrain", colour * 0.9
                     )
@@ -115,9 +126,8 @@ class _Builder:
             self.roads.append(
                 (_wavy_road(rng, a + np.pi / 2 + self.u(-0.3, 0.3), self.u(-60, 60), 20), w)
             )
-            ramp = cv2.ellipse2Poly((0, 0), (60, 60), 0, 0, 270, 10).astype(float) + self.u(
-                -40, 40, 2
-            )
+            ramp = np.asarray(cv2.ellipse2Poly((0, 0), (60, 60), 0, 0, 270, 10), float)
+            ramp += self.u(-40, 40, 2)
             self.roads.append((ramp, 0.6 * w))
         elif p.roads == "rural":
             for _ in range(3):
@@ -165,7 +175,7 @@ class _Builder:
     # ---------------------------------------------------------------- objects
     def vehicle(self, q, angle, size=(4.5, 1.9), dynamic=False, on=("Road", "RoadLine", "Bridge")):
         """A car, truck or boat centred on one of the ``on`` surfaces, overlapping none."""
-        pts = _rect(*q, *size, angle)
+        pts = _rect(q, size, angle)
         corners = np.round((np.vstack([pts, [q]]) + WORLD_HALF_M) / self.cv.res).astype(int)
         if corners.min() < 0 or corners.max() >= self.cv.label.shape[0]:
             return
@@ -179,7 +189,7 @@ class _Builder:
         self.cv.poly(pts, "Vehicles", colour, 1.6, inst)
         # A dark windscreen band makes cars read as cars from above.
         front = np.asarray(q) + 0.18 * size[0] * np.array([np.cos(angle), np.sin(angle)])
-        self.cv.poly(_rect(*front, 0.22 * size[0], 0.85 * size[1], angle), "Vehicles",
+        self.cv.poly(_rect(front, (0.22 * size[0], 0.85 * size[1]), angle), "Vehicles",
                      colour * 0.35 + 10, 1.6, inst)  # fmt: skip
 
     def traffic(self) -> None:
@@ -205,7 +215,7 @@ class _Builder:
         for _ in range(self.p.parking):
             for _attempt in range(30):
                 c, size = self.u(-150, 150, 2), self.rng.uniform([40, 30], [80, 50])
-                lot = _rect(*c, *size, 0.0)
+                lot = _rect(c, size, 0.0)
                 if self.cv.free(lot, 1.0):
                     break
             else:
@@ -220,7 +230,7 @@ class _Builder:
                     if self.rng.random() < 0.7:
                         self.vehicle((col_x + 1.3, row_y), np.pi / 2, (4.4, 1.8), dynamic=False)
 
-    def building(self, pts: np.ndarray, height: float, colour) -> None:
+    def building(self, pts: np.ndarray, height: float, colour: Colour) -> None:
         inst = self.new_id()
         self.cv.cast(pts, self.sun * height)
         self.cv.poly(pts, "Building", colour, height, inst)
@@ -234,7 +244,7 @@ class _Builder:
         units = self.rng.integers(2, 7) if self.p.rooftop else self.rng.integers(0, 2)
         for _ in range(units):
             q = c + (self.rng.uniform(-0.3, 0.3, 2) @ np.stack([pts[1] - pts[0], pts[3] - pts[0]]))
-            self.cv.poly(_rect(*q, *self.rng.uniform(1.5, 4, 2), angle), "Building",
+            self.cv.poly(_rect(q, self.rng.uniform(1.5, 4, 2), angle), "Building",
                          self.jitter((200, 200, 205), 15), height + 1.5, inst)  # fmt: skip
         self.cv.occupy(pts)
 
@@ -245,19 +255,19 @@ class _Builder:
             if self.next_id > 60000 or p.buildings == 0:
                 break
             lo, hi = p.building_size
-            pts = _rect(*self.u(n=2), *rng.uniform(lo, hi, 2),
+            pts = _rect(self.u(n=2), rng.uniform(lo, hi, 2),
                         rng.normal(0, 0.05) if grid else rng.uniform(0, np.pi))  # fmt: skip
             if self.cv.free(pts, 1.0 if grid else 4.0):
                 colour = self.jitter(_ROOF_COLOURS[rng.integers(len(_ROOF_COLOURS))], 10)
                 self.building(pts, rng.uniform(*p.building_height), colour)
         if "mall" in p.extras:
             for _ in range(20):
-                pts = _rect(*self.u(-120, 120, 2), 70, 45, 0.0)
+                pts = _rect(self.u(-120, 120, 2), (70, 45), 0.0)
                 if self.cv.free(pts, 2.0):
                     self.building(pts, 14.0, (205, 205, 200))
                     break
 
-    def tree(self, center, radius) -> None:
+    def tree(self, center: np.ndarray, radius: float) -> None:
         rng = self.rng
         h = radius * rng.uniform(1.8, 3.0)
         self.cv.cast(
@@ -284,7 +294,7 @@ class _Builder:
                 self.tree(c + d * np.array([np.cos(a), np.sin(a)]), rng.uniform(2.0, 4.0))
         for _ in range(self.p.trees):
             c, r = self.u(n=2), rng.uniform(1.5, 4.0)
-            if self.cv.free(_rect(*c, 2 * r, 2 * r, 0), 0.5):
+            if self.cv.free(_rect(c, (2 * r, 2 * r), 0), 0.5):
                 self.tree(c, r)
 
     def pedestrians(self) -> None:
@@ -337,27 +347,27 @@ class _Builder:
                     for off in (-1.5, 0.0, 1.5):
                         cv.line(np.stack([a, b]) + off, 0.12, "Wire", (40, 40, 40), 12.0)
                 for q in towers:
-                    cv.poly(_rect(*q, 2.5, 2.5, 0.4), "Pole", (120, 120, 118), 15.0)
-                    cv.cast(_rect(*q, 1.0, 1.0, 0.4), self.sun * 15)
+                    cv.poly(_rect(q, (2.5, 2.5), 0.4), "Pole", (120, 120, 118), 15.0)
+                    cv.cast(_rect(q, (1.0, 1.0), 0.4), self.sun * 15)
         if "fences" in ex:
             for _ in range(25):
-                pts = _rect(*self.u(-250, 250, 2), *rng.uniform(15, 45, 2), rng.uniform(0, np.pi))
+                pts = _rect(self.u(-250, 250, 2), rng.uniform(15, 45, 2), rng.uniform(0, np.pi))
                 if cv.free(pts, 0.0):
                     cv.line(np.vstack([pts, pts[:1]]), 0.25, "Fence", (95, 75, 55), 1.5)
         if "solar" in ex:
             for _ in range(3):
                 c, angle = self.u(-200, 200, 2), rng.uniform(-0.2, 0.2)
-                if not cv.free(_rect(*c, 80, 60, angle), 2.0):
+                if not cv.free(_rect(c, (80, 60), angle), 2.0):
                     continue
                 d, n = (
                     np.array([np.cos(angle), np.sin(angle)]),
                     np.array([-np.sin(angle), np.cos(angle)]),
                 )
                 for k in np.arange(-27, 28, 6.0):
-                    cv.poly(_rect(*(c + k * n), 76, 3.5, angle), "GreenEnergy", (30, 38, 70), 1.5)
+                    cv.poly(_rect(c + k * n, (76, 3.5), angle), "GreenEnergy", (30, 38, 70), 1.5)
                     cv.line(np.stack([c + k * n - 38 * d, c + k * n + 38 * d]), 0.1, "GreenEnergy",
                             (120, 130, 160), 1.5)  # fmt: skip
-                cv.occupy(_rect(*c, 80, 60, angle))
+                cv.occupy(_rect(c, (80, 60), angle))
         if "turbines" in ex:
             for _ in range(4):
                 q = self.u(-250, 250, 2)
@@ -373,7 +383,7 @@ class _Builder:
                 c = self.u(-220, 220, 2)
                 for _ in range(rng.integers(2, 6)):
                     pts = _rect(
-                        *(c + rng.normal(0, 6, 2)), *rng.uniform(2, 4, 2), rng.uniform(0, np.pi)
+                        c + rng.normal(0, 6, 2), rng.uniform(2, 4, 2), rng.uniform(0, np.pi)
                     )
                     if cv.free(pts, 0.5):
                         colour = [(210, 110, 30), (40, 120, 60), (40, 70, 160), (200, 200, 60)][
@@ -387,7 +397,7 @@ class _Builder:
             for kind in kinds:
                 for _ in range(3 if kind != "gas_pump" else 1):
                     c = self.u(-180, 180, 2)
-                    yard = _rect(*c, 50, 35, 0.0)
+                    yard = _rect(c, (50, 35), 0.0)
                     if not cv.free(yard, 1.0):
                         continue
                     if kind == "construction":
@@ -395,31 +405,31 @@ class _Builder:
                         cv.line(np.vstack([yard, yard[:1]]), 0.25, "Fence", (95, 75, 55), 2.0)
                     elif kind == "gas_pump":
                         cv.poly(yard, "Road", (95, 95, 98))
-                        cv.poly(_rect(*c, 24, 12, 0.0), "Urban props", (225, 225, 225), 5.0)
+                        cv.poly(_rect(c, (24, 12), 0.0), "Urban props", (225, 225, 225), 5.0)
                     for _ in range(14 if kind != "gas_pump" else 4):
                         q = c + rng.uniform([-22, -14], [22, 14])
                         if kind == "containers":
                             colour = [(170, 50, 40), (40, 90, 150), (60, 130, 70), (200, 140, 40)][
                                 rng.integers(4)
                             ]
-                            pts, cls, h = _rect(*q, 12, 2.4, 0.0), "Urban props", 2.6
+                            pts, cls, h = _rect(q, (12, 2.4), 0.0), "Urban props", 2.6
                         elif kind == "construction":
                             colour = (210, 150, 40)
                             pts, cls, h = (
-                                _rect(*q, *rng.uniform(2, 6, 2), rng.uniform(0, 3)),
+                                _rect(q, rng.uniform(2, 6, 2), rng.uniform(0, 3)),
                                 "Constr props",
                                 2.0,
                             )
                         else:
                             colour = (200, 60, 50)
-                            pts, cls, h = _rect(*q, 1.2, 2.0, 0.0), "Urban props", 1.8
+                            pts, cls, h = _rect(q, (1.2, 2.0), 0.0), "Urban props", 1.8
                         cv.cast(pts, self.sun * h)
                         cv.poly(pts, cls, self.jitter(colour, 10), h)
                     cv.occupy(yard)
         if "towers" in ex:
             for _ in range(3):
                 q = self.u(-200, 200, 2)
-                pts = _rect(*q, 5, 5, rng.uniform(0, np.pi))
+                pts = _rect(q, (5, 5), rng.uniform(0, np.pi))
                 if cv.free(pts, 1.0):
                     self.building(pts, 25.0, (140, 120, 100))
 

@@ -8,13 +8,19 @@ rural fields and forests on one end, dense towers with cars and crowds on the ot
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TypeAlias
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 from claravid.io.layout import CLASS_BY_NAME
+
+#: A colour as RGB values in 0..255 (a tuple or an array).
+Colour: TypeAlias = Sequence[float] | np.ndarray
 
 #: Half the side of every world square, in metres (the flight grid stays well inside it).
 WORLD_HALF_M: float = 300.0
@@ -155,11 +161,13 @@ class _Canvas:
         self.shadow = np.zeros((n, n), np.uint8)
         self.occupied = np.zeros((n, n), np.uint8)
 
-    def px(self, pts: np.ndarray) -> np.ndarray:
+    def px(self, pts: ArrayLike) -> np.ndarray:
         """Metres -> fixed-point pixel coordinates for cv2 (``shift=_SHIFT``)."""
         return np.round((np.asarray(pts, float) + WORLD_HALF_M) / self.res * _ONE).astype(np.int32)
 
-    def _layers(self, cls: str, color, height: float, inst: int):
+    def _layers(
+        self, cls: str, color: Colour, height: float, inst: int
+    ) -> tuple[tuple[np.ndarray, float | tuple[float, ...]], ...]:
         return (
             (self.label, ID[cls]),
             (self.instance, inst),
@@ -167,30 +175,48 @@ class _Canvas:
             (self.color, tuple(float(c) for c in color)),
         )
 
-    def poly(self, pts, cls, color, height=0.0, inst=0) -> None:
+    def poly(
+        self, pts: ArrayLike, cls: str, color: Colour, height: float = 0.0, inst: int = 0
+    ) -> None:
         p = [self.px(pts)]
         for layer, value in self._layers(cls, color, height, inst):
             cv2.fillPoly(layer, p, value, cv2.LINE_8, _SHIFT)
 
-    def line(self, pts, width, cls, color, height=0.0, inst=0) -> None:
+    def line(
+        self,
+        pts: ArrayLike,
+        width: float,
+        cls: str,
+        color: Colour,
+        height: float = 0.0,
+        inst: int = 0,
+    ) -> None:
         t = max(1, round(width / self.res))
         p = [self.px(pts)]
         for layer, value in self._layers(cls, color, height, inst):
             cv2.polylines(layer, p, False, value, t, cv2.LINE_8, _SHIFT)
 
-    def disc(self, center, radius, cls, color, height=0.0, inst=0) -> None:
+    def disc(
+        self,
+        center: ArrayLike,
+        radius: float,
+        cls: str,
+        color: Colour,
+        height: float = 0.0,
+        inst: int = 0,
+    ) -> None:
         c = tuple(int(v) for v in self.px(center))
         r = round(radius / self.res * _ONE)
         for layer, value in self._layers(cls, color, height, inst):
             cv2.circle(layer, c, r, value, -1, cv2.LINE_8, _SHIFT)
 
-    def cast(self, pts, offset) -> None:
+    def cast(self, pts: np.ndarray, offset: ArrayLike) -> None:
         """Mark the shadow of a prism with base ``pts`` cast along ``offset`` (metres)."""
         both = np.concatenate([pts, pts + offset])
         cv2.fillConvexPoly(self.shadow, self.px(cv2.convexHull(both.astype(np.float32))[:, 0]),
                            1, cv2.LINE_8, _SHIFT)  # fmt: skip
 
-    def free(self, pts, margin: float) -> bool:
+    def free(self, pts: np.ndarray, margin: float) -> bool:
         """Whether a polygon, grown by ``margin`` metres, touches nothing already placed."""
         lo = np.floor((pts.min(0) - margin + WORLD_HALF_M) / self.res).astype(int)
         hi = np.ceil((pts.max(0) + margin + WORLD_HALF_M) / self.res).astype(int) + 1
@@ -202,18 +228,19 @@ class _Canvas:
         local = np.round((pts + WORLD_HALF_M - lo * self.res) / self.res * _ONE).astype(np.int32)
         cv2.fillPoly(stamp, [local], 1, cv2.LINE_8, _SHIFT)
         grow = max(1, round(margin / self.res))
-        stamp = cv2.dilate(stamp, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8))
-        return not np.any(window & stamp)
+        grown = cv2.dilate(stamp, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8))
+        return not np.any(np.logical_and(window, grown))
 
-    def occupy(self, pts) -> None:
+    def occupy(self, pts: ArrayLike) -> None:
         cv2.fillPoly(self.occupied, [self.px(pts)], 1, cv2.LINE_8, _SHIFT)
 
 
-def _rect(cx: float, cy: float, length: float, width: float, angle: float) -> np.ndarray:
-    """Corners (4×2, metres) of a rectangle centred at (cx, cy), long side along ``angle``."""
+def _rect(center: ArrayLike, size: ArrayLike, angle: float) -> np.ndarray:
+    """Corners (4×2, metres) of a rectangle centred at ``center`` (x, y) of ``size`` (length,
+    width), long side along ``angle``."""
     c, s = np.cos(angle), np.sin(angle)
-    half = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [length / 2, width / 2]
-    return half @ np.array([[c, s], [-s, c]]) + [cx, cy]
+    half = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * (np.asarray(size, float) / 2)
+    return half @ np.array([[c, s], [-s, c]]) + np.asarray(center, float)
 
 
 def _tangents(path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

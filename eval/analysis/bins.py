@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 _NAMES = {1: ("all",), 2: ("low", "high"), 3: ("low", "medium", "high")}
 
@@ -52,11 +53,11 @@ def parse_edges(text: str | Sequence[float]) -> list[float]:
 
 
 def quantile_bins(
-    values: Sequence[float],
+    values: ArrayLike,
     paths: Sequence[str],
     k: int,
     *,
-    order: Sequence[int] | None = None,
+    order: ArrayLike | None = None,
     what: str = "images",
 ) -> list[Bin]:
     """K bins of (almost) equal size over the images sorted by (value, path).
@@ -93,13 +94,13 @@ def quantile_bins(
 
 
 def choose_bins(
-    values: Sequence[float],
+    values: ArrayLike,
     paths: Sequence[str],
     measure: str,
     *,
     bins: int = 3,
     edges: Sequence[float] | None = None,
-    order: Sequence[int] | None = None,
+    order: ArrayLike | None = None,
     what: str = "images",
 ) -> tuple[list[Bin], list[int], dict[str, Any]]:
     """The bins of a report: between fixed ``edges`` when given, else ``bins`` quantile bins.
@@ -117,7 +118,7 @@ def choose_bins(
     return bin_list, [], {"measure": measure, "method": "quantile", "bins": bins}
 
 
-def fixed_bins(values: Sequence[float], edges: Sequence[float]) -> tuple[list[Bin], list[int]]:
+def fixed_bins(values: ArrayLike, edges: Sequence[float]) -> tuple[list[Bin], list[int]]:
     """Bins between fixed edges, and the indices of the images outside every bin.
 
     Returns:

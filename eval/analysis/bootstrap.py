@@ -21,15 +21,16 @@ and its own images only, never on the other bins; the same seed gives identical 
 
 from __future__ import annotations
 
-import os
 import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from claravid.eval.analysis.units import CLUSTER_UNITS
+from claravid.infra.memory import available_memory
 
 METHOD = "cluster percentile bootstrap"
 #: Resamples per matrix product: bounds the memory of the float64 draw-count block.
@@ -139,10 +140,10 @@ class Bootstrap:
 def cluster_ids(labels: Sequence[str]) -> np.ndarray:
     """Integer cluster ids (int64 [N]) of per-image cluster labels, numbered in sorted label
     order, so the ids never depend on the order images were listed in."""
-    labels = np.asarray([str(label) for label in labels], dtype=str)
-    if labels.size == 0:
+    names = np.asarray([str(label) for label in labels], dtype=str)
+    if names.size == 0:
         return np.zeros(0, dtype=np.int64)
-    _, inverse = np.unique(labels, return_inverse=True)
+    _, inverse = np.unique(names, return_inverse=True)
     return inverse.astype(np.int64).reshape(-1)
 
 
@@ -177,20 +178,21 @@ def count_clusters(ids: np.ndarray) -> int:
 
 
 def check_memory(nbytes: int, what: str) -> None:
-    """Refuse, before allocating it, an array larger than the memory available now.
+    """Refuse, before allocating it, an array larger than the memory available now: the
+    kernel's ``MemAvailable`` (free memory and the caches it can drop), not ``MemFree``, which
+    reads far too low on a machine that has been reading files.
 
     Raises:
         ValueError: ``nbytes`` exceeds the memory available (a user's mistake, one line naming
             the size and the flag to lower, instead of a ``MemoryError`` traceback).
     """
-    try:
-        free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):  # not a POSIX system: let numpy decide
+    available = available_memory()
+    if available is None:  # not Linux: let numpy decide
         return
-    if nbytes > free:
+    if nbytes > available:
         raise ValueError(
-            f"{what} need {nbytes / 2**30:.1f} GiB and {free / 2**30:.1f} GiB are free: lower "
-            "--bootstrap (1000 resamples is usual)"
+            f"{what} need {nbytes / 2**30:.1f} GiB and {available / 2**30:.1f} GiB are "
+            "available: lower --bootstrap (1000 resamples is usual)"
         )
 
 
@@ -212,7 +214,7 @@ def check_resamples(resamples: int, num_clusters: int) -> None:
     )
 
 
-def _local_clusters(clusters: np.ndarray, members: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+def _local_clusters(clusters: np.ndarray, members: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Members' indices and their local cluster index 0..C-1 (sorted cluster-id order)."""
     members = np.asarray(members, dtype=np.int64).reshape(-1)
     labels = np.asarray(clusters)[members]
@@ -222,7 +224,7 @@ def _local_clusters(clusters: np.ndarray, members: Sequence[int]) -> tuple[np.nd
 
 def set_clusters(
     clusters: np.ndarray,
-    members: Sequence[int],
+    members: ArrayLike,
     settings: Bootstrap,
     counts: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int, str | None]:
@@ -324,7 +326,7 @@ def draws_for(
 def confusion_interval(
     confusions: np.ndarray,
     clusters: np.ndarray,
-    members: Sequence[int],
+    members: ArrayLike,
     settings: Bootstrap,
     counts: np.ndarray | None = None,
     *,
@@ -367,7 +369,7 @@ def confusion_interval(
 def mean_interval(
     values: np.ndarray,
     clusters: np.ndarray,
-    members: Sequence[int],
+    members: ArrayLike,
     settings: Bootstrap,
     counts: np.ndarray | None = None,
     *,
@@ -382,10 +384,10 @@ def mean_interval(
         ``{"mean": float | None, "ci": [lo, hi] | None, "ci_note": str | None}``.
     """
     values = np.asarray(values, dtype=np.float64)
-    members = np.asarray(members, dtype=np.int64).reshape(-1)
-    members = members[np.isfinite(values[members])]
-    mean = float(values[members].mean()) if members.size else None
-    members, local, num, note = set_clusters(clusters, members, settings, counts)
+    finite = np.asarray(members, dtype=np.int64).reshape(-1)
+    finite = finite[np.isfinite(values[finite])]
+    mean = float(values[finite].mean()) if finite.size else None
+    members, local, num, note = set_clusters(clusters, finite, settings, counts)
     if note is not None:
         return {"mean": mean, "ci": None, "ci_note": note}
     rows = np.stack([values[members], np.ones(len(members))], axis=1)
@@ -513,7 +515,7 @@ def paired_gap(
     conf_a: np.ndarray,
     conf_b: np.ndarray,
     clusters: np.ndarray,
-    members: Sequence[int],
+    members: ArrayLike,
     settings: Bootstrap,
     counts: np.ndarray | None = None,
     *,
@@ -558,10 +560,10 @@ def paired_gap(
 def unpaired_gap(
     conf_a: np.ndarray,
     clusters_a: np.ndarray,
-    members_a: Sequence[int],
+    members_a: ArrayLike,
     conf_b: np.ndarray,
     clusters_b: np.ndarray,
-    members_b: Sequence[int],
+    members_b: ArrayLike,
     settings: Bootstrap,
     *,
     stream: str = "",
@@ -586,7 +588,11 @@ def unpaired_gap(
             continue
         draws = draw_counts(num, settings.resamples, settings.rng(f"{stream}:{tag}"))
         per_cluster = per_cluster_sums(confusion_features(conf[members]), local, num)
-        values.append(resampled(draws, per_cluster, lambda sums, k=k: _miou_acc(sums, k)[0]))
+
+        def miou_of(sums: np.ndarray, k: int = k) -> np.ndarray:
+            return _miou_acc(sums, k)[0]
+
+        values.append(resampled(draws, per_cluster, miou_of))
     gap = point[1] - point[0]
     out: dict[str, Any] = {
         "gap": gap if np.isfinite(gap) else None,

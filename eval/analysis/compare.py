@@ -169,7 +169,9 @@ def gap_analysis(
             if why is not None:
                 entry["missing"][measure] = why
                 continue
-            sets = [("overall", range(len(base.paths)), range(len(result.paths)))]
+            sets: list[tuple[str, Sequence[int], Sequence[int]]] = [
+                ("overall", range(len(base.paths)), range(len(result.paths)))
+            ]
             sets += [(a.name, a.indices, b.indices)
                      for a, b in zip(base_bins, other_bins, strict=False)]  # fmt: skip
             rows = [pair.quality_gap(measure, ma, mb, f"compare:{j}:{where}:{measure}")
@@ -205,10 +207,20 @@ def _missing(
             lacking.append(f"{state} in {name}" + (f" ({reason})" if reason else ""))
     if lacking:
         return "; ".join(lacking)
+    if a is None or b is None:  # a missing table is lacking above
+        raise ValueError(f"{measure}: a report without quality table passed as computed")
     if a.settings.get(measure, {}) != b.settings.get(measure, {}):
         return (f"computed with other settings: {name_a} {a.settings.get(measure)}, {name_b} "
                 f"{b.settings.get(measure)}")  # fmt: skip
     return None
+
+
+def _computed_rows(result: EvalResult, measure: str) -> np.ndarray:
+    """The per-image sums of ``measure``, which :func:`_missing` found computed."""
+    rows = None if result.quality is None else measure_rows(result.quality, measure)
+    if rows is None:
+        raise ValueError(f"{measure} is not computed in this report: it cannot be compared")
+    return rows
 
 
 class _Pair:
@@ -218,12 +230,12 @@ class _Pair:
         self.a, self.b, self.a_ids, self.settings = a, b, a_ids, settings
         # Images are known by their key below the data root, so two spellings of one root
         # (a symlink, ../s) still pair.
-        a_ids, b_ids = a.image_ids(), b.image_ids()
-        self.paired = sorted(b_ids) == sorted(a_ids) and b.classes == a.classes
+        a_keys, b_keys = a.image_ids(), b.image_ids()
+        self.paired = sorted(b_keys) == sorted(a_keys) and b.classes == a.classes
         if self.paired:
             # B's rows in A's image order; both resample A's clusters.
-            where = {p: i for i, p in enumerate(b_ids)}
-            order = np.asarray([where[p] for p in a_ids], dtype=np.int64)
+            where = {p: i for i, p in enumerate(b_keys)}
+            order = np.asarray([where[p] for p in a_keys], dtype=np.int64)
             self.order = order
             self.b_conf = b.confusions[order]
             self.b_to_a = np.argsort(order)
@@ -245,8 +257,8 @@ class _Pair:
         def chosen(sums: np.ndarray) -> np.ndarray:
             return np.asarray(statistic(sums)).reshape(len(sums), -1)[:, picked]
 
-        rows_a = measure_rows(self.a.quality, measure)
-        rows_b = measure_rows(self.b.quality, measure)
+        rows_a = _computed_rows(self.a, measure)
+        rows_b = _computed_rows(self.b, measure)
         if self._same_images(members_a, members_b):
             return paired_sums_gap(rows_a, rows_b[self.order], self.a_ids, members_a,
                                    self.settings, chosen, names, stream=stream)  # fmt: skip

@@ -80,7 +80,7 @@ def metric_report(
                     "scores": _metric_row(range(n), metrics, ids, settings, "overall")},
     }  # fmt: skip
     bin_list: list[Bin] = []
-    if values is not None:
+    if measure is not None and values is not None:
         bin_list, outside, binning = choose_bins(values, paths, measure, bins=bins, edges=edges)
         binning["outside"] = [paths[i] for i in outside]
         report["binning"] = binning

@@ -19,7 +19,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-IGNORE_INDEX = 255
+from claravid.io.layout import UNLABELED_ID
+
+#: The train id no measure counts and the loss ignores: ClaraVid's unlabeled id, which every
+#: palette maps ignored classes to and the training crops are padded with.
+IGNORE_INDEX: int = UNLABELED_ID
 
 CONVENTION = (
     "Confusion over pixels whose ground truth is not the ignore index (255); IoU = TP/(TP+FP+FN) "

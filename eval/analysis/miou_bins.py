@@ -19,6 +19,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from claravid.eval.analysis.bins import Bin, choose_bins
 from claravid.eval.analysis.bootstrap import (
@@ -64,7 +65,7 @@ def stratify(
     paths: Sequence[str],
     confusions: np.ndarray,
     classes: Sequence[str],
-    complexity: Mapping[str, Sequence[float]] | None = None,
+    complexity: Mapping[str, ArrayLike] | None = None,
     *,
     bins: int = 3,
     edges: Sequence[float] | None = None,
@@ -105,12 +106,12 @@ def stratify(
         raise ValueError("no image to report on")
     if bootstrap is not None:  # refused before anything is computed or allocated
         bootstrap.check_memory(list(paths) if clusters is None else clusters)
-    complexity = {k: np.asarray(v, dtype=np.float64) for k, v in (complexity or {}).items()}
-    for measure, values in complexity.items():
-        if len(values) != n:
-            raise ValueError(f"{len(values)} {measure} values for {n} images")
-    measure = PRIMARY_MEASURE if PRIMARY_MEASURE in complexity else next(iter(complexity), None)
-    values = complexity.get(measure) if measure else None
+    measures = {k: np.asarray(v, dtype=np.float64) for k, v in (complexity or {}).items()}
+    for name, column in measures.items():
+        if len(column) != n:
+            raise ValueError(f"{len(column)} {name} values for {n} images")
+    measure = PRIMARY_MEASURE if PRIMARY_MEASURE in measures else next(iter(measures), None)
+    values = measures.get(measure) if measure else None
 
     report: dict[str, Any] = {
         "overall": {"num_images": n, **confusion_scores(confusions.sum(axis=0), classes)},
@@ -120,7 +121,7 @@ def stratify(
     }
     bin_list: list[Bin] = []
     outside: list[int] = []
-    if values is not None:
+    if measure is not None and values is not None:
         bin_list, outside, binning = choose_bins(values, paths, measure, bins=bins, edges=edges)
         binning["outside"] = [paths[i] for i in outside]
         report["binning"] = binning
@@ -146,15 +147,15 @@ def stratify(
     images = []
     for i, path in enumerate(paths):
         row = {"path": path}
-        row.update({m: finite_or_none(float(v[i])) for m, v in complexity.items()})
+        row.update({m: finite_or_none(float(v[i])) for m, v in measures.items()})
         row["miou"] = finite_or_none(per_image_miou[i])
         row["pixel_acc"] = finite_or_none(pixel_accuracy(confusions[i]))
         row.update({name: finite_or_none(float(v[i])) for name, v in own.items()})
         images.append(row)
     report["images"] = images
-    report["correlation"] = {m: correlation(v, per_image_miou) for m, v in complexity.items()}
+    report["correlation"] = {m: correlation(v, per_image_miou) for m, v in measures.items()}
     if bootstrap is not None:
-        add_intervals(report, confusions, bin_list, groups or {}, complexity, per_image_miou,
+        add_intervals(report, confusions, bin_list, groups or {}, measures, per_image_miou,
                       list(paths) if clusters is None else clusters, bootstrap)  # fmt: skip
     add_quality(report, quality, classes, bin_list, groups or {},
                 list(paths) if clusters is None else clusters, bootstrap)  # fmt: skip
@@ -179,11 +180,13 @@ def add_quality(
     if quality is None:
         return
     ids = cluster_ids(clusters) if bootstrap is not None else None
-    sets = [(report["overall"], np.arange(len(clusters)), "overall")]
+    sets: list[tuple[dict[str, Any], Sequence[int], str]] = [
+        (report["overall"], range(len(clusters)), "overall")
+    ]
     sets += [(row, b.indices, f"bin:{b.name}")
              for b, row in zip(bin_list, report["bins"], strict=True)]  # fmt: skip
-    for (name, members), row in zip(groups.items(), report["groups"], strict=True):
-        sets.append((row, members, f"group:{name}"))
+    for (name, group), row in zip(groups.items(), report["groups"], strict=True):
+        sets.append((row, group, f"group:{name}"))
     for row, members, stream in sets:
         row.update(quality_entries(quality, members, classes, clusters=ids, bootstrap=bootstrap,
                                    stream=stream))  # fmt: skip
@@ -209,7 +212,7 @@ def add_intervals(
     ids = cluster_ids(clusters)
     features = confusion_features(confusions)  # once, not once per bin and group
 
-    def interval(members: Sequence[int], stream: str) -> dict[str, Any]:
+    def interval(members: ArrayLike, stream: str) -> dict[str, Any]:
         return confusion_interval(confusions, ids, members, settings, stream=stream,
                                   features=features)  # fmt: skip
 

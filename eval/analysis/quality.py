@@ -94,11 +94,10 @@ def measure_rows(table: QualityTable, name: str) -> np.ndarray | None:
     """The per-image rows of sums [N, D] of measure ``name`` (None when not computed)."""
     if not table.computed(name):
         return None
-    if name == BOUNDARY:
-        return table.boundary.reshape(len(table.boundary), -1)
-    if name == CALIBRATION:
-        return table.calibration.reshape(len(table.calibration), -1)
-    return table.pairs.sums
+    if name in (BOUNDARY, CALIBRATION):
+        sums = table.computed_sums(name)
+        return sums.reshape(len(sums), -1)
+    return table.computed_pairs().sums
 
 
 def _per_class(values: np.ndarray, classes: Sequence[str]) -> dict[str, float | None]:
@@ -125,7 +124,7 @@ def _details(table: QualityTable, name: str, summed: np.ndarray, classes: Sequen
     f = len(PAIR_FIXED)
     blocks = [summed[f + j * k : f + (j + 1) * k] for j in range(4)]
     return {
-        "pairs": table.pairs.counts(members),
+        "pairs": table.computed_pairs().counts(members),
         "kept_pixels": int(summed[0]),
         "per_class_tc": _per_class(_ratio(blocks[0], blocks[1]), classes),
         "per_class_tc_gt": _per_class(_ratio(blocks[2], blocks[3]), classes),

@@ -82,7 +82,7 @@ class PairTable:
         if unknown:
             raise ValueError(f"unknown pair status {unknown}; expected {', '.join(PAIR_STATUSES)}")
 
-    def take(self, order: Sequence[int]) -> PairTable:
+    def take(self, order: Sequence[int] | np.ndarray) -> PairTable:
         """The rows in ``order``."""
         order = list(order)
         return PairTable([self.next[i] for i in order], [self.status[i] for i in order],
@@ -139,7 +139,24 @@ class QualityTable:
         """Whether ``name`` has sums."""
         return self.status.get(name) == COMPUTED
 
-    def take(self, order: Sequence[int]) -> QualityTable:
+    def computed_sums(self, name: str) -> np.ndarray:
+        """The sums of :data:`BOUNDARY` or :data:`CALIBRATION` (ValueError when not computed)."""
+        if name not in (BOUNDARY, CALIBRATION):
+            raise ValueError(f"{name} has no array of sums; expected {BOUNDARY} or {CALIBRATION}")
+        sums = self.boundary if name == BOUNDARY else self.calibration
+        if sums is None:
+            raise ValueError(f"{name} is {self.status.get(name)}: the table holds no sums of it")
+        return sums
+
+    def computed_pairs(self) -> PairTable:
+        """The pair sums of :data:`CONSISTENCY` (ValueError when not computed)."""
+        if self.pairs is None:
+            raise ValueError(
+                f"{CONSISTENCY} is {self.status.get(CONSISTENCY)}: the table holds no pair sums"
+            )
+        return self.pairs
+
+    def take(self, order: Sequence[int] | np.ndarray) -> QualityTable:
         """The rows in ``order`` (the status and settings unchanged)."""
         order = list(order)
         return QualityTable(
@@ -182,12 +199,10 @@ def concat_quality(
             continue
         status[name] = COMPUTED
         settings[name] = dict(first)
-        if name == BOUNDARY:
-            arrays[name] = np.concatenate([t.boundary for t in tables])[order]
-        elif name == CALIBRATION:
-            arrays[name] = np.concatenate([t.calibration for t in tables])[order]
+        if name in (BOUNDARY, CALIBRATION):
+            arrays[name] = np.concatenate([t.computed_sums(name) for t in tables])[order]
         else:
-            parts = [t.pairs for t in tables]
+            parts = [t.computed_pairs() for t in tables]
             joined = PairTable(
                 [x for p in parts for x in p.next],
                 [x for p in parts for x in p.status],

@@ -15,22 +15,23 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import stats
 
 from claravid.dsp.profile import DegenerateProfileWarning, fit_profile
 from claravid.eval.analysis.metrics import finite_or_none
 
 
-def correlation(x: Sequence[float], y: Sequence[float]) -> dict[str, Any]:
+def correlation(x: ArrayLike, y: ArrayLike) -> dict[str, Any]:
     """Pearson and Spearman (scipy) over the pairs where both values are finite, with n."""
-    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
-    keep = np.isfinite(x) & np.isfinite(y)
-    x, y = x[keep], y[keep]
+    xs, ys = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    keep = np.isfinite(xs) & np.isfinite(ys)
+    xs, ys = xs[keep], ys[keep]
     out: dict[str, Any] = {"pearson": None, "spearman": None, "n": int(keep.sum())}
     # A correlation needs 3 points and some spread in both variables.
-    if len(x) >= 3 and np.ptp(x) > 0 and np.ptp(y) > 0:
-        out["pearson"] = finite_or_none(float(stats.pearsonr(x, y).statistic))
-        out["spearman"] = finite_or_none(float(stats.spearmanr(x, y).statistic))
+    if len(xs) >= 3 and np.ptp(xs) > 0 and np.ptp(ys) > 0:
+        out["pearson"] = finite_or_none(float(stats.pearsonr(xs, ys).statistic))
+        out["spearman"] = finite_or_none(float(stats.spearmanr(xs, ys).statistic))
     return out
 
 
@@ -44,7 +45,9 @@ def group_profile(values: np.ndarray) -> dict[str, Any]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateProfileWarning)
         profile = fit_profile(values.tolist())
-    out = {k: finite_or_none(getattr(profile, k)) for k in ("mu", "sigma", "alpha", "beta")}
+    out: dict[str, Any] = {
+        k: finite_or_none(getattr(profile, k)) for k in ("mu", "sigma", "alpha", "beta")
+    }
     n = int(np.isfinite(np.asarray(values, dtype=float)).sum())
     if n < MIN_BETA_FIT:
         out["alpha"] = out["beta"] = None

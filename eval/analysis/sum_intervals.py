@@ -37,8 +37,8 @@ Statistic = Callable[[np.ndarray], np.ndarray]
 def point_values(rows: np.ndarray, members: Sequence[int], statistic: Statistic) -> np.ndarray:
     """The statistic of the summed rows of ``members`` (float64 [S]; NaN where undefined)."""
     rows = np.asarray(rows, dtype=np.float64)
-    members = np.asarray(members, dtype=np.int64).reshape(-1)
-    summed = rows[members].sum(axis=0, keepdims=True)
+    index = np.asarray(members, dtype=np.int64).reshape(-1)
+    summed = rows[index].sum(axis=0, keepdims=True)
     return np.asarray(statistic(summed), dtype=np.float64).reshape(-1)
 
 
@@ -68,11 +68,11 @@ def sums_interval(
     Returns:
         ``{"<name>_ci": [lo, hi] | None, ..., "ci_note": str | None}``.
     """
-    members, local, num, note = set_clusters(clusters, members, settings, counts)
+    picked, local, num, note = set_clusters(clusters, members, settings, counts)
     if note is not None:
         return {**{f"{n}_ci": None for n in names}, "ci_note": note}
     rows = np.asarray(rows, dtype=np.float64)
-    per_cluster = per_cluster_sums(rows[members], local, num)
+    per_cluster = per_cluster_sums(rows[picked], local, num)
     values = resampled(draws_for(num, settings, counts, stream), per_cluster, statistic)
     values = values.reshape(len(values), -1)
     return {
@@ -116,11 +116,11 @@ def paired_sums_gap(
     if rows_a.shape != rows_b.shape:
         raise ValueError(f"paired rows differ in shape: {rows_a.shape} vs {rows_b.shape}")
     gap = point_values(rows_b, members, statistic) - point_values(rows_a, members, statistic)
-    members, local, num, note = set_clusters(clusters, members, settings, counts)
+    picked, local, num, note = set_clusters(clusters, members, settings, counts)
     gaps = None
     if note is None:
         d = rows_a.shape[1]
-        flat = per_cluster_sums(np.concatenate([rows_a[members], rows_b[members]], axis=1),
+        flat = per_cluster_sums(np.concatenate([rows_a[picked], rows_b[picked]], axis=1),
                                 local, num)  # fmt: skip
 
         def gap_of(sums: np.ndarray) -> np.ndarray:
@@ -162,12 +162,12 @@ def unpaired_sums_gap(
                                          ("b", rows_b, clusters_b, members_b)):  # fmt: skip
         rows = np.asarray(rows, np.float64)
         points.append(point_values(rows, members, statistic))
-        members, local, num, note = set_clusters(clusters, members, settings)
+        picked, local, num, note = set_clusters(clusters, members, settings)
         if note is not None:
             notes.append(note)
             continue
         counts = draw_counts(num, settings.resamples, settings.rng(f"{stream}:{tag}"))
-        values = resampled(counts, per_cluster_sums(rows[members], local, num), statistic)
+        values = resampled(counts, per_cluster_sums(rows[picked], local, num), statistic)
         draws.append(values.reshape(len(values), -1))
     gap = points[1] - points[0]
     note = "; ".join(dict.fromkeys(notes)) or None

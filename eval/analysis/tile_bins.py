@@ -103,21 +103,22 @@ def concat_tables(
         num_images: each result's number of images.
         image_order: the merge's permutation over the concatenated images (``order[new] = old``).
     """
-    if not tables or any(t is None for t in tables) or len({t.size for t in tables}) != 1:
+    present = [t for t in tables if t is not None]
+    if not tables or len(present) != len(tables) or len({t.size for t in present}) != 1:
         return None
     new_index = np.empty(len(image_order), dtype=np.int64)
     new_index[np.asarray(image_order)] = np.arange(len(image_order))
     offsets = np.concatenate([[0], np.cumsum(num_images)[:-1]]).astype(np.int64)
-    image = np.concatenate([new_index[t.image + o] for t, o in zip(tables, offsets, strict=True)])
-    row, col = np.concatenate([t.row for t in tables]), np.concatenate([t.col for t in tables])
+    image = np.concatenate([new_index[t.image + o] for t, o in zip(present, offsets, strict=True)])
+    row, col = np.concatenate([t.row for t in present]), np.concatenate([t.col for t in present])
     order = np.lexsort((col, row, image))  # tiles in image order, then row-major
     return TileTable(
-        tables[0].size,
+        present[0].size,
         image[order],
         row[order],
         col[order],
-        np.concatenate([t.delent for t in tables])[order],
-        np.concatenate([t.confusions for t in tables])[order],
+        np.concatenate([t.delent for t in present])[order],
+        np.concatenate([t.confusions for t in present])[order],
     )
 
 
@@ -189,7 +190,7 @@ def tile_report(
         conf = table.confusions[members].sum(axis=0)
         row: dict[str, Any] = {"name": b.name, "lo": b.lo, "hi": b.hi, "num_tiles": len(members)}
         row.update(confusion_scores(conf, classes))
-        if ids is not None:
+        if bootstrap is not None and ids is not None:
             interval = confusion_interval(
                 table.confusions, ids, members, bootstrap, stream=f"bin:{b.name}",
                 features=features,
@@ -199,7 +200,7 @@ def tile_report(
     tile_miou = np.array([mean_iou(c) for c in table.confusions], dtype=np.float64)
     without_labels = int((table.confusions.sum(axis=(1, 2)) == 0).sum())
     corr = correlation(table.delent, tile_miou)
-    if ids is not None:
+    if bootstrap is not None and ids is not None:
         corr.update(correlation_interval(table.delent, tile_miou, ids, bootstrap,
                                          stream="correlation:delent"))  # fmt: skip
     if edges is not None:

@@ -100,7 +100,8 @@ def outside_band(labels: np.ndarray, d: int) -> np.ndarray:
     # The box sum counts edge pixels: exact in uint16 up to 255², in float32 up to 4096².
     depth = cv2.CV_16U if side * side < 1 << 16 else cv2.CV_32F if side <= 4096 else cv2.CV_64F
     near = cv2.boxFilter(edges, depth, (side, side), normalize=False)
-    return cv2.compare(near, 0, cv2.CMP_EQ)
+    # OpenCV takes a scalar operand; its stubs want an array.
+    return cv2.compare(near, 0, cv2.CMP_EQ)  # type: ignore[call-overload]
 
 
 def _intersections_unions(

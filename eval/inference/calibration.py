@@ -31,7 +31,7 @@ from claravid.eval.inference.label_ids import as_numpy, check_ids, label_image
 try:  # the optional C pass (built at install when a compiler is there)
     from claravid.eval.inference import _calibration as _native
 except ImportError:  # pragma: no cover - depends on the build
-    _native = None
+    _native = None  # type: ignore[assignment]  # mypy types a module name as never None
 
 #: torchmetrics' default and the report's.
 N_BINS = 15

@@ -219,12 +219,12 @@ def collect(
                                         pair_keeper, mine, background)  # fmt: skip
 
                 def on_score(sample: dict[str, Any], pred: torch.Tensor, score: ImageScore) -> None:
-                    ids = (
-                        pred.to("cpu", torch.uint8).numpy() if save_predictions or stream else None
-                    )
+                    keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
+                    if save_predictions is None and stream is None:
+                        return
+                    ids = pred.to("cpu", torch.uint8).numpy()
                     if save_predictions is not None:
                         save_label_map(save_predictions, score.key, ids)
-                    keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
                     if stream is not None:
                         stream.add(score.key, ids, np.asarray(sample["mask"], dtype=np.uint8))
 
@@ -248,6 +248,7 @@ def collect(
                 if stream is not None:
                     pairs = stream.finish()
         else:
+            assert predictions is not None  # one of model and predictions, checked above
             threads = max(1, workers)
             measure = label_map_measure(data, predictions, plan, frames, pair_keeper)
             scored = label_map_confusions(data, predictions, mine, threads=threads,
@@ -293,7 +294,7 @@ def collect(
         source={**(source or {}), "skipped": [data.paths[i] for i in skipped]},
         tiles=None
         if tile_size is None
-        else TileTable.from_images(tile_size, [r[2] for r in rows], k),
+        else TileTable.from_images(tile_size, [_tiles(r[2]) for r in rows], k),
         quality=quality_table(plan, rows, k),
     )
     # Table rows are positions in `present`; hardest predictions are keyed by those too.
@@ -326,3 +327,11 @@ def _check_tile_grids(
                 f"{data.paths[index]}: the image gives a {got} tile grid and its labels a {want} "
                 "one: --tiles needs labels at the image's resolution"
             )
+
+
+def _tiles(
+    counted: tuple[np.ndarray | None, np.ndarray | None] | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """An image's (delentropy, confusions) per tile: counted for every image with a tile size."""
+    assert counted is not None and counted[0] is not None and counted[1] is not None
+    return counted[0], counted[1]

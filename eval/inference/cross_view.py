@@ -262,14 +262,16 @@ def _carry(
             x, y = np.multiply(q[0], inverse, out=q[0]), np.multiply(q[1], inverse, out=q[1])
             # Nearest pixel of s (NaN or far outside: remap's border), looked up twice.
             near, _ = cv2.convertMaps(x, y, cv2.CV_16SC2, nninterpolation=True)
-            looked = cv2.remap(depth_s, near, None, cv2.INTER_NEAREST,
+            # OpenCV takes map2 None beside a CV_16SC2 map1; its stubs want an array.
+            looked = cv2.remap(depth_s, near, None, cv2.INTER_NEAREST,  # type: ignore[call-overload]
                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)  # fmt: skip
             # Visible: |depth_s − d_s| <= τ·d_s, i.e. |depth_s / d_s − 1| <= τ; this also needs
             # d_s > 0 and a depth hit of s there (its unusable pixels hold depth 0).
             looked *= inverse
-        kept = cv2.compare(cv2.absdiff(looked, 1.0), float(tolerance), cv2.CMP_LE)
+        # OpenCV takes scalar operands; its stubs want arrays.
+        kept = cv2.compare(cv2.absdiff(looked, 1.0), float(tolerance), cv2.CMP_LE)  # type: ignore[call-overload]
         kept = cv2.bitwise_and(kept, valid_t[band])
-        cv2.remap(labels_s, near, None, cv2.INTER_NEAREST, dst=carried[band],
+        cv2.remap(labels_s, near, None, cv2.INTER_NEAREST, dst=carried[band],  # type: ignore[call-overload]
                   borderMode=cv2.BORDER_CONSTANT, borderValue=(255, 255, 0, 0))  # fmt: skip
         dropped = cv2.bitwise_not(kept)
         cv2.bitwise_or(pred_t[band], dropped, dst=keys[0, band])  # kept ids are < K
@@ -289,8 +291,10 @@ def _joint(key: np.ndarray, carried: np.ndarray, channel: int, k: int) -> np.nda
 
 def _hits(depth: np.ndarray) -> np.ndarray:
     """255 where the depth is a hit: 0 < d < 1000 m (0 and 1000 m are nothing and sky)."""
+    # OpenCV takes scalar operands; its stubs want arrays.
     return cv2.bitwise_and(
-        cv2.compare(depth, 0.0, cv2.CMP_GT), cv2.compare(depth, DEPTH_MAX_M, cv2.CMP_LT)
+        cv2.compare(depth, 0.0, cv2.CMP_GT),  # type: ignore[call-overload]
+        cv2.compare(depth, DEPTH_MAX_M, cv2.CMP_LT),  # type: ignore[call-overload]
     )
 
 
@@ -337,4 +341,5 @@ def _static(array: Any, name: str, shape: tuple[int, int]) -> np.ndarray | None:
         )
     if mask.shape != shape:
         raise ValueError(f"{name} is {mask.shape} but depth_t is {shape}: give one frame size")
-    return cv2.compare(mask, DYNAMIC_MASK_STATIC, cv2.CMP_EQ)
+    # OpenCV takes a scalar operand; its stubs want an array.
+    return cv2.compare(mask, DYNAMIC_MASK_STATIC, cv2.CMP_EQ)  # type: ignore[call-overload]

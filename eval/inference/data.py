@@ -65,7 +65,7 @@ class EvalData:
 
     name: str
     palette: Palette
-    dataset: Dataset
+    dataset: KeyedDataset
     paths: list[str]
     keys: list[str]
     read_mask_fn: Callable[[int], Any]
@@ -185,15 +185,16 @@ def _folder(
     raw = targets.FolderSegmentation(
         root, masks, palette=pal if masks is not None else None, mask_dtype=torch.uint8
     )
+    mask_files = list(raw.masks or [])
     if masks is not None:
-        check_palette_fit(list(raw.masks or []), pal)
+        check_palette_fit(mask_files, pal)
     return _keyed(
         "folder",
         pal,
         raw,
         [str(p) for p in raw.images],
         list(raw.keys),
-        lambda i: read_label_mask(raw.masks[i], pal),
+        lambda i: read_label_mask(mask_files[i], pal),
     )
 
 
@@ -231,7 +232,9 @@ def open_data(
     describe: dict[str, Any] = {"dataset": dataset, "data": str(root), "split": str(split)}
     if dataset == "claravid":
         data = _claravid(root, split, pal, selection or {})
-        describe["selection"] = _selection_used(data.dataset.dataset, selection or {})
+        raw = data.dataset.dataset
+        assert isinstance(raw, ClaraVidSegmentation)  # what _claravid opens
+        describe["selection"] = _selection_used(raw, selection or {})
     elif dataset == "uavid":
         data = _uavid(root, split, pal, labels)
     else:

@@ -64,7 +64,8 @@ def check_ids(
         The valid pixels: uint8, 255 where the truth is not the ignore index.
     """
     prefix = f"{name} " if name else ""
-    valid = cv2.compare(truth, IGNORE_INDEX, cv2.CMP_NE)
+    # OpenCV takes a scalar operand; its stubs want an array.
+    valid = cv2.compare(truth, IGNORE_INDEX, cv2.CMP_NE)  # type: ignore[call-overload]
     # Cheap counts first; which ids are wrong is only worked out when some are.
     if num_classes < IGNORE_INDEX and cv2.countNonZero(
         cv2.inRange(truth, num_classes, IGNORE_INDEX - 1)

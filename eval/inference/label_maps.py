@@ -94,7 +94,9 @@ def write_marker(
     return atomic_write_text(Path(directory) / MARKER, json.dumps(marker, indent=2))
 
 
-def predictions_defaults(directory: str | Path, palette: str | None = None) -> dict[str, Any]:
+def predictions_defaults(
+    directory: str | Path, palette: str | Path | None = None
+) -> dict[str, Any]:
     """What a folder of label maps says about evaluating it: the palette of its ids.
 
     The palette comes from ``DIR/predictions.json`` (written by ``--save-predictions`` and

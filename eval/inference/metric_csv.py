@@ -46,7 +46,8 @@ def _read_records(path: Path) -> tuple[list[str], list[list[str]], list[int]]:
     with open(path, newline="", encoding="utf-8-sig") as f:
         reader = csv.reader(f)
         header = next(reader, [])
-        records, rows = [], []
+        records: list[list[str]] = []
+        rows: list[int] = []
         while True:
             start = reader.line_num + 1
             cells = next(reader, None)

@@ -40,8 +40,11 @@ def pair_marks(
         size: the thumbnail's (width, height).
     """
     height, width = t.depth.shape
-    small = dict(dsize=size, interpolation=cv2.INTER_NEAREST)
-    depth_t = cv2.resize(t.depth, **small)
+
+    def small(image: np.ndarray) -> np.ndarray:
+        return cv2.resize(image, size, interpolation=cv2.INTER_NEAREST)
+
+    depth_t = small(t.depth)
     intrinsics = np.asarray(t.intrinsics, np.float64).copy()
     intrinsics[0] *= size[0] / width
     intrinsics[1] *= size[1] / height
@@ -54,10 +57,10 @@ def pair_marks(
     col = np.clip(np.nan_to_num(np.floor(u)), 0, width - 1).astype(np.int64)
     row = np.clip(np.nan_to_num(np.floor(v)), 0, height - 1).astype(np.int64)
     seen = s.depth[row, col]
-    kept = inside & _usable(depth_t, cv2.resize(t.dynamic, **small), cv2.resize(gt_t, **small))
+    kept = inside & _usable(depth_t, small(t.dynamic), small(gt_t))
     kept &= _usable(seen, s.dynamic[row, col], gt_s[row, col])
     kept &= np.abs(seen - q[..., 2]) <= TOLERANCE * q[..., 2]
-    agree = kept & (cv2.resize(pred_t, **small) == pred_s[row, col])
+    agree = kept & (small(pred_t) == pred_s[row, col])
     return kept, agree
 
 

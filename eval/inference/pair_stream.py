@@ -43,8 +43,8 @@ class PairKeeper:
     heap: list[tuple[float, int, dict[str, Any]]] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
-    def offer(self, index: int, key: str, result: PairResult, labels: tuple[np.ndarray, ...]
-              ) -> None:  # fmt: skip
+    def offer(self, index: int, key: str, result: PairResult,
+              labels: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> None:  # fmt: skip
         """Keep this pair if it is among the k of lowest consistency so far.
 
         Args:
@@ -60,8 +60,11 @@ class PairKeeper:
         with self.lock:
             if len(self.heap) == self.k and rank <= self.heap[0][:2]:
                 return
+        full_pred_t, full_gt_t, full_pred_s, full_gt_s = labels
         pred_t, gt_t = (thumbnail(np.asarray(a, np.uint8), True) for a in labels[:2])
-        kept, agree = pair_marks(*result.geometry, *labels, (pred_t.shape[1], pred_t.shape[0]))
+        t, s = result.geometry
+        size = (pred_t.shape[1], pred_t.shape[0])
+        kept, agree = pair_marks(t, s, full_pred_t, full_pred_s, full_gt_t, full_gt_s, size)
         item = {"key": key, "next": result.next, "consistency": value, "prediction": pred_t,
                 "mask": gt_t, "kept": kept, "agree": agree}  # fmt: skip
         entry = (*rank, item)
@@ -127,17 +130,21 @@ class PairStream:
     def _measure(self, key: str, pred: np.ndarray, gt: np.ndarray,
                  pred_s: Callable[[str], np.ndarray]) -> None:  # fmt: skip
         after = self.frames.next_of(key)
-        other = pred_s(after) if after else None  # here: it may need the model
+        # Here, not in the thread: it may need the model. Without a next frame measure_pair
+        # stops before asking for its prediction.
+        other: np.ndarray | str = pred_s(after) if after else ""
         self.jobs[key] = self.background.submit(self._pair, key, pred, gt, after, other)
 
-    def _pair(self, key: str, pred: np.ndarray, gt: np.ndarray, after: str,
-              other: np.ndarray | None) -> PairResult:  # fmt: skip
+    def _pair(self, key: str, pred: np.ndarray, gt: np.ndarray, after: str | None,
+              other: np.ndarray | str) -> PairResult:  # fmt: skip
         """The pair's sums (in a background thread), offered to the keeper."""
-        sheet = self.keeper is not None and self.keeper.k > 0
+        keeper = self.keeper if self.keeper is not None and self.keeper.k > 0 else None
         result = measure_pair(self.frames, key, pred, gt, lambda _key: other,
-                              self.num_classes, keep_geometry=sheet)  # fmt: skip
-        if sheet and result.geometry is not None:
+                              self.num_classes, keep_geometry=keeper is not None)  # fmt: skip
+        # A pair with geometry was measured, so the next frame had a prediction.
+        if keeper is not None and result.geometry is not None and isinstance(other, np.ndarray):
+            assert after is not None  # a measured pair has a next frame
             labels = (pred, gt, other, self.frames.mask(after))
-            self.keeper.offer(self.index[key], key, result, labels)
+            keeper.offer(self.index[key], key, result, labels)
         result.geometry = None  # full-size depth maps are not kept past the sheet
         return result

@@ -61,13 +61,21 @@ def pairs_unavailable(data: EvalData) -> str | None:
     if data.name != "claravid":
         kind = "UAVid" if data.name == "uavid" else "a folder of images"
         return f"{kind} has no depth or camera poses"
-    raw = data.dataset.dataset
+    raw = _claravid_images(data)
     roots = {Path(raw.root) / MISSIONS[f.mission] for f in raw.frames}
     for field in GEOMETRY_FIELDS:
         folder = MODALITIES[field].folder
         if not any((root / str(folder)).is_dir() for root in roots):
             return f"no {folder}/ folder in the evaluated missions (a partial download?)"
     return None
+
+
+def _claravid_images(data: EvalData) -> ClaraVidSegmentation:
+    """The ClaraVid dataset below ``data``'s keys (a claravid evaluation always has one)."""
+    raw = data.dataset.dataset
+    if not isinstance(raw, ClaraVidSegmentation):
+        raise TypeError(f"cross-view pairs read ClaraVid frames, not a {type(raw).__name__}")
+    return raw
 
 
 class PassFrames:
@@ -80,7 +88,7 @@ class PassFrames:
     """
 
     def __init__(self, data: EvalData, cache: int = 4) -> None:
-        raw: ClaraVidSegmentation = data.dataset.dataset
+        raw = _claravid_images(data)
         chosen = data.describe.get("selection") or {}
         # The whole selection, every split: the next frame on disk is the next of the pass.
         self.frames = ClaraVidSegmentation(

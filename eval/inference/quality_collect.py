@@ -54,6 +54,7 @@ def label_map_measure(
     folder = Path(str(predictions))
 
     def pred_s(key: str) -> np.ndarray | str:
+        assert frames is not None  # pairs are measured only with a pass's frames
         file = prediction_file(folder, key)
         if not file.is_file():
             return f"no label map of the next frame ({file})"
@@ -68,7 +69,8 @@ def label_map_measure(
         other = pred_s(after) if after else ""
         result = measure_pair(frames, key, ids, mask, lambda _key: other, k,
                               keep_geometry=keeper.k > 0)  # fmt: skip
-        if result.geometry is not None:
+        # A pair with geometry was measured, so the next frame had a label map.
+        if result.geometry is not None and after and isinstance(other, np.ndarray):
             keeper.offer(index, key, result, (ids, mask, other, frames.mask(after)))
         result.geometry = None  # full-size depth maps are not kept past the sheet
         return boundary, result

@@ -70,25 +70,26 @@ def plan_quality(
     Raises:
         UsageError: a measure asked for explicitly that the source or data cannot give.
     """
-    cannot = {
+    cannot: dict[str, str | None] = {
         BOUNDARY: None,
         CALIBRATION: None if has_scores else (
             "label maps have no scores: evaluate the checkpoint or ONNX file"),
         CONSISTENCY: pairs_reason,
     }  # fmt: skip
-    status, reasons = {}, {}
+    status: dict[str, str] = {}
+    reasons: dict[str, str] = {}
     for name in QUALITY:
         wanted = asked.get(name)
         if wanted is False:
             status[name] = OFF
-        elif cannot[name] is not None:
+        elif (why := cannot[name]) is not None:
             if wanted:
-                raise UsageError(f"{_FLAGS[name]} cannot be computed: {cannot[name]}; drop "
+                raise UsageError(f"{_FLAGS[name]} cannot be computed: {why}; drop "
                                  f"{_FLAGS[name]}")  # fmt: skip
-            status[name], reasons[name] = UNAVAILABLE, cannot[name]
+            status[name], reasons[name] = UNAVAILABLE, why
         else:
             status[name] = COMPUTED
-    settings = {BOUNDARY: {"dilation_ratio": DILATION_RATIO},
+    settings: dict[str, dict[str, Any]] = {BOUNDARY: {"dilation_ratio": DILATION_RATIO},
                 CALIBRATION: {"bins": CALIBRATION_BINS, "norm": "l1"},
                 CONSISTENCY: dict(CONSISTENCY_SETTINGS)}  # fmt: skip
     return QualityPlan(status, reasons, {n: settings[n] for n in QUALITY if status[n] == COMPUTED})

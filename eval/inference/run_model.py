@@ -96,9 +96,9 @@ def evaluate_model(
     subset = Subset(dataset, list(indices)) if indices is not None else dataset
     loader = DataLoader(subset, batch_size=None, num_workers=num_workers)
     results, pending = [], []
-    for sample in tqdm(
-        loader, total=len(subset), desc="evaluate", unit="img", disable=not progress
-    ):
+    # A map-style dataset has a length; torch's Dataset type does not declare one.
+    total = len(subset)  # type: ignore[arg-type]
+    for sample in tqdm(loader, total=total, desc="evaluate", unit="img", disable=not progress):
         if "mask" not in sample:
             raise ValueError(f"{sample['path']} has no ground truth: evaluation needs labels")
         prediction, confidence = predict_with_confidence(

@@ -167,9 +167,10 @@ class RunSettings:
     def describe(self) -> dict[str, Any]:
         """The report's ``source["settings"]``: every value used and where it came from."""
         w = self.window
+        assert w.size is not None and w.stride is not None  # resolved for the model
         return {
             "window": list(w.size),
-            "stride": list(w.stride),  # type: ignore[arg-type]
+            "stride": list(w.stride),
             "scale": w.scale,
             "batch_size": w.batch_size,
             "palette": self.palette,
@@ -191,7 +192,7 @@ def resolve_settings(
     stride: int | tuple[int, int] | None = None,
     scale: float | None = None,
     batch_size: int | None = None,
-    palette: str | None = None,
+    palette: str | Path | None = None,
     precision: str = "auto",
 ) -> RunSettings:
     """Window, stride, scale, batch size, palette and normalisation: flag, else the model
@@ -310,6 +311,7 @@ def load_source(
     if provider is None and device.type != "cuda":
         provider = "cpu"
     providers = resolve_providers(provider)  # one line naming what is missing, before loading
+    # No checkpoint: an ONNX file is given.
     segmenter = OnnxSegmenter(onnx, providers=providers, threads=threads)  # type: ignore[arg-type]
     defaults = onnx_defaults(segmenter.metadata)
     return ModelSource(

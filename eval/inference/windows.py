@@ -29,7 +29,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 import torch
@@ -76,7 +76,7 @@ class WindowConfig:
         stride = _pair(self.stride, "stride") if self.stride is not None else None
         object.__setattr__(self, "size", size)
         if size is not None:
-            stride = stride or tuple(max(1, s * 2 // 3) for s in size)
+            stride = stride or (max(1, size[0] * 2 // 3), max(1, size[1] * 2 // 3))
         object.__setattr__(self, "stride", stride)
         if not (math.isfinite(self.scale) and 0 < self.scale <= 8):
             raise ValueError(f"scale must be in (0, 8], got {self.scale}")
@@ -93,7 +93,11 @@ class WindowConfig:
             object.__setattr__(self, name, values)
         if self.std is not None and min(self.std) <= 0:
             raise ValueError(f"std must be positive, got {self.std}")
-        if size is not None and any(s > w for s, w in zip(self.stride, size, strict=True)):  # type: ignore[arg-type]
+        if (
+            size is not None
+            and stride is not None
+            and any(s > w for s, w in zip(stride, size, strict=True))
+        ):
             raise ValueError(
                 f"stride {self.stride} larger than the window {size} would skip pixels"
             )
@@ -147,7 +151,7 @@ def model_statistics(model: Any) -> tuple[Any, Any]:
     return None, None
 
 
-def _triple(value: Any) -> bool:
+def _triple(value: Any) -> TypeGuard[list[Any] | tuple[Any, ...]]:
     return isinstance(value, list | tuple) and len(value) == 3
 
 
@@ -176,7 +180,7 @@ def normalise(image: torch.Tensor, config: WindowConfig) -> torch.Tensor:
     Raises:
         ValueError: a uint8 image and no statistics (neither the config's nor the model's).
     """
-    if config.mean is None:
+    if config.mean is None or config.std is None:  # both or neither (WindowConfig)
         if not image.is_floating_point():
             raise ValueError(
                 "uint8 images need the model's mean and std, and neither the window config nor "
@@ -226,6 +230,7 @@ def sliding_window_logits(
             image[None], size=size, mode="bilinear", align_corners=False, antialias=True
         )[0]
     h, w = image.shape[-2:]
+    assert config.size is not None and config.stride is not None  # for_model sets both
     (wh, ww), (sh, sw) = config.size, config.stride
     if h < wh or w < ww:  # pad to one window; the padding is cut off below
         image = F.pad(image, (0, max(0, ww - w), 0, max(0, wh - h)))

@@ -77,8 +77,8 @@ def save_confusions(path: str | Path, result: EvalResult, report_id: str | None 
         arrays["report_id"] = np.asarray(report_id, dtype=str)
     for measure, values in result.complexity.items():
         arrays[f"complexity_{measure}"] = np.asarray(values, dtype=np.float64)
-    for name, values in result.attributes.items():
-        arrays[f"attribute_{name}"] = np.asarray(values, dtype=str)
+    for name, labels in result.attributes.items():
+        arrays[f"attribute_{name}"] = np.asarray(labels, dtype=str)
     if result.tiles is not None:
         tiles = result.tiles
         arrays.update(
@@ -94,7 +94,8 @@ def save_confusions(path: str | Path, result: EvalResult, report_id: str | None 
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as f:
-            np.savez_compressed(f, **arrays)
+            # numpy types the names as possible values of its allow_pickle flag; none is.
+            np.savez_compressed(f, **arrays)  # type: ignore[arg-type]
 
     return atomic_save(path, write)
 
@@ -224,7 +225,9 @@ def _load_quality(
                           [str(x) for x in data["pair_status"]],
                           [str(x) for x in data["pair_reason"]],
                           data["pair_sums"].astype(np.int64))  # fmt: skip
-    shapes = [("boundary_sums", boundary, (n, 2, k))]
+    shapes: list[tuple[str, np.ndarray | None, tuple[int, ...]]] = [
+        ("boundary_sums", boundary, (n, 2, k))
+    ]
     if pairs is not None:
         shapes.append(("pair_sums", pairs.sums, (n, pair_columns(k))))
     if calibration is not None:

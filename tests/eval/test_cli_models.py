@@ -43,6 +43,39 @@ def _without_source(report):
     return {k: v for k, v in report.items() if k != "source"}
 
 
+def _calibration(report):
+    """A report's calibration entries, each path with its numbers (rows, bins, images)."""
+    found = {}
+
+    def walk(node, path):
+        if isinstance(node, dict):
+            for key, value in node.items():
+                walk(value, f"{path}/{key}")
+        elif isinstance(node, list):
+            for i, value in enumerate(node):
+                walk(value, f"{path}[{i}]")
+        elif "calibration" in path or "/ece" in path or "/mce" in path:
+            found[path] = node
+
+    walk(_without_source(report), "")
+    return found
+
+
+def _without_calibration(report, also=()):
+    """The report less what only a source with scores has (calibration, by definition), and
+    the entries named in ``also``."""
+    drop = {"calibration", "ece", "mce", "source", *also}
+
+    def strip(node):
+        if isinstance(node, dict):
+            return {k: strip(v) for k, v in node.items() if k not in drop}
+        if isinstance(node, list):
+            return [strip(v) for v in node]
+        return node
+
+    return strip(report)
+
+
 def test_checkpoint_rebuilds_data_and_palette_and_matches_a_direct_count(
     model_files, claravid_root, splits, tmp_path, saved_figures
 ):
@@ -167,38 +200,35 @@ def test_onnx_and_pytorch_give_the_same_report(model_files, claravid_root, split
     torch_report = _run(tmp_path / "pt", "--checkpoint", str(model_files["checkpoint"]), *common)
     onnx_report = _run(tmp_path / "onnx", "--onnx", str(model_files["onnx"]), *common)
     assert onnx_report["source"]["kind"] == "onnx"
-    # The same predictions; the confidences agree to float rounding (calibration approximately).
+    # Labels, confusions and every count agree exactly; confidences are ONNX Runtime's floats.
     assert _without_calibration(onnx_report) == _without_calibration(torch_report)
-    for a, b in zip([onnx_report["overall"], *onnx_report["bins"]],
-                    [torch_report["overall"], *torch_report["bins"]], strict=True):  # fmt: skip
-        assert a["calibration"]["ece"] == pytest.approx(b["calibration"]["ece"], abs=1e-6)
-        assert a["calibration"]["reliability"]["count"] == b["calibration"]["reliability"]["count"]
-
-
-def _without_calibration(report):
-    """The report less its source and its calibration numbers (rows' entries, images' ECE)."""
-    out = json.loads(json.dumps(_without_source(report)))
-    for row in [out["overall"], *out["bins"], *out["groups"]]:
-        row.pop("calibration", None)
-    for row in out["images"]:
-        row.pop("ece", None)
-    return out
+    ours, theirs = _calibration(torch_report), _calibration(onnx_report)
+    assert ours.keys() == theirs.keys() and ours
+    for path, value in ours.items():
+        if isinstance(value, float):
+            assert theirs[path] == pytest.approx(value, abs=1e-6), path
+        else:
+            assert theirs[path] == value, path
 
 
 def test_saved_predictions_give_the_same_report(model_files, claravid_root, splits, tmp_path):
-    # Label maps have no scores (no calibration), and the next frames of these frames' passes,
-    # predicted by the checkpoint's run for its pairs, are not saved: compare the rest.
-    common = ["--data", str(claravid_root), "--palette", "uavid", "--split", str(splits["both"]),
-              "--no-consistency"]  # fmt: skip
+    common = ["--data", str(claravid_root), "--palette", "uavid", "--split", str(splits["both"])]
     preds = tmp_path / "preds"
     direct = _run(tmp_path / "a", "--checkpoint", str(model_files["checkpoint"]), *common,
-                  "--save-predictions", str(preds), "--no-calibration")  # fmt: skip
+                  "--save-predictions", str(preds))  # fmt: skip
     key = SECOND[0]
     assert (preds / f"{key}.png").is_file() and (preds / "predictions.json").is_file()
     again = _run(tmp_path / "b", "--predictions", str(preds), *common)
-    assert _without_source(again) == {**_without_source(direct), "quality": again["quality"]}
-    assert again["quality"]["boundary_iou"] == direct["quality"]["boundary_iou"]
-    assert direct["quality"]["calibration"]["status"] == "off"  # unavailable in `again`
+    # Label maps have no scores: everything but calibration is the same, and it is said why.
+    # Consistency too, but for pairs whose next frame is outside the split: the checkpoint
+    # predicts that frame, the folder has no label map of it (each such pair says so).
+    consistency = ("consistency", "consistency_gt", "consistency_ci", "consistency_gt_ci")
+    assert _without_calibration(again, consistency) == _without_calibration(direct, consistency)
+    pairs = again["quality"]["consistency"]["unavailable"]
+    assert pairs and all("no label map of the next frame" in reason for reason in pairs)
+    assert direct["quality"]["calibration"]["status"] == "computed"
+    assert again["quality"]["calibration"]["status"] == "unavailable"
+    assert "no scores" in again["quality"]["calibration"]["reason"]
     # Reusing the folder is allowed (it is ours); a foreign one is not.
     assert main(["--checkpoint", str(model_files["checkpoint"]), *common, "--window", WINDOW,
                  "--save-predictions", str(preds), "--output", str(tmp_path / "c"),

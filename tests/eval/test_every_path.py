@@ -44,7 +44,7 @@ def test_merge_and_compare_never_load_torch(label_map_reports, tmp_path, mode):
 
 # --- item 3: a bootstrap that does not fit is refused first, on every path ---------------------
 
-#: The free memory the tests pretend the machine has (os.sysconf is the OS call the check reads).
+#: The memory the tests pretend the machine has available (MemAvailable, which the check reads).
 FREE = 100 * 2**20
 #: 2 million resamples: their draw counts alone (36 images in 8 block clusters, int32: 64 MB)
 #: fit in FREE, the bootstrap as a whole (the statistics of every resample, their sorted copies)
@@ -54,18 +54,10 @@ HUGE = "2000000"
 
 @pytest.fixture
 def little_memory(monkeypatch):
-    import os
+    from claravid.infra import memory
 
-    real = os.sysconf
-
-    def sysconf(name):
-        if name == "SC_AVPHYS_PAGES":
-            return FREE // 4096
-        if name == "SC_PAGE_SIZE":
-            return 4096
-        return real(name)
-
-    monkeypatch.setattr(os, "sysconf", sysconf)
+    meminfo = f"MemTotal: {64 * FREE // 1024} kB\nMemAvailable: {FREE // 1024} kB\n"
+    monkeypatch.setattr(memory, "_read_meminfo", lambda: meminfo)
 
 
 def _refused(capsys):

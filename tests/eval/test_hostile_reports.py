@@ -165,7 +165,8 @@ def test_compare_without_intervals_excludes_nothing(reps, tmp_path):
     assert main(argv) == 0
     lines = (out / "compare.md").read_text().splitlines()
     start = next(i for i, ln in enumerate(lines) if ln.endswith("| interval excludes 0 |"))
-    # The mIoU gap table's rows (the measures beyond mIoU have their tables below it).
+    # The mIoU table's rows: up to the first line that is not a row (the other measures'
+    # tables follow, each with its own header).
     rows = list(itertools.takewhile(lambda ln: ln.startswith("| "), lines[start + 2 :]))
     assert rows
     for line in rows:  # bins and overall: a gap, no interval, p-value and mark "–"

@@ -11,6 +11,8 @@
 - `to_hugging_face`: the same tensors under transformers' ``DINOv3ViTModel`` names, by a plain
   rename written out here (q/k/v split by rows; no key bias; mask token [1, 1, D]; no periods,
   bias masks or ``local_cls_norm``).
+- `to_timm`: the same tensors as timm's DINOv3 files hold them, by timm's own key mapping
+  (``checkpoint_filter_fn`` of ``timm/models/eva.py``) written out here.
 """
 
 from __future__ import annotations
@@ -117,4 +119,34 @@ def to_hugging_face(state: dict[str, torch.Tensor], prefix: str = "") -> dict[st
                 _, name, kind = rest.split(".")  # mlp.<name>.<weight|bias>
                 assert gated == name.startswith("w"), key
                 out[layer + f"mlp.{ffn[name]}.{kind}"] = value.clone()
+    return out
+
+
+def to_timm(state: dict[str, torch.Tensor], qkvb: bool = True) -> dict[str, torch.Tensor]:
+    """Official DINOv3 keys -> timm's (``vit_*_patch16_dinov3[_qkvb]``).
+
+    Dropped: the periods, bias masks, mask token and ``local_cls_norm``; the qkv bias becomes
+    ``q_bias`` and ``v_bias`` (first and last thirds) in the ``_qkvb`` variants and is dropped in
+    the plain ones; ``storage_tokens`` -> ``reg_token``; ``ls1/ls2.gamma`` -> ``gamma_1/2``;
+    SwiGLU ``w1, w2, w3`` -> ``fc1_g, fc1_x, fc2``.
+    """
+    swiglu = {"w1": "fc1_g", "w2": "fc1_x", "w3": "fc2"}
+    out = {}
+    for key, value in state.items():
+        if key in ("rope_embed.periods", "mask_token") or key.startswith("local_cls_norm."):
+            continue
+        if key.endswith(".bias_mask"):
+            continue
+        if key.endswith("attn.qkv.bias"):
+            if qkvb:
+                d = value.shape[0] // 3
+                out[key.replace("qkv.bias", "q_bias")] = value[:d].clone()
+                out[key.replace("qkv.bias", "v_bias")] = value[2 * d :].clone()
+            continue
+        key = key.replace("storage_tokens", "reg_token")
+        key = key.replace(".ls1.gamma", ".gamma_1").replace(".ls2.gamma", ".gamma_2")
+        m = re.fullmatch(r"(blocks\.\d+\.mlp\.)(w[123])(\..+)", key)
+        if m is not None:
+            key = m.group(1) + swiglu[m.group(2)] + m.group(3)
+        out[key] = value.clone()
     return out

@@ -92,3 +92,23 @@ def reference_layers(
         if i in take:
             outs.append(ln(t, "norm") if norm else t)
     return [(o[:, 1 + n_reg :], o[:, 0]) for o in outs]
+
+
+def to_timm_dinov2(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Official DINOv2 keys -> timm's (``_convert_dinov2`` of timm's vision_transformer.py).
+
+    The mask token is dropped; the giant model's SwiGLU ``w12, w3`` -> ``fc1, fc2``; with
+    registers, ``register_tokens`` -> ``reg_token`` and the CLS position folded into the token
+    (``cls_token + pos_embed[:, 0]``), the table keeping the patch positions only.
+    """
+    out = {}
+    for key, value in state.items():
+        if key == "mask_token":
+            continue
+        key = key.replace(".mlp.w12.", ".mlp.fc1.").replace(".mlp.w3.", ".mlp.fc2.")
+        out[key.replace("register_tokens", "reg_token")] = value.clone()
+    if "reg_token" in out:
+        pos = out["pos_embed"]
+        out["cls_token"] = out["cls_token"] + pos[:, :1]
+        out["pos_embed"] = pos[:, 1:].clone()
+    return out

@@ -100,8 +100,9 @@ def test_a_file_without_periods_gets_the_released_ones(tmp_path, name):
     """The official file and the Hugging Face file of one checkpoint give the same features:
     bfloat16 periods for the distilled ViT-L, float32 ones for 7B."""
     state = _released(name)
-    official = build_backbone(name, weights=_save(state, tmp_path / "w.pth"), **TINY_V3)
-    hf_path = _save(to_hugging_face(state, "model."), tmp_path / "hf" / "model.safetensors")
+    # Files named after the backbone: nothing else tells 7B's web file from its SAT one.
+    official = build_backbone(name, weights=_save(state, tmp_path / f"{name}.pth"), **TINY_V3)
+    hf_path = _save(to_hugging_face(state, "model."), tmp_path / name / "model.safetensors")
     hf = build_backbone(name, weights=hf_path, **TINY_V3)
     assert torch.equal(hf.rope_embed.periods, state["rope_embed.periods"].float())
     x = torch.randn(1, 3, 208, 144, generator=torch.Generator().manual_seed(0))
@@ -137,7 +138,7 @@ def test_periods_of_another_base_are_refused(tmp_path):
 def test_a_state_dict_saved_in_half_precision_loads(tmp_path, dtype):
     """``model.half().state_dict()`` rounds the periods too: that is not another RoPE."""
     state = {k: v.to(dtype) for k, v in _released("dinov3_vit7b16").items()}
-    path = _save(state, tmp_path / "half.pth")
+    path = _save(state, tmp_path / "dinov3_vit7b16.pth")
     model = build_backbone("dinov3_vit7b16", weights=path, **TINY_V3)
     assert torch.equal(model.rope_embed.periods, state["rope_embed.periods"].float())
     assert model.rope_embed.periods.dtype == torch.float32

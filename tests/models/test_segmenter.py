@@ -51,6 +51,46 @@ def test_backbone_keeps_no_activations():
     assert total == sum(saved) > 0
 
 
+def test_an_unfrozen_backbone_trains_end_to_end_with_the_gradients_of_the_composition():
+    """``unfreeze_backbone``: the backbone's gradients are those of backbone-then-head composed
+    by hand (a copy of the same weights); the outputs do not change; ``freeze_backbone`` undoes
+    it; the backbone stays in eval mode in training."""
+    import copy
+
+    torch.manual_seed(0)
+    tiny = {"embed_dim": 32, "depth": 4, "num_heads": 2}  # SAT ViT-L: with local_cls_norm
+    model = build_model("dinov3_vitl16_sat", 5, backbone_kwargs=tiny, **HEAD).train()
+    reference = copy.deepcopy(model)
+    x = torch.randn(1, 3, 32, 48)  # 2 x 3 patches of 16, non-square
+    frozen = model(x).detach()
+    assert model.unfreeze_backbone() is model and not model.backbone_frozen
+    model.train()
+    assert not model.backbone.training and model.head.training
+    logits = model(x)
+    torch.testing.assert_close(logits, frozen, atol=0, rtol=0)
+    logits.square().mean().backward()
+    reference.backbone.requires_grad_(True)
+    feats = reference.backbone.get_intermediate_layers(x, [0, 1, 2, 3], return_class_token=True)
+    reference.head(feats, 2, 3, (32, 48)).square().mean().backward()
+    ours = dict(model.backbone.named_parameters())
+    compared = 0
+    for name, p in reference.backbone.named_parameters():
+        if name.startswith(("mask_token", "local_cls_norm")):  # pre-training only: frozen
+            assert p.grad is None  # no loss reaches them
+            assert not ours[name].requires_grad and ours[name].grad is None, name
+        else:
+            torch.testing.assert_close(ours[name].grad, p.grad, atol=1e-6, rtol=1e-5)
+            compared += 1
+    assert compared == 62 and ours["blocks.0.attn.qkv.weight"].grad.abs().sum() > 0
+    total = sum(p.numel() for p in model.parameters())
+    pretraining = model.backbone.mask_token.numel() + 2 * 32  # the norm's weight and bias
+    assert model.num_trainable_parameters() == total - pretraining
+    model.freeze_backbone()
+    assert model.backbone_frozen and model.num_trainable_parameters() == sum(
+        p.numel() for p in model.head.parameters()
+    )
+
+
 def test_head_gets_the_official_backbone_features():
     model = _model("dinov2_vits14_reg").eval()
     state = random_official_state(model.backbone, seed=5)

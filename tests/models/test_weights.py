@@ -89,21 +89,29 @@ def test_wrong_keys_are_listed(tmp_path):
 
 def test_registers_mismatch_names_register_tokens(tmp_path):
     torch.save(_official_state("dinov2_vits14"), tmp_path / "noreg.pth")
-    with pytest.raises(WeightsError, match=r"(?s)missing keys \(1\): register_tokens.*_reg"):
+    with pytest.raises(
+        WeightsError,
+        match=r"holds the weights of dinov2_vits14 \(32 wide, 2 blocks, MLP, patch 14\), not of "
+        r"dinov2_vits14_reg: build dinov2_vits14 for it",
+    ):
         build_backbone("dinov2_vits14_reg", weights=tmp_path / "noreg.pth", **TINY)
 
 
 def test_incomplete_hf_qkv(tmp_path):
     hf = official_to_hf(_official_state())
     del hf["encoder.layer.0.attention.attention.value.bias"]
-    with pytest.raises(WeightsError, match=r"block 0: attention bias lacks \['value'\]"):
+    with pytest.raises(
+        WeightsError,
+        match=r"has part of blocks.0.attn.qkv.bias but lacks "
+        r"encoder.layer.0.attention.attention.value.bias: the file is incomplete",
+    ):
         hf_to_official(hf)
 
 
 def test_missing_and_unreadable_files(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"nope.pth not found.*'official'"):
         build_backbone("dinov2_vits14", weights=tmp_path / "nope.pth", **TINY)
-    with pytest.raises(WeightsError, match=r"is a folder; give the file itself"):
+    with pytest.raises(WeightsError, match=r"holds no weights file \(\*.safetensors"):
         build_backbone("dinov2_vits14", weights=tmp_path, **TINY)
 
 
@@ -282,3 +290,31 @@ def test_file_with_the_real_hugging_face_names_loads(tmp_path):
         assert torch.equal(own[f"blocks.{i}.mlp.fc2.bias"], hf[f"{layer}mlp.fc2.bias"])
         assert torch.equal(own[f"blocks.{i}.ls2.gamma"], hf[f"{layer}layer_scale2.lambda1"])
     assert torch.equal(own["norm.bias"], hf["layernorm.bias"])
+
+
+def test_hugging_face_dinov2_keeps_the_official_resize_not_transformers(tmp_path):
+    """transformers' Dinov2Model resizes the positional table to the exact grid; the official
+    models without registers scale it by (grid + 0.1) / 37. A Hugging Face folder here keeps the
+    official rule: transformers' features at the trained size, other ones elsewhere."""
+    transformers = pytest.importorskip("transformers")
+    state = _official_state("dinov2_vits14")
+    folder = tmp_path / "dinov2-small"
+    transformers.Dinov2Config(
+        hidden_size=32, num_hidden_layers=2, num_attention_heads=2, image_size=28, patch_size=14
+    ).save_pretrained(folder)
+    save_file({k: v.contiguous() for k, v in official_to_hf(state).items()},
+              str(folder / "model.safetensors"))  # fmt: skip
+    theirs = transformers.Dinov2Model.from_pretrained(folder).eval()
+    ours = build_backbone("dinov2_vits14", weights=folder, **TINY)
+    # transformers 5 names its modules q_proj/o_proj in memory: that spelling loads too.
+    save_file(
+        {k: v.contiguous() for k, v in theirs.state_dict().items()}, str(tmp_path / "r.safetensors")
+    )
+    runtime = build_backbone("dinov2_vits14", weights=tmp_path / "r.safetensors", **TINY)
+    for size, same in (((28, 28), True), ((42, 70), False)):
+        x = torch.randn(1, 3, *size, generator=torch.Generator().manual_seed(2))
+        with torch.no_grad():
+            want = theirs(x).last_hidden_state[:, 1:]
+            got = ours.get_intermediate_layers(x, 1)[0]
+            torch.testing.assert_close(runtime.get_intermediate_layers(x, 1)[0], got)
+        assert bool((got - want).abs().max() <= 1e-5) == same, size

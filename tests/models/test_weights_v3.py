@@ -74,7 +74,7 @@ def test_hugging_face_missing_and_unexpected_keys(tmp_path):
     assert "unexpected keys (1): layer.0.attention.rotary.weight" in message
     hf = to_hugging_face(_state(), "model.")
     del hf["model.layer.1.attention.v_proj.weight"]
-    with pytest.raises(WeightsError, match=r"layer 1: attention weight lacks \['v_proj'\]"):
+    with pytest.raises(WeightsError, match=r"lacks layer.1.attention.v_proj.weight: the file is"):
         build_backbone(
             "dinov3_vits16", weights=_save(hf, tmp_path / "b" / "m.safetensors"), **TINY_V3
         )
@@ -115,14 +115,18 @@ def test_truncated_file(tmp_path):
 
 
 def test_sat_file_under_the_web_name_by_local_cls_norm(tmp_path):
-    sat = _save(_state("dinov3_vitl16_sat"), tmp_path / "sat.pth")
+    sat = _save(_state("dinov3_vitl16_sat"), tmp_path / "a.pth")
     with pytest.raises(
-        WeightsError, match=r"holds local_cls_norm.*SAT-493M.*build dinov3_vitl16_sat"
+        WeightsError,
+        match=r"holds the weights of dinov3_vitl16_sat \(.*with local_cls_norm.\*\), not of "
+        r"dinov3_vitl16: build dinov3_vitl16_sat for it \(inputs normalised with mean \(0.43,",
     ):
         build_backbone("dinov3_vitl16", weights=sat, **TINY_V3)
-    web = _save(_state("dinov3_vitl16"), tmp_path / "web.pth")
+    web = _save(_state("dinov3_vitl16"), tmp_path / "b.pth")
     with pytest.raises(
-        WeightsError, match=r"lacks local_cls_norm.*LVD-1689M.*build dinov3_vitl16 for it$"
+        WeightsError,
+        match=r"holds the weights of dinov3_vitl16 \(.*without local_cls_norm.\*\), not of "
+        r"dinov3_vitl16_sat: build dinov3_vitl16 for it \(inputs normalised with mean \(0.485,",
     ):
         build_backbone("dinov3_vitl16_sat", weights=web, **TINY_V3)
 
@@ -130,19 +134,42 @@ def test_sat_file_under_the_web_name_by_local_cls_norm(tmp_path):
 @pytest.mark.parametrize(
     ("file", "name", "owner"),
     [
-        ("dinov3_vitl16_pretrain_sat493m-eadcf0ff.pth", "dinov3_vitl16", "dinov3_vitl16_sat"),
-        ("dinov3_vitl16_pretrain_lvd1689m-8aa4cbdd.pth", "dinov3_vitl16_sat", "dinov3_vitl16"),
         ("dinov3_vit7b16_pretrain_sat493m-a6675841.pth", "dinov3_vit7b16", "dinov3_vit7b16_sat"),
         ("dinov3_vit7b16_pretrain_lvd1689m-a955f4ea.pth", "dinov3_vit7b16_sat", "dinov3_vit7b16"),
-        ("renamed-4057cbaa.pth", "dinov3_vits16", "dinov3_vits16plus"),
     ],
 )
 def test_file_name_hash_names_the_right_backbone(tmp_path, file, name, owner):
-    # The keys fit the backbone asked for (same shapes): only the name tells.
+    # Both 7B files have the same keys and shapes (local_cls_norm included): only the name tells.
     path = _save(_state(name), tmp_path / file)
     with pytest.raises(WeightsError, match=rf"official file of {owner} .* build {owner} for it"):
         build_backbone(name, weights=path, **TINY_V3)
     build_backbone(owner, weights=_save(_state(owner), tmp_path / "ok" / file), **TINY_V3)
+    # Behind a link with a name that says nothing, the link's target still tells.
+    link = tmp_path / "link" / "dinov3_7b.pth"
+    link.parent.mkdir()
+    link.symlink_to(path)
+    with pytest.raises(WeightsError, match=rf"official file of {owner} .* build {owner} for it"):
+        build_backbone(name, weights=link, **TINY_V3)
+
+
+def test_a_name_the_tensors_contradict_does_not_send_each_backbone_to_the_other(tmp_path):
+    """A web ViT-L file renamed like the SAT-493M one: its keys (no local_cls_norm) decide. It
+    loads as the web model, and the SAT model refuses it naming the web one, not the reverse."""
+    path = _save(_state("dinov3_vitl16"), tmp_path / "dinov3_vitl16_pretrain_sat493m-eadcf0ff.pth")
+    build_backbone("dinov3_vitl16", weights=path, **TINY_V3)
+    with pytest.raises(WeightsError) as err:
+        build_backbone("dinov3_vitl16_sat", weights=path, **TINY_V3)
+    message = str(err.value)
+    assert "holds the weights of dinov3_vitl16 (" in message
+    assert "build dinov3_vitl16 for it" in message
+    assert "is the official file of dinov3_vitl16_sat, which its tensors contradict" in message
+    # S-shaped tensors named with S+'s hash: the name is wrong, the tensors fit the S chosen.
+    small = _save(_state("dinov3_vits16"), tmp_path / "renamed-4057cbaa.pth")
+    build_backbone("dinov3_vits16", weights=small, **TINY_V3)
+    with pytest.raises(
+        WeightsError, match=r"holds the weights of dinov3_vits16 .*not of dinov3_vits16plus"
+    ):
+        build_backbone("dinov3_vits16plus", weights=small, **TINY_V3)
 
 
 def test_rope_periods_must_be_the_official_ones(tmp_path):
@@ -165,7 +192,7 @@ def test_official_weights_are_licence_gated():
 
 
 def test_7b_memory_error_before_allocation(monkeypatch):
-    from claravid.models import memory
+    from claravid.infra import memory
 
     monkeypatch.setattr(
         memory, "_read_meminfo", lambda: "MemTotal: 8000000 kB\nMemAvailable: 2097152 kB\n"
@@ -187,11 +214,12 @@ def test_7b_memory_error_before_allocation(monkeypatch):
 
 
 def test_memory_check_is_skipped_when_unknown(monkeypatch):
-    from claravid.models import memory
+    from claravid.infra import memory
+    from claravid.models.memory import check_memory
 
     monkeypatch.setattr(memory, "_read_meminfo", lambda: None)
     assert memory.available_memory() is None
-    memory.check_memory(1 << 60, "anything")  # unknown: no refusal
+    check_memory(1 << 60, "anything")  # unknown: no refusal
     monkeypatch.setattr(memory, "_read_meminfo", lambda: "MemAvailable:   1024 kB\n")
     assert memory.available_memory() == 1 << 20
     build_backbone("dinov3_vits16", embed_dim=8, depth=1, num_heads=2)  # 10 KiB: fits

@@ -33,6 +33,16 @@ TINY = [
 ]
 
 
+#: Per head: the head named, and what TINY sets that the head does not take cleared (the linear
+#: head then reads the last block).
+HEAD_OVERRIDES = {
+    "dpt": [],
+    "linear": ["model.head=linear", "model.layers=null", "model.features=null",
+               "model.out_channels=null"],
+    "upernet": ["model.head=upernet", "model.out_channels=null"],
+}  # fmt: skip
+
+
 def tiny(root, out, *extra):
     """Overrides for a tiny run on ``root`` writing to ``out``."""
     return [*TINY, f"data.root={root}", f"out_dir={out}", *extra]

@@ -202,6 +202,20 @@ def test_statistics_and_window_given_are_kept(tmp_path):
 
 
 @pytest.mark.parametrize(
+    ("stats", "named"),
+    [
+        (["data.augment.std=[0.25,0.224,0.225]"], "std (0.25, 0.224, 0.225)"),  # std alone
+        (["data.augment.mean=[0.485,0.456,0.5]"], "mean (0.485, 0.456, 0.5)"),  # mean alone
+    ],
+)
+def test_statistics_warning_compares_mean_and_std_each(tmp_path, stats, named):
+    # Each number counts: a std that differs while the mean is ImageNet's still warns.
+    warning = statistics_warning(_bare(tmp_path, "dinov2_vitl14", *stats))
+    assert warning is not None and named in warning
+    assert "ImageNet: mean (0.485, 0.456, 0.406), std (0.229, 0.224, 0.225)" in warning
+
+
+@pytest.mark.parametrize(
     ("backbone", "override", "message"),
     [
         ("dinov2_vitl14", "data.augment.crop_height=640",
@@ -251,7 +265,9 @@ def test_dinov3_configs_need_the_weights_file_one_line(tmp_path, capsys, name, f
             load_config(name, extra)
         assert train_main(["--config", name, *extra]) == 2
         err = capsys.readouterr().err.strip()
-        assert err.startswith("claravid-train: error: model.weights: ") and err.endswith(hint)
+        timm = "timm/vit_large_patch16_dinov3." + ("sat493m" if "sat" in name else "lvd1689m")
+        assert err.startswith("claravid-train: error: model.weights: ") and hint in err
+        assert err.endswith(f"or timm's ungated copy: model.weights={timm}")
         assert len(err.splitlines()) == 1 and "dinov3-downloads" in err
     cfg = load_config(name, [f"model.weights={tmp_path / file}"])
     # The paper's protocol at 640: crops and windows of 40 x 40 patches of 16.

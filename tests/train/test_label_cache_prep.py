@@ -47,7 +47,7 @@ def test_a_cache_folder_that_cannot_be_written_advises_what_training_has(
     (err,) = _error_lines(capsys)
     assert str(blocker / "cache" / "label_codes") in err
     assert "CLARAVID_CACHE=" in err and "data.label_cache=false" in err
-    assert "--cache-dir" not in err  # claravid-train has no such flag
+    assert "--output" not in err  # claravid-train's -o is its run folder, not the cache
     assert not (out / "last.pt").exists()
 
 

@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import sys
 
 import pytest
@@ -14,7 +15,7 @@ from claravid.models.checkpoint import read_checkpoint
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.checkpoint import save_training_checkpoint
 from claravid.train.cli import main
-from tests.train.conftest import miou_by_hand, tiny, tiny_v3
+from tests.train.conftest import HEAD_OVERRIDES, miou_by_hand, tiny, tiny_v3
 
 
 def rows(out):
@@ -201,6 +202,7 @@ def test_every_shipped_config_trains_two_steps(name, claravid_root, uavid_root, 
         extra += [f"data.root={uavid_root}", "data.val_split=val"]
     if cfg.data.val_dataset == "uavid":
         extra += [f"data.val_root={uavid_root}", "data.val_split=val"]
+    extra += HEAD_OVERRIDES[cfg.model.head]  # the tiny widths of the config's own head
     args = tiny(claravid_root, tmp_path / "run", "train.steps=2", "train.batch_size=2",
                 "val.every=0", "data.num_workers=0", *extra)  # fmt: skip
     cfg = load_config(name, args)
@@ -344,16 +346,60 @@ def test_end_to_end_training_leaves_no_parameter_without_a_gradient(backbone):
     """``model.freeze_backbone: false``: every trainable parameter gets a gradient (DDP refuses
     one that never does): the pre-training-only mask token and DINOv3 SAT's local_cls_norm are
     frozen."""
-    from claravid.train.loop import EndToEnd
-
     torch.manual_seed(0)
     kwargs = {"embed_dim": 32, "depth": 4, "num_heads": 2}
     model = models.build_model(backbone, 3, backbone_kwargs=kwargs, layers=[0, 1, 2, 3],
                                features=8, out_channels=[8, 8, 8, 8])  # fmt: skip
-    wrapped = EndToEnd(model).train()
+    model.unfreeze_backbone().train()
     patch = model.patch_size
-    wrapped(torch.randn(1, 3, 2 * patch, 3 * patch)).sum().backward()
+    model(torch.randn(1, 3, 2 * patch, 3 * patch)).sum().backward()
     missing = [n for n, p in model.named_parameters() if p.requires_grad and p.grad is None]
     assert missing == []
     assert any(n.startswith("backbone.blocks") and p.grad is not None
                for n, p in model.named_parameters())  # fmt: skip
+
+
+def test_a_crops_padding_is_ignored_by_the_loss_and_the_ignore_id_is_no_setting(claravid_root):
+    """A frame smaller than the crop is padded with the one ignore id (255); the training loss is
+    the cross-entropy of the frame's own pixels alone, computed here by hand. An
+    ``ignore_index`` setting (once accepted: it padded with any id while the loss ignored 255
+    only, so padding trained as a class) is refused at every entry."""
+    import numpy as np
+
+    from claravid.data.transforms import AugmentConfig, augment_config, train_transforms
+    from claravid.train.config import ConfigError
+    from claravid.train.loop import segmentation_loss
+
+    rng = np.random.default_rng(0)
+    image = rng.integers(1, 256, (3, 20, 24), dtype=np.uint8)  # no 0: the padding is black
+    mask = rng.integers(0, 3, (20, 24)).astype(np.uint8)
+    still = dict.fromkeys(
+        ("hflip_p", "color_jitter_p", "lighting_p", "rotate_p", "distortion_p"), 0
+    )
+    crop = train_transforms({"crop_height": 28, "crop_width": 42, **still})
+    sample = crop({"image": torch.from_numpy(image), "mask": torch.from_numpy(mask)})
+    frame = sample["image"].numpy().sum(0) > 0
+    top, left = np.argwhere(frame).min(0)
+    assert frame.sum() == 20 * 24 and frame[top : top + 20, left : left + 24].all()
+    got = sample["mask"].numpy()
+    np.testing.assert_array_equal(got[top : top + 20, left : left + 24], mask)
+    assert (got[~frame] == 255).all()
+
+    logits = torch.randn(
+        1, 3, 28, 42, generator=torch.Generator().manual_seed(1), dtype=torch.float64
+    )
+    logits[0, :, ~torch.from_numpy(frame)] = 1e4  # whatever is predicted on the padding
+    loss = segmentation_loss(logits, torch.from_numpy(got).long()[None])
+    z = logits[0].numpy()[:, top : top + 20, left : left + 24]
+    log_p = z - np.log(np.exp(z - z.max(0)).sum(0)) - z.max(0)  # log-softmax over classes
+    by_hand = -np.take_along_axis(log_p, mask[None].astype(np.int64), 0).mean()
+    assert loss.item() == pytest.approx(by_hand, rel=1e-6)
+
+    with pytest.raises(TypeError, match="ignore_index"):
+        AugmentConfig(ignore_index=7)
+    with pytest.raises(ValueError, match="ignore_index"):
+        augment_config({"ignore_index": 7})
+    with pytest.raises(
+        ConfigError, match=re.escape("unknown config key 'data.augment.ignore_index'")
+    ):
+        load_config("demo", tiny(claravid_root, "out", "data.augment.ignore_index=7"))

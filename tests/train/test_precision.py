@@ -1,14 +1,15 @@
-"""``train.amp``: one precision setting (auto | bf16 | fp16 | off), bf16 and fp16 on the CPU too."""
+"""``train.precision``: the precision names of every command (auto | fp32 | bf16 | fp16), bf16
+and fp16 on the CPU too."""
 
 import json
 
 import pytest
 import torch
 
+from claravid.infra.precision import autocast_dtype
 from claravid.models.checkpoint import read_checkpoint
 from claravid.train import load_config, train
 from claravid.train.cli import main
-from claravid.train.loop import amp_dtype
 from tests.train.conftest import tiny
 
 STEPS = ("train.steps=8", "train.lr=3e-3", "train.log_every=1", "val.every=0")
@@ -21,10 +22,10 @@ def losses(out):
 
 def test_what_each_setting_means_on_the_cpu():
     cpu = torch.device("cpu")
-    assert amp_dtype("auto", cpu) is None  # float32: the CPU default stays as it was
-    assert amp_dtype("off", cpu) is None
-    assert amp_dtype("bf16", cpu) is torch.bfloat16
-    assert amp_dtype("fp16", cpu) is torch.float16
+    assert autocast_dtype("auto", cpu) is None  # float32: the CPU default stays as it was
+    assert autocast_dtype("fp32", cpu) is None
+    assert autocast_dtype("bf16", cpu) is torch.bfloat16
+    assert autocast_dtype("fp16", cpu) is torch.float16
 
 
 @pytest.fixture(scope="module")
@@ -37,16 +38,17 @@ def untrained_losses(claravid_root, tmp_path_factory):
     out = tmp_path_factory.mktemp("untrained") / "run"
     try:
         train(load_config("demo", tiny(claravid_root, out, *STEPS, "train.lr=1e-12",
-                                       "train.amp=off")))  # fmt: skip
+                                       "train.precision=fp32")))  # fmt: skip
     finally:
         torch.set_num_threads(before)
     return losses(out)
 
 
-@pytest.mark.parametrize("amp", ["bf16", "fp16"])
-def test_low_precision_training_on_the_cpu(claravid_root, tmp_path, untrained_losses, amp):
-    out = tmp_path / amp
-    result = train(load_config("demo", tiny(claravid_root, out, *STEPS, f"train.amp={amp}")))
+@pytest.mark.parametrize("precision", ["bf16", "fp16"])
+def test_low_precision_training_on_the_cpu(claravid_root, tmp_path, untrained_losses, precision):
+    out = tmp_path / precision
+    args = tiny(claravid_root, out, *STEPS, f"train.precision={precision}")
+    result = train(load_config("demo", args))
     assert result.step == 8 and result.best_miou is not None  # validated at that precision too
     got = losses(out)
     assert len(got) == 8 and all(torch.isfinite(torch.tensor(got)))
@@ -58,25 +60,37 @@ def test_low_precision_training_on_the_cpu(claravid_root, tmp_path, untrained_lo
         untrained_losses,
     )
     ckpt = read_checkpoint(out / "last.pt")
-    assert ckpt["config"]["train"]["amp"] == amp
-    if amp == "fp16":  # fp16 needs loss scaling: the CPU GradScaler's state is saved
+    assert ckpt["config"]["train"]["precision"] == precision
+    if precision == "fp16":  # fp16 needs loss scaling: the CPU GradScaler's state is saved
         assert ckpt["scaler"]["scale"] > 0
     else:  # bf16 has float32's range: no scaler
         assert ckpt["scaler"] == {}
 
 
-def test_off_is_off_although_yaml_reads_it_as_false(claravid_root, tmp_path):
+def test_the_flag_is_the_config_key(claravid_root, tmp_path):
+    """``claravid-train --precision P`` is ``train.precision=P``, as ``--precision`` of
+    claravid-eval and claravid-predict takes the same names."""
+    from claravid.train.cli import build_parser, overrides
+
     base = tiny(claravid_root, tmp_path / "r")
-    assert load_config("demo", [*base, "train.amp=off"]).train.amp == "off"
-    yaml = tmp_path / "off.yaml"
-    yaml.write_text("train:\n  amp: off\n")
-    assert load_config(yaml, base).train.amp == "off"
+    args = build_parser().parse_args(["--config", "demo", "--precision", "bf16", *base])
+    assert load_config("demo", overrides(args)).train.precision == "bf16"
+    assert load_config("demo", base).train.precision == "auto"  # the shipped configs say auto
 
 
-@pytest.mark.parametrize("value", ["fp8", "float16", "1", "true"])  # a boolean names none
-def test_bad_amp_value_is_one_line_exit_2(claravid_root, tmp_path, capsys, value):
-    args = tiny(claravid_root, tmp_path / "r", f"train.amp={value}")
+@pytest.mark.parametrize(
+    ("value", "shown"),
+    [("fp8", "'fp8'"), ("float16", "'float16'"), ("1", "'1'"),
+     ("off", "'False' (one of auto, fp32, bf16, fp16 (YAML read a boolean))"),
+     ("true", "'True' (one of auto, fp32, bf16, fp16 (YAML read a boolean))")],
+)  # fmt: skip
+def test_bad_precision_is_one_line_exit_2(claravid_root, tmp_path, capsys, value, shown):
+    args = tiny(claravid_root, tmp_path / "r", f"train.precision={value}")
     assert main(["--config", "demo", *args]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1, err
-    assert "train.amp" in err and "auto, bf16, fp16, off" in err
+    assert f"bad value for train.precision: {shown}" in err and "one of auto, fp32" in err
+    with pytest.raises(SystemExit) as info:  # the flag: argparse's check, the same everywhere
+        main(["--config", "demo", "--precision", value, *tiny(claravid_root, tmp_path / "r")])
+    assert info.value.code == 2
+    assert "argument --precision: invalid choice" in capsys.readouterr().err

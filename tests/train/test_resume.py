@@ -100,10 +100,12 @@ FAST = ("train.steps=8", "train.checkpoint_every=4", "val.every=0", "train.log_e
 
 
 @pytest.mark.parametrize(
-    ("amp", "backbone"),
-    [("off", "dinov2_vits14"), ("bf16", "dinov2_vits14"), ("off", "dinov3_vitl16_sat")],
+    ("precision", "backbone"),
+    [("fp32", "dinov2_vits14"), ("bf16", "dinov2_vits14"), ("fp32", "dinov3_vitl16_sat")],
 )
-def test_resume_after_a_stop_is_bit_for_bit(claravid_root, tmp_path, monkeypatch, amp, backbone):
+def test_resume_after_a_stop_is_bit_for_bit(
+    claravid_root, tmp_path, monkeypatch, precision, backbone
+):
     """The fast check of the default run (the SIGKILL test above is slow): a run stopped at
     step 5 (an injected inf loss; last.pt holds step 4) and resumed ends where the
     uninterrupted run ends, in float32 and in bf16 autocast on the CPU alike, with a DINOv2 or
@@ -112,8 +114,10 @@ def test_resume_after_a_stop_is_bit_for_bit(claravid_root, tmp_path, monkeypatch
 
     def overrides(out):
         if backbone.startswith("dinov3"):
-            return tiny_v3(claravid_root, out, *FAST, f"train.amp={amp}", backbone=backbone)
-        return tiny(claravid_root, out, *FAST, f"train.amp={amp}")
+            return tiny_v3(
+                claravid_root, out, *FAST, f"train.precision={precision}", backbone=backbone
+            )
+        return tiny(claravid_root, out, *FAST, f"train.precision={precision}")
 
     reference = tmp_path / "reference"
     train(load_config("demo", overrides(reference)))

@@ -25,7 +25,7 @@ def _run(argv):
 
 
 def _argv(root, cache, *extra):
-    return [str(root), "--cache-dir", str(cache), "--no-progress", *extra]
+    return ["--data", str(root), "-o", str(cache), "--no-progress", *extra]
 
 
 def _entries(cache):
@@ -133,7 +133,7 @@ def test_a_full_disk_advises_the_cache_dir_flag(claravid_root, tmp_path, capsys,
     )
     assert _run(_argv(claravid_root, tmp_path, "--missions", "urban_1")) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "disk is full" in err[0] and "--cache-dir" in err[0]
+    assert len(err) == 1 and "disk is full" in err[0] and "--output" in err[0]
 
 
 @pytest.mark.parametrize("workers", ["0", "2"])
@@ -143,7 +143,7 @@ def test_a_label_png_claiming_more_than_2_30_pixels_is_listed(
     # OpenCV's cv2.error ended the run in a traceback (in the workers and without them).
     pan = sorted(writable_root.glob("003_urban_1/panoptic_seg/45deg_low_h/*.png"))[1]
     pan.write_bytes(png_claiming(40000, 30000))
-    argv = [str(writable_root), "--missions", "urban_1", "--altitude", "low", "--cache-dir",
+    argv = ["--data", str(writable_root), "--missions", "urban_1", "--altitude", "low", "-o",
             str(tmp_path / "cache"), "--no-progress", "--workers", workers]  # fmt: skip
     assert main(argv) == 1
     captured = capsys.readouterr()

@@ -20,6 +20,9 @@ from claravid.io import label_tiff
 from claravid.io import modalities as m
 from claravid.io.labels import read_label_codes
 
+#: A full disk and an exceeded quota both leave no room for any entry, and are said apart.
+NO_SPACE = [(errno.ENOSPC, "disk is full"), (errno.EDQUOT, "disk quota is exceeded")]
+
 # 70×50 with 16-pixel tiles: 5×4 tiles, the last column 6 wide and the last row 2 high.
 W, H, TILE = 70, 50, 16
 
@@ -330,31 +333,38 @@ def test_chmod_read_only_cache_folder(frame, tmp_path):
         (folder / "label_codes").chmod(0o755)
 
 
-def test_full_disk_while_preparing_leaves_nothing_half_written(cache, frame, tmp_path, monkeypatch):
+@pytest.mark.parametrize(("code", "words"), NO_SPACE)
+def test_full_disk_while_preparing_leaves_nothing_half_written(
+    cache, frame, tmp_path, monkeypatch, code, words
+):
     real_write = os.write
     calls = []
 
     def write_then_full(fd, data):
         if calls:  # the first write goes through (a partial file), the next finds the disk full
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            raise OSError(code, os.strerror(code))
         calls.append(fd)
         return real_write(fd, bytes(data[: len(data) // 2]))
 
     monkeypatch.setattr(os, "write", write_then_full)
-    with pytest.raises(CacheWriteError, match=r"disk is full.*" + str(cache.directory)) as info:
+    with pytest.raises(CacheWriteError, match=f"{words}.*" + str(cache.directory)) as info:
         cache.prepare([frame])
-    assert info.value.errno == errno.ENOSPC and calls
+    assert info.value.errno == code and calls
     assert _entries(cache) == [] and _leftovers(cache) == []
     monkeypatch.undo()
     np.testing.assert_array_equal(cache.read(*frame), read_label_codes(*frame))
 
 
-def test_full_disk_while_training_decodes_instead(cache, frame, monkeypatch):
-    monkeypatch.setattr(
-        os, "write", lambda fd, data: (_ for _ in ()).throw(OSError(errno.ENOSPC, "full"))
-    )
-    with pytest.warns(LabelCacheWarning, match="disk is full"):
+@pytest.mark.parametrize(("code", "words"), NO_SPACE)
+def test_full_disk_while_training_decodes_instead(cache, frame, monkeypatch, code, words):
+    monkeypatch.setattr(os, "write", lambda fd, data: (_ for _ in ()).throw(OSError(code, "full")))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         np.testing.assert_array_equal(cache.read(*frame), read_label_codes(*frame))
+        # The folder takes no entry: writing stops there, one warning, not one per frame.
+        np.testing.assert_array_equal(cache.read(*frame), read_label_codes(*frame))
+    messages = [str(w.message) for w in caught if issubclass(w.category, LabelCacheWarning)]
+    assert len(messages) == 1 and words in messages[0], messages
     assert _entries(cache) == [] and _leftovers(cache) == []
 
 
@@ -400,8 +410,8 @@ def test_prepare_lists_unreadable_frames_and_goes_on(writable_root, tmp_path):
 
 
 def test_cli_prepares_then_has_nothing_to_do(claravid_root, tmp_path, capsys):
-    argv = [str(claravid_root), "--missions", "urban_1", "--altitude", "low,mid",
-            "--cache-dir", str(tmp_path), "--no-progress"]  # fmt: skip
+    argv = ["--data", str(claravid_root), "--missions", "urban_1", "--altitude", "low,mid",
+            "-o", str(tmp_path), "--no-progress"]  # fmt: skip
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert "built 12 entries" in out and f"in {tmp_path / 'label_codes'}" in out
@@ -424,12 +434,13 @@ def test_cli_prepares_then_has_nothing_to_do(claravid_root, tmp_path, capsys):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["{missing}"], "ClaraVid root not found"),
-        (["{tmp}"], "ClaraVid mission folders not found"),
-        (["{root}", "--shard", "2/2"], "out of range"),
-        (["{root}", "--shard", "x"], "k/n"),
-        (["{root}", "--missions", "nowhere"], "unknown ClaraVid mission"),
-        (["{root}", "--workers", "-1"], "integer >= 0"),
+        (["--data", "{missing}"], "ClaraVid root not found"),
+        (["--data", "{tmp}"], "ClaraVid mission folders not found"),
+        (["--data", "{root}", "--shard", "2/2"], "out of range"),
+        (["--data", "{root}", "--shard", "x"], "k/n"),
+        (["--data", "{root}", "--missions", "nowhere"], "unknown ClaraVid mission"),
+        (["--data", "{root}", "--workers", "-1"], "integer >= 0"),
+        (["{root}"], "the following arguments are required: --data"),  # no positional root
     ],
 )
 def test_cli_user_errors_are_one_line_exit_2(claravid_root, tmp_path, capsys, argv, message):
@@ -437,7 +448,7 @@ def test_cli_user_errors_are_one_line_exit_2(claravid_root, tmp_path, capsys, ar
     argv = [a.format(**names) for a in argv]
     code = 2
     try:
-        code = main([*argv, "--cache-dir", str(tmp_path / "c")])
+        code = main([*argv, "-o", str(tmp_path / "c")])
     except SystemExit as exc:  # argparse's own errors
         code = exc.code
     assert code == 2
@@ -445,11 +456,12 @@ def test_cli_user_errors_are_one_line_exit_2(claravid_root, tmp_path, capsys, ar
     assert message in err and len(err.strip().splitlines()) == 1
 
 
-def test_cli_full_disk_is_a_one_line_error(claravid_root, tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(
-        os, "write", lambda fd, data: (_ for _ in ()).throw(OSError(errno.ENOSPC, "full"))
-    )
-    argv = [str(claravid_root), "--missions", "urban_1", "--cache-dir", str(tmp_path)]
+@pytest.mark.parametrize(("code", "words"), NO_SPACE)
+def test_cli_full_disk_is_a_one_line_error(
+    claravid_root, tmp_path, capsys, monkeypatch, code, words
+):
+    monkeypatch.setattr(os, "write", lambda fd, data: (_ for _ in ()).throw(OSError(code, "full")))
+    argv = ["--data", str(claravid_root), "--missions", "urban_1", "-o", str(tmp_path)]
     assert main([*argv, "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "disk is full" in err[0] and str(tmp_path) in err[0]
+    assert len(err) == 1 and words in err[0] and str(tmp_path) in err[0]

@@ -1,6 +1,6 @@
 """Block splits at ClaraVid's size: shares near the targets, no leakage, the balance warning.
 
-The frames and camera positions are those ``claravid-synth OUT --frames-per-viewpoint 350``
+The frames and camera positions are those ``claravid-synth -o OUT --frames-per-viewpoint 350``
 writes (16,800 frames: 8 missions × 3 altitudes × 2 directions × 350), built directly from the
 generator's flight grid (checked against ``flight_poses`` itself) instead of rendered, so the
 tests stay fast. Expected shares are counted here from the frames each split receives.

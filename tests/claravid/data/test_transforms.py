@@ -235,7 +235,6 @@ def test_the_alignment_check_catches_a_misaligned_mask():
         ("crop_width", 65501, "crop_width=65501: must be between 1 and 65500"),
         ("crop_height", -3, "crop_height=-3: must be between 1 and 65500"),
         ("rotate_p", 1.5, "rotate_p=1.5: a probability, must be between 0 and 1"),
-        ("ignore_index", 256, "ignore_index=256: masks are uint8"),
     ],
 )
 def test_an_unusable_setting_is_refused_naming_it_at_every_entry(tmp_path, setting, value, message):

@@ -43,6 +43,7 @@ def test_folder_with_recursive_pattern(collection, tmp_path, capsys):
     assert (
         _run(
             [
+                "--data",
                 str(collection),
                 "--pattern",
                 "left_rgb/**/*.png",
@@ -82,7 +83,10 @@ def test_list_file_and_other_settings(collection, tmp_path, monkeypatch):
     listing.write_text("\n".join(os.path.relpath(p, tmp_path) for p in images) + "\n\n")
     monkeypatch.chdir(collection)  # relative paths resolve from the list file's folder
     out = tmp_path / "g.json"
-    assert _run([str(listing), "--metric", "glcment", "--no-blur", "--output", str(out)]) == 0
+    assert (
+        _run(["--data", str(listing), "--metric", "glcment", "--no-blur", "--output", str(out)])
+        == 0
+    )
     data = json.loads(out.read_text())
     assert data["metric"] == "glcment" and data["use_blur"] is False
     got = {r["image_path"]: r["complexity"] for r in data["results"]}
@@ -107,7 +111,7 @@ def test_official_json_is_profiled_without_recomputing(tmp_path):
     src = tmp_path / "complexity_results.json"
     src.write_text(json.dumps(official))  # json writes NaN like the official script
     out = tmp_path / "profiled.json"
-    assert _run([str(src), "--output", str(out), "--plot", str(tmp_path / "p.png")]) == 0
+    assert _run(["--data", str(src), "--output", str(out), "--plot", str(tmp_path / "p.png")]) == 0
     data = json.loads(out.read_text())
     assert data["num_images"] == 3 and data["errors"][0]["image_path"] == "/nowhere/2.jpg"
     assert data["profile"] == pytest.approx(official_profile([4.1, 3.9, 4.3]), rel=1e-12)
@@ -116,11 +120,14 @@ def test_official_json_is_profiled_without_recomputing(tmp_path):
 def test_shards_merge_to_the_full_run(collection, tmp_path, capsys):
     pattern = ["--pattern", "**/*.*"]
     full = tmp_path / "full.json"
-    assert _run([str(collection), *pattern, "--output", str(full), "--no-cache"]) == 0
+    assert _run(["--data", str(collection), *pattern, "--output", str(full), "--no-cache"]) == 0
     parts = []
     for k in range(3):
         part = tmp_path / f"part{k}.json"
-        assert _run([str(collection), *pattern, "--shard", f"{k}/3", "--output", str(part)]) == 0
+        assert (
+            _run(["--data", str(collection), *pattern, "--shard", f"{k}/3", "--output", str(part)])
+            == 0
+        )
         assert json.loads(part.read_text())["shard"] == {
             "index": k,
             "count": 3,
@@ -144,7 +151,19 @@ def test_shards_merge_to_the_full_run(collection, tmp_path, capsys):
 def test_merge_refuses_mismatches(collection, tmp_path, capsys):
     p0, p0b, g1 = (tmp_path / n for n in ("p0.json", "p0b.json", "g1.json"))
     assert (
-        _run([str(collection), "--pattern", "**/*.png", "--shard", "0/2", "--output", str(p0)]) == 0
+        _run(
+            [
+                "--data",
+                str(collection),
+                "--pattern",
+                "**/*.png",
+                "--shard",
+                "0/2",
+                "--output",
+                str(p0),
+            ]
+        )
+        == 0
     )
     p0b.write_text(p0.read_text())
     assert main(["--merge", str(p0), str(p0b)]) == 2
@@ -152,6 +171,7 @@ def test_merge_refuses_mismatches(collection, tmp_path, capsys):
     assert (
         _run(
             [
+                "--data",
                 str(collection),
                 "--pattern",
                 "**/*.png",
@@ -176,9 +196,9 @@ def test_compare_warns_on_resolution_gap(collection, tmp_path, capsys):
     for i in range(3):
         cv2.imwrite(str(small / f"{i}.png"), textured(rng, 40, 53))  # ~17 % smaller
     a, b, c = tmp_path / "a.json", tmp_path / "b.json", tmp_path / "c.json"
-    assert _run([str(collection), "--pattern", "**/*.png", "--output", str(a)]) == 0
-    assert _run([str(collection), "--pattern", "**/*.jpg", "--output", str(b)]) == 0
-    assert _run([str(small), "--pattern", "*.png", "--output", str(c)]) == 0
+    assert _run(["--data", str(collection), "--pattern", "**/*.png", "--output", str(a)]) == 0
+    assert _run(["--data", str(collection), "--pattern", "**/*.jpg", "--output", str(b)]) == 0
+    assert _run(["--data", str(small), "--pattern", "*.png", "--output", str(c)]) == 0
     capsys.readouterr()
     assert main(["--compare", str(a), str(b)]) == 0
     table = capsys.readouterr().out
@@ -231,39 +251,42 @@ def test_worker_processes_give_the_same_values(collection):
 @pytest.mark.filterwarnings("ignore::claravid.dsp.profile.DegenerateProfileWarning")  # one image
 def test_error_paths(collection, tmp_path, capsys):
     missing = tmp_path / "nope"
-    assert _run([str(missing)]) == 2
+    assert _run(["--data", str(missing)]) == 2
     assert f"input {missing} does not exist" in capsys.readouterr().err
     empty = tmp_path / "empty"
     empty.mkdir()
-    assert _run([str(empty), "--pattern", "*.jpg"]) == 2
+    assert _run(["--data", str(empty), "--pattern", "*.jpg"]) == 2
     err = capsys.readouterr().err
     assert "no files match the pattern '*.jpg'" in err and str(empty) in err
     blank = tmp_path / "blank.txt"
     blank.write_text("\n\n")
-    assert _run([str(blank)]) == 2
+    assert _run(["--data", str(blank)]) == 2
     assert "names no images" in capsys.readouterr().err
     bad = tmp_path / "bad"
     bad.mkdir()
     (bad / "x.jpg").write_bytes(b"nope")
-    assert _run([str(bad), "--output", str(tmp_path / "bad.json")]) == 1
+    assert _run(["--data", str(bad), "--output", str(tmp_path / "bad.json")]) == 1
     assert "no image could be read" in capsys.readouterr().err
     assert json.loads((tmp_path / "bad.json").read_text())["profile"]["mu"] is None
-    assert _run([str(collection), "--shard", "3/3"]) == 2
+    assert _run(["--data", str(collection), "--shard", "3/3"]) == 2
     assert "0 <= k < n" in capsys.readouterr().err
-    assert _run([str(collection), "--shard", "one"]) == 2
+    assert _run(["--data", str(collection), "--shard", "one"]) == 2
     assert "k/n" in capsys.readouterr().err
-    assert _run([str(collection), "--blur-ksize", "4", "--output", str(tmp_path / "k.json")]) == 2
+    assert (
+        _run(["--data", str(collection), "--blur-ksize", "4", "--output", str(tmp_path / "k.json")])
+        == 2
+    )
     assert "must be odd" in capsys.readouterr().err
     notres = tmp_path / "other.json"
     notres.write_text('{"hello": 1}')
-    assert _run([str(notres)]) == 2
+    assert _run(["--data", str(notres)]) == 2
     assert "not a complexity results file" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        main(["--metric", "entropy", str(collection)])
+        main(["--metric", "entropy", "--data", str(collection)])
     assert main([]) == 2
-    assert "give an INPUT" in capsys.readouterr().err
-    assert main([str(collection), "--merge", "a.json"]) == 2
-    assert "drop the INPUT argument" in capsys.readouterr().err
+    assert "give --data (a folder, a list file or a results JSON)" in capsys.readouterr().err
+    assert main(["--data", str(collection), "--merge", "a.json"]) == 2
+    assert "--merge takes JSON files only; drop --data" in capsys.readouterr().err
 
 
 def test_profile_images_reports_values_and_errors(collection):
@@ -326,7 +349,11 @@ def test_foreign_json_is_one_line_exit_2_in_every_mode(tmp_path, capsys, name):
             }
         )
     )
-    for argv in ([str(bad)], ["--merge", str(good), str(bad)], ["--compare", str(good), str(bad)]):
+    for argv in (
+        ["--data", str(bad)],
+        ["--merge", str(good), str(bad)],
+        ["--compare", str(good), str(bad)],
+    ):
         assert main(argv) == 2, argv
         line = _one_error(capsys, match)
         assert str(bad) in line and "not a complexity results file" in line
@@ -347,15 +374,18 @@ def test_unreadable_json_inputs(tmp_path, capsys):
 def test_foreign_inputs_and_arguments(collection, tmp_path, capsys):
     image = sorted(collection.glob("**/*.jpg"))[0]
     argvs = [
-        ([str(image)], "not a text file listing image paths"),
-        ([str(collection), "--pattern", "/abs/*.jpg"], "must be a non-empty glob relative"),
-        ([str(collection), "--pattern", ""], "must be a non-empty glob relative"),
+        (["--data", str(image)], "not a text file listing image paths"),
+        (
+            ["--data", str(collection), "--pattern", "/abs/*.jpg"],
+            "must be a non-empty glob relative",
+        ),
+        (["--data", str(collection), "--pattern", ""], "must be a non-empty glob relative"),
     ]
     for argv, match in argvs:
         assert main([*argv, "--no-progress", "--output", str(tmp_path / "o.json")]) == 2
         _one_error(capsys, match)
     with pytest.raises(SystemExit) as info:  # argparse's own check, the same on every command
-        main([str(collection), "--workers", "-2", "--output", str(tmp_path / "o.json")])
+        main(["--data", str(collection), "--workers", "-2", "--output", str(tmp_path / "o.json")])
     assert info.value.code == 2
     assert "argument --workers: expected an integer >= 0, got '-2'" in capsys.readouterr().err
     assert not (tmp_path / "o.json").exists()
@@ -385,19 +415,19 @@ def test_unusable_outputs_fail_before_the_computation(collection, tmp_path, caps
         locked.mkdir(mode=0o500)
         cases.append((["--output", str(locked / "r.json")], "not writable"))
     for extra, match in cases:
-        assert _run([str(collection), *extra]) == 2, extra
+        assert _run(["--data", str(collection), *extra]) == 2, extra
         _one_error(capsys, match)
     assert photo.read_bytes() == b"precious" and blocker.read_text() == "mine"
     monkeypatch.undo()
     # The default output name never replaces a file that is not ours either.
     monkeypatch.chdir(tmp_path)
     (tmp_path / "complexity_results.json").write_text("my notes")
-    assert _run([str(collection), "--pattern", "**/*.png"]) == 2
+    assert _run(["--data", str(collection), "--pattern", "**/*.png"]) == 2
     _one_error(capsys, "pass --overwrite")
-    assert _run([str(collection), "--pattern", "**/*.png", "--overwrite"]) == 0
+    assert _run(["--data", str(collection), "--pattern", "**/*.png", "--overwrite"]) == 0
     assert json.loads((tmp_path / "complexity_results.json").read_text())["num_images"] == 3
     # ... while a results file of ours is replaced without asking (re-running is normal).
-    assert _run([str(collection), "--pattern", "**/*.jpg"]) == 0
+    assert _run(["--data", str(collection), "--pattern", "**/*.jpg"]) == 0
     assert json.loads((tmp_path / "complexity_results.json").read_text())["num_images"] == 3
     leftovers = [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
     assert leftovers == []  # atomic writes leave no temp files
@@ -407,12 +437,27 @@ def test_an_empty_shard_is_a_usage_error(collection, tmp_path, capsys):
     """``--shard $UNSET`` must not make one task of a job array measure every image."""
     out = tmp_path / "part.json"
     assert (
-        _run([str(collection), "--pattern", "**/*.png", "--shard", "", "--output", str(out)]) == 2
+        _run(
+            [
+                "--data",
+                str(collection),
+                "--pattern",
+                "**/*.png",
+                "--shard",
+                "",
+                "--output",
+                str(out),
+            ]
+        )
+        == 2
     )
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "k/n" in err[0] and "''" in err[0]
     assert not out.exists()
-    assert _run([str(collection), "--pattern", "**/*.png", "--shard", " ", "-o", str(out)]) == 2
+    assert (
+        _run(["--data", str(collection), "--pattern", "**/*.png", "--shard", " ", "-o", str(out)])
+        == 2
+    )
     assert not out.exists()
 
 
@@ -427,7 +472,10 @@ def test_a_jpeg_header_claiming_more_than_2_30_pixels_is_an_unreadable_image(
     huge = good.with_name("000098.jpg")
     huge.write_bytes(data[: sof + 5] + (65500).to_bytes(2, "big") * 2 + data[sof + 9 :])
     out = tmp_path / "r.json"
-    assert _run([str(collection), "--pattern", "left_rgb/**/*.jpg", "--output", str(out)]) == 0
+    assert (
+        _run(["--data", str(collection), "--pattern", "left_rgb/**/*.jpg", "--output", str(out)])
+        == 0
+    )
     err = capsys.readouterr().err
     assert "Traceback" not in err and "cv2.error" not in err
     errors = {e["image_path"]: e["error"] for e in json.loads(out.read_text())["errors"]}

@@ -13,7 +13,6 @@ from claravid.infra.cli import (
     add_debug_flag,
     add_progress_flag,
     add_workers_flag,
-    given_once,
     parse_size,
     positive_float,
     positive_int,
@@ -162,13 +161,3 @@ def test_workers_default_to_0_and_refuse_negatives(capsys):
     assert capsys.readouterr().err.strip() == (
         "tool: error: argument --workers: expected an integer >= 0, got '-1' (see tool --help)"
     )
-
-
-def test_given_once():
-    names = {"flag": "-o", "metavar": "OUT", "what": "the output folder"}
-    assert given_once("a", None, **names) == "a"
-    assert given_once(None, "b", **names) == "b"
-    with pytest.raises(UsageError, match="the output folder given twice, as OUT and as -o"):
-        given_once("a", "b", **names)
-    with pytest.raises(UsageError, match=re.escape("give the output folder: -o OUT (or OUT")):
-        given_once(None, None, **names)

@@ -69,8 +69,8 @@ def test_atomic_writes_respect_the_umask(umask, mode, tmp_path):
     old = os.umask(umask)
     try:
         text = atomic_write_text(tmp_path / "report.json", "{}")
-        model = build_model("dinov2_vits14", 2, backbone_kwargs={"embed_dim": 8, "depth": 1,
-                            "num_heads": 1}, layers=[0, 0, 0, 0], features=4,
+        model = build_model("dinov2_vits14", 2, backbone_kwargs={"embed_dim": 8, "depth": 4,
+                            "num_heads": 1}, layers=[0, 1, 2, 3], features=4,
                             out_channels=[4, 4, 4, 4])  # fmt: skip
         ckpt = save_checkpoint(model, tmp_path / "m.pt")
     finally:

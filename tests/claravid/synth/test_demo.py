@@ -12,7 +12,7 @@ from tests.claravid.dsp.reference_profile import official_profile
 
 def test_demo_end_to_end(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert main([str(out), "--size", "64x48", "--frames-per-viewpoint", "1"]) == 0
+    assert main(["-o", str(out), "--size", "64x48", "--frames-per-viewpoint", "1"]) == 0
     text = capsys.readouterr().out
     assert "48 frames" in text  # 8 missions × 6 viewpoints × 1 frame
     assert "urban_high_1" in text and "pixel share per class" in text
@@ -28,7 +28,7 @@ def test_demo_end_to_end(tmp_path, capsys):
     for key in ("mu", "sigma", "alpha", "beta"):
         assert profile["profile"][key] == pytest.approx(expected[key], rel=1e-9), key
     assert Image.open(out / "dsp_profiles.png").size[0] > 600
-    assert main([str(out), "--size", "64x48", "--frames-per-viewpoint", "1"]) == 0
+    assert main(["-o", str(out), "--size", "64x48", "--frames-per-viewpoint", "1"]) == 0
     assert "reusing" in capsys.readouterr().out
 
 
@@ -36,13 +36,13 @@ def test_demo_refuses_a_folder_it_did_not_write(tmp_path, capsys):
     theirs = tmp_path / "theirs"
     theirs.mkdir()
     (theirs / "samples.png").write_bytes(b"my picture")
-    assert main([str(theirs), "--size", "64x48", "--frames-per-viewpoint", "1"]) == 2
+    assert main(["-o", str(theirs), "--size", "64x48", "--frames-per-viewpoint", "1"]) == 2
     err = capsys.readouterr().err
     assert "claravid-demo: error:" in err and "--overwrite" in err and "Traceback" not in err
     assert (theirs / "samples.png").read_bytes() == b"my picture"
     assert sorted(p.name for p in theirs.iterdir()) == ["samples.png"]
     with pytest.raises(SystemExit) as info:
-        main([str(tmp_path / "d"), "--workers", "-1"])
+        main(["-o", str(tmp_path / "d"), "--workers", "-1"])
     assert info.value.code == 2
     assert "argument --workers: expected an integer >= 0, got '-1'" in capsys.readouterr().err
 

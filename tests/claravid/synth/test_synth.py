@@ -197,8 +197,8 @@ def test_same_seed_same_bytes_other_seed_other_scene(tmp_path, tiny):
 
 def test_workers_write_the_same_bytes(tmp_path, tiny):
     """``--workers 2``: the viewpoints render in worker processes, the files are the same."""
-    assert main([str(tmp_path / "w"), "--seed", "3", "--frames-per-viewpoint", "2", "--size",
-                 "64x48", "--missions", "rural_1", "urban_high_1", "--workers", "2",
+    assert main(["-o", str(tmp_path / "w"), "--seed", "3", "--frames-per-viewpoint", "2",
+                 "--size", "64x48", "--missions", "rural_1,urban_high_1", "--workers", "2",
                  "--no-progress"]) == 0  # fmt: skip
     files = sorted(p.relative_to(tiny) for p in tiny.rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(tmp_path / "w") for p in (tmp_path / "w").rglob("*")
@@ -256,6 +256,7 @@ def test_cli_end_to_end(tmp_path, capsys):
     out = tmp_path / "cli"
     code = main(
         [
+            "--output",
             str(out),
             "--seed",
             "2",
@@ -280,7 +281,7 @@ def test_cli_end_to_end(tmp_path, capsys):
     assert len(files) == 7 and files[0] == Path(MARKER)  # 6 modalities + the marker
 
 
-def test_cli_output_flag_square_size_and_quiet_spellings(tmp_path, capsys):
+def test_cli_output_flag_and_square_size(tmp_path, capsys):
     out = tmp_path / "o"
     argv = ["--frames-per-viewpoint", "1", "--missions", "nature_1", "--altitude", "mid",
             "--direction", "v", "--no-progress"]  # fmt: skip
@@ -289,10 +290,11 @@ def test_cli_output_flag_square_size_and_quiet_spellings(tmp_path, capsys):
     assert captured.out.strip() == str(out) and captured.err == ""  # no progress bar
     rgb = modalities.read_rgb(out / "007_nature_1" / "left_rgb" / "55deg_mid_v" / "000000.jpg")
     assert rgb.shape == (16, 16, 3)
-    assert main([str(out), "--output", str(out), *argv]) == 2
-    _one_error(capsys, "the output folder given twice, as OUT and as -o: give it once")
-    assert main(argv) == 2
-    _one_error(capsys, "give the output folder: -o OUT (or OUT alone)")
+    for missing in ([*argv], [str(out), *argv]):  # -o is required; OUT alone is no spelling
+        with pytest.raises(SystemExit) as info:
+            main(missing)
+        assert info.value.code == 2
+        _one_error(capsys, "the following arguments are required: -o/--output")
 
 
 @pytest.mark.parametrize(
@@ -324,13 +326,13 @@ def test_bad_arguments_raise(tmp_path, kwargs, match):
         (["--size", "0x48"], "must be positive"),
         (["--frames-per-viewpoint", "0"], "expected a positive integer"),
         (["--seed", "-1"], "expected an integer >= 0"),
-        (["--altitude", "sky"], "invalid choice"),
         (["--altitudes", "low"], "unrecognized arguments"),  # the old plural flag is gone
+        (["--missions", "rural_1", "urban_1"], "unrecognized arguments: urban_1"),  # commas
     ],
 )
 def test_cli_rejects_bad_arguments(tmp_path, capsys, args, match):
     with pytest.raises(SystemExit) as exit_info:
-        main([str(tmp_path / "x"), "--no-progress", *args])
+        main(["-o", str(tmp_path / "x"), "--no-progress", *args])
     assert exit_info.value.code == 2
     assert match in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
@@ -345,12 +347,16 @@ def _one_error(capsys, match):
 
 
 def test_cli_errors_are_one_line(tmp_path, capsys):
-    assert main([str(tmp_path / "x"), "--no-progress", "--missions", "mars_1"]) == 2
+    assert main(["-o", str(tmp_path / "x"), "--no-progress", "--missions", "mars_1"]) == 2
     _one_error(capsys, "unknown ClaraVid mission 'mars_1'")
+    assert main(["-o", str(tmp_path / "x"), "--no-progress", "--altitude", "low,sky"]) == 2
+    _one_error(capsys, "unknown altitude 'sky'; valid: low, mid, high")
+    assert main(["-o", str(tmp_path / "x"), "--no-progress", "--direction", " , "]) == 2
+    _one_error(capsys, "--direction is empty; give e.g. --direction h")
     (tmp_path / "afile").write_text("x")
-    assert main([str(tmp_path / "afile"), "--no-progress"]) == 2
+    assert main(["-o", str(tmp_path / "afile"), "--no-progress"]) == 2
     _one_error(capsys, "is a file; give a folder")
-    assert main([str(tmp_path / "afile" / "sub"), "--no-progress"]) == 2
+    assert main(["-o", str(tmp_path / "afile" / "sub"), "--no-progress"]) == 2
     _one_error(capsys, "afile")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
 
@@ -363,7 +369,7 @@ def test_a_tree_it_did_not_write_is_refused(tmp_path, capsys):
     frame.write_bytes(b"a real frame")
     args = ["--frames-per-viewpoint", "1", "--size", "16x12", "--missions", "urban_1",
             "--no-progress"]  # fmt: skip
-    assert main([str(real), *args]) == 2
+    assert main(["-o", str(real), *args]) == 2
     _one_error(capsys, "not written by claravid-synth (no .claravid-synth)")
     with pytest.raises(FileExistsError, match="overwrite=True"):
         synthesize(real, size=(16, 12), frames_per_viewpoint=1, missions="urban_1")
@@ -372,14 +378,14 @@ def test_a_tree_it_did_not_write_is_refused(tmp_path, capsys):
         frame.relative_to(real)
     ]
     # Explicitly asked: written, and from then on the tree is the generator's.
-    assert main([str(real), *args, "--overwrite"]) == 0
+    assert main(["-o", str(real), *args, "--overwrite"]) == 0
     assert frame.read_bytes() != b"a real frame" and (real / MARKER).is_file()
     capsys.readouterr()
     # Its own output (also after an interrupted run: the marker comes first) is fine to redo.
-    assert main([str(real), *args]) == 0
+    assert main(["-o", str(real), *args]) == 0
     empty = tmp_path / "empty"
     empty.mkdir()
-    assert main([str(empty), *args]) == 0  # an empty folder holds nothing to lose
+    assert main(["-o", str(empty), *args]) == 0  # an empty folder holds nothing to lose
 
 
 def test_single_keys_select_like_the_datasets(tmp_path):

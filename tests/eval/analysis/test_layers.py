@@ -22,10 +22,15 @@ def _modules(layer: str) -> list[str]:
 
 
 #: What the numpy-only analysis layer may load of the toolkit (packages and these modules): the
-#: profile fit and the measures' names of claravid.dsp, not its image code or the file readers.
+#: profile fit and the measures' names of claravid.dsp, not its image code or the file readers;
+#: the ClaraVid facts (the ignore id) of claravid.io, not its readers; the user-error class of
+#: claravid.infra.cli (with the precision names its flags take); the packages' lazy names from
+#: claravid.infra.lazy; the memory a bootstrap may take from claravid.infra.memory (the
+#: kernel's MemAvailable, standard library only).
 ANALYSIS_MAY_LOAD = ("claravid.eval.analysis", "claravid.dsp.measures", "claravid.dsp.profile",
-                     "claravid.infra.cli")  # fmt: skip
-PACKAGES = {"claravid", "claravid.dsp", "claravid.eval", "claravid.infra"}
+                     "claravid.infra.cli", "claravid.infra.lazy", "claravid.infra.memory",
+                     "claravid.infra.precision", "claravid.io.layout")  # fmt: skip
+PACKAGES = {"claravid", "claravid.dsp", "claravid.eval", "claravid.infra", "claravid.io"}
 
 
 def _loaded_after_importing(names: list[str]) -> set[str]:
