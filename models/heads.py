@@ -16,7 +16,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from torch import nn
 
 #: The head `build_model` builds when none is named (and that checkpoints without a ``head``
 #: entry, written before there was a choice, hold).
@@ -132,3 +135,16 @@ def default_layers(spec: HeadSpec, n_blocks: int, four_taps: Sequence[int]) -> t
     if spec.taps is None:
         return (n_blocks - 1,)
     return tuple(int(i) for i in four_taps)
+
+
+def classifier(in_channels: int, num_classes: int) -> nn.Conv2d:
+    """The 1x1 convolution a head ends with, initialised as the official linear and UperNet
+    heads are: weights from N(0, 0.01²), zero bias, so training starts near uniform scores."""
+    from torch import nn
+
+    conv = nn.Conv2d(in_channels, num_classes, kernel_size=1)
+    nn.init.normal_(conv.weight, mean=0.0, std=0.01)
+    if conv.bias is None:  # nn.Conv2d makes a bias unless told not to
+        raise RuntimeError("a head's classifier was built without a bias")
+    nn.init.zeros_(conv.bias)
+    return conv

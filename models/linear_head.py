@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from claravid.models.heads import LINEAR_DROPOUT
+from claravid.models.heads import LINEAR_DROPOUT, classifier
 
 
 class LinearHead(nn.Module):
@@ -47,12 +47,7 @@ class LinearHead(nn.Module):
         channels = embed_dim * num_layers * (2 if use_cls else 1)
         self.dropout = nn.Dropout2d(dropout)
         self.bn = nn.BatchNorm2d(channels)
-        self.conv = nn.Conv2d(channels, num_classes, kernel_size=1)
-        # The official initialisation: a small classifier, so training starts near uniform.
-        nn.init.normal_(self.conv.weight, mean=0.0, std=0.01)
-        if self.conv.bias is None:  # nn.Conv2d makes a bias unless told not to
-            raise RuntimeError("LinearHead's classifier was built without a bias")
-        nn.init.zeros_(self.conv.bias)
+        self.conv = classifier(channels, num_classes)
 
     @property
     def num_classes(self) -> int:

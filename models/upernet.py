@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from claravid.models.heads import UPERNET_CHANNELS
+from claravid.models.heads import UPERNET_CHANNELS, classifier
 from claravid.models.tracing import is_exporting
 
 POOL_SCALES = (1, 2, 3, 6)
@@ -138,11 +138,7 @@ class UperNetHead(nn.Module):
         self.fpn_convs = nn.ModuleList(ConvModule(c, c, 3) for _ in range(3))
         self.fpn_bottleneck = ConvModule(4 * c, c, 3)
         self.dropout = nn.Dropout2d(dropout)
-        self.classifier = nn.Conv2d(c, num_classes, kernel_size=1)
-        nn.init.normal_(self.classifier.weight, mean=0.0, std=0.01)
-        if self.classifier.bias is None:  # nn.Conv2d makes a bias unless told not to
-            raise RuntimeError("UperNet's classifier was built without a bias")
-        nn.init.zeros_(self.classifier.bias)
+        self.classifier = classifier(c, num_classes)
 
     @property
     def num_classes(self) -> int:

@@ -137,6 +137,15 @@ def test_segmenter_defaults_for_dinov3_vitl16():
     assert [s.scale for s in head.psp_modules] == [1, 2, 3, 6]
 
 
+def test_the_classifier_starts_small_with_a_zero_bias():
+    """As the official heads: N(0, 0.01²) weights (2,560 of them: the std is within 10 %)."""
+    torch.manual_seed(0)
+    head = UperNetHead(32, 10, channels=256)
+    assert head.classifier.kernel_size == (1, 1)
+    assert abs(float(head.classifier.weight.std()) - 0.01) < 1e-3
+    assert not head.classifier.bias.any()
+
+
 def test_an_input_under_two_patches_a_side_is_refused_in_one_line():
     tiny = {"embed_dim": 32, "depth": 4, "num_heads": 2}
     model = build_model("dinov3_vits16", 3, head="upernet", layers=[0, 1, 2, 3], features=8,
