@@ -44,12 +44,14 @@ from claravid.infra.cli import (
     add_precision_flag,
     add_progress_flag,
     add_selection_flags,
+    add_statistics_flag,
     add_window_flags,
     add_workers_flag,
     non_negative_int,
     positive_int,
     run_cli,
 )
+from claravid.models.backbones import NAMED_STATISTICS
 from claravid.models.onnx_runtime import PROVIDERS
 
 PROG = "claravid-eval"
@@ -93,6 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_selection_flags(data)
     infer = p.add_argument_group("inference")
     add_window_flags(infer)
+    add_statistics_flag(infer, NAMED_STATISTICS)
     add_device_flag(infer)
     add_precision_flag(infer)
     infer.add_argument(
@@ -181,6 +184,7 @@ _MODEL_ONLY = (
     "batch_size",
     "device",
     "precision",
+    "statistics",
     "save_predictions",
 )
 _DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing", *SELECTION)
@@ -196,7 +200,7 @@ IDLE = {
                *QUALITY_FLAGS),
     "checkpoint": ("provider",),
     # Label maps are read, not predicted: no precision (an ONNX file is refused it below).
-    "predictions": ("provider", "precision"),
+    "predictions": ("provider", "precision", "statistics"),
 }  # fmt: skip
 
 
@@ -227,7 +231,8 @@ def _data_choice(args: argparse.Namespace) -> DataChoice:
 def _inference(args: argparse.Namespace) -> InferenceSettings:
     return InferenceSettings(window=args.window, stride=args.stride, scale=args.scale,
                              batch_size=args.batch_size, device=args.device,
-                             precision=args.precision, provider=args.provider)  # fmt: skip
+                             precision=args.precision, provider=args.provider,
+                             statistics=args.statistics)  # fmt: skip
 
 
 def _report_settings(args: argparse.Namespace) -> ReportSettings:

@@ -47,6 +47,7 @@ from claravid.infra.cli import (
     add_output_flag,
     add_precision_flag,
     add_progress_flag,
+    add_statistics_flag,
     add_window_flags,
     add_workers_flag,
     check_device,
@@ -55,6 +56,7 @@ from claravid.infra.cli import (
 from claravid.infra.files import check_output_dir
 from claravid.infra.precision import flag_precision
 from claravid.io import modalities
+from claravid.models.backbones import NAMED_STATISTICS
 from claravid.models.onnx_runtime import PROVIDERS
 
 PROG = "claravid-predict"
@@ -159,6 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_output_flag(p, required=True)
     p.add_argument("--palette", help="palette for the colours (default: the checkpoint's)")
     add_window_flags(p)
+    add_statistics_flag(p, NAMED_STATISTICS)
     add_device_flag(p)
     add_precision_flag(p)
     p.add_argument("--provider", choices=PROVIDERS, help="ONNX Runtime provider (--onnx)")
@@ -186,6 +189,7 @@ def run(args: argparse.Namespace) -> int:
     settings = resolve_settings(
         source, window=args.window, stride=args.stride, scale=args.scale,
         batch_size=args.batch_size, palette=args.palette, precision=precision,
+        statistics=args.statistics,
     )  # fmt: skip
     palette = _palette_for(settings, args.no_overlays, source.num_classes)
     config = settings.window

@@ -33,6 +33,7 @@ from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.units import CLUSTER_UNITS, DATASETS, GROUP_BY, check_unit
 from claravid.infra.cli import UsageError, selection_names
 from claravid.infra.precision import PRECISIONS
+from claravid.models.backbones import NAMED_STATISTICS
 from claravid.models.onnx_runtime import PROVIDERS
 
 #: ClaraVid selection settings a checkpoint records and ``DataChoice.selection`` replaces.
@@ -141,6 +142,9 @@ class InferenceSettings:
         device: ``cpu``, ``cuda`` or ``cuda:N`` (default: CUDA when available).
         precision: ``auto``, ``fp32``, ``bf16`` or ``fp16`` (PyTorch models).
         provider: ONNX Runtime provider (ONNX models).
+        statistics: the input statistics of an ONNX file exported elsewhere, which records
+            none: ``imagenet`` or ``sat493m`` (required for such a file, refused for any other:
+            a checkpoint or a claravid export carries its own).
     """
 
     window: int | tuple[int, int] | None = None
@@ -150,6 +154,7 @@ class InferenceSettings:
     device: str | None = None
     precision: str = "auto"
     provider: str | None = None
+    statistics: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "window", _size(self.window, "--window"))
@@ -166,6 +171,7 @@ class InferenceSettings:
                 f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}"
             )
         _one_of(self.provider, tuple(PROVIDERS), "--provider", "the ONNX Runtime provider")
+        _one_of(self.statistics, tuple(NAMED_STATISTICS), "--statistics", "input statistics")
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,12 @@ IMAGENET_STD = (0.229, 0.224, 0.225)
 #: The statistics of SAT-493M, the satellite images of the DINOv3 ``_sat`` models.
 SAT493M_MEAN = (0.430, 0.411, 0.296)
 SAT493M_STD = (0.213, 0.156, 0.143)
+#: Input statistics by name, for a model file that records none (``--statistics``, an ONNX file
+#: exported elsewhere): ``(mean, std)``.
+NAMED_STATISTICS = {
+    "imagenet": (IMAGENET_MEAN, IMAGENET_STD),
+    "sat493m": (SAT493M_MEAN, SAT493M_STD),
+}
 
 #: How messages name each family.
 FAMILIES = {"dinov2": "DINOv2", "dinov3": "DINOv3"}

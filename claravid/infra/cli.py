@@ -28,7 +28,7 @@ import os
 import sys
 import traceback
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, NoReturn, Protocol
 
@@ -99,6 +99,8 @@ SHARED_HELP = {
     "paper reports at 0.5)",
     "--batch-size": "windows per forward pass (default: the model file's, else 4)",
     "--device": "cpu, cuda or cuda:N (default: cuda when available)",
+    "--statistics": "input statistics of an ONNX file exported elsewhere (it records none): "
+    "imagenet (DINOv2, DINOv3 web weights) or sat493m (DINOv3 _sat weights)",
     "--precision": "autocast of a PyTorch model: auto (the default: float32 on a CPU, bf16 on a "
     "GPU that supports it, else fp16), fp32, bf16 or fp16",
 }
@@ -141,6 +143,13 @@ def add_window_flags(parser: Any) -> None:
     _add(parser, "--stride", type=window_size, metavar="WxH")
     _add(parser, "--scale", type=positive_float, metavar="S")
     _add(parser, "--batch-size", type=positive_int, metavar="N")
+
+
+def add_statistics_flag(parser: Any, names: Iterable[str]) -> None:
+    """``--statistics NAME``: the input statistics of a model file that records none, one of
+    ``names`` (``claravid.models.backbones.NAMED_STATISTICS``; unset: None)."""
+    choices = tuple(names)
+    _add(parser, "--statistics", choices=choices, metavar="{" + ",".join(choices) + "}")
 
 
 def add_device_flag(parser: Any) -> None:

@@ -23,6 +23,7 @@ import torch
 
 from claravid.eval.inference.windows import Model, WindowConfig, model_statistics
 from claravid.infra.cli import UsageError
+from claravid.models.backbones import NAMED_STATISTICS
 from claravid.models.grid import PAPER_WINDOW, natural_size
 from claravid.models.onnx_metadata import (
     backbone_statistics,
@@ -194,30 +195,46 @@ def resolve_settings(
     batch_size: int | None = None,
     palette: str | Path | None = None,
     precision: str = "auto",
+    statistics: str | None = None,
 ) -> RunSettings:
     """Window, stride, scale, batch size, palette and normalisation: flag, else the model
     file's record, else the default. A ``--stride`` recorded for another window is dropped
     when ``--window`` is given (the default stride follows the window). The default window is
     the model's natural size (630 for patches of 14, 640 for 16: `natural_size`); the default
-    normalisation is the model's own (a checkpoint's backbone statistics; ImageNet's only for
-    an ONNX file that records none).
+    normalisation is the model's own (a checkpoint's backbone statistics, an export's record).
+    An ONNX file exported elsewhere records none of these: it needs ``palette``, ``window``
+    (unless its input size is fixed) and ``statistics`` (a name of `NAMED_STATISTICS`), which
+    no other source takes.
 
     Raises:
         UsageError: a window other than a fixed-size ONNX file's input size; an ONNX file
-            without claravid metadata and no ``--palette``/``--window`` (the message names what
-            is missing); a window that is not a multiple of the patch size.
+            without claravid metadata and no ``--palette``/``--window``/``--statistics`` (the
+            message names what is missing); ``--statistics`` for a file that records its own;
+            an unknown statistics name; a window that is not a multiple of the patch size.
     """
     recorded = source.defaults
     kind = source.kind
     fixed = getattr(source.model, "input_size", None)
-    if kind == "onnx" and getattr(source.model, "metadata", None) is None:
-        missing = [f"--{n}" for n, v in (("palette", palette), ("window", window or fixed))
-                   if v is None]  # fmt: skip
+    foreign = kind == "onnx" and getattr(source.model, "metadata", None) is None
+    if foreign:
+        given = (("palette", palette), ("window", window or fixed), ("statistics", statistics))
+        missing = [f"--{n}" for n, v in given if v is None]
         if missing:
+            listed = ", ".join(missing[:-1]) + (" and " if len(missing) > 1 else "") + missing[-1]
             raise UsageError(
                 f"{source.path} carries no claravid metadata (exported elsewhere): pass "
-                f"{' and '.join(missing)} to say how to run it"
+                f"{listed} to say how to run it (--statistics: "
+                f"{' or '.join(NAMED_STATISTICS)}, the statistics its backbone was trained with)"
             )
+    if statistics is not None and not foreign:
+        raise UsageError(
+            f"--statistics is for an ONNX file exported elsewhere: {source.path} records the "
+            f"statistics its model was trained with; drop --statistics"
+        )
+    if statistics is not None and statistics not in NAMED_STATISTICS:
+        raise UsageError(
+            f"unknown --statistics {statistics!r}: use {' or '.join(NAMED_STATISTICS)}"
+        )
     origins: dict[str, str] = {}
 
     def pick(name: str, flag: Any, record: Any, default: Any) -> Any:
@@ -240,12 +257,15 @@ def resolve_settings(
     step = pick("stride", _pair(stride), record_stride, None)
     name = pick("palette", palette, recorded.get("palette"), None)
     info = recorded.get("palette_info") if palette is None else None
-    default_norm = normalisation_from_config(None)  # ImageNet's: a foreign ONNX file
+    default_norm = normalisation_from_config(None)
     mean, std = model_statistics(source.model)
     if mean is not None:  # the model's own: a checkpoint's backbone (the model owns them)
         default_norm = {**default_norm, "mean": [float(v) for v in mean],
                         "std": [float(v) for v in std]}  # fmt: skip
-    normalisation = pick("normalisation", None, recorded.get("normalisation"), default_norm)
+    named = None
+    if statistics is not None:  # a foreign ONNX file: the user's word, never a guess
+        named = normalisation_from_config(None, default=NAMED_STATISTICS[statistics])
+    normalisation = pick("normalisation", named, recorded.get("normalisation"), default_norm)
     config = WindowConfig(
         size=size,
         stride=step,

@@ -19,6 +19,7 @@ from claravid.data.transforms import IMAGENET_MEAN, IMAGENET_STD
 from claravid.eval.cli import main as eval_main
 from claravid.eval.export_cli import main as export_main
 from claravid.eval.predict import main as predict_main
+from claravid.eval.settings import InferenceSettings
 from claravid.io.modalities import read_dynamic_mask as read_label  # any 8-bit grey PNG
 from tests.eval.conftest import tiny_model
 
@@ -136,22 +137,52 @@ def test_foreign_onnx_runs_with_flags_and_says_what_is_missing(
     _eval.split = files["split"]
     argv = ["--onnx", str(files["foreign"]), "--data", str(claravid_root)]
     assert eval_main([*argv, "--output", str(tmp_path / "x")]) == 2
-    _one_line(capsys, "claravid-eval", "no claravid metadata", "--palette and --window")
+    _one_line(capsys, "claravid-eval", "no claravid metadata",
+              "pass --palette, --window and --statistics", "imagenet or sat493m")  # fmt: skip
     assert eval_main([*argv, "--palette", "uavid", "--output", str(tmp_path / "y")]) == 2
-    _one_line(capsys, "claravid-eval", "pass --window")
-    report, foreign = _eval(tmp_path / "f", *argv, "--palette", "uavid", "--window", "14",
-                            "--scale", "0.5")  # fmt: skip
-    # No metadata, no recorded statistics: ImageNet's, as the same model trained with them.
+    _one_line(capsys, "claravid-eval", "pass --window and --statistics")
+    argv += ["--palette", "uavid", "--window", "14"]
+    assert eval_main([*argv, "--output", str(tmp_path / "z")]) == 2
+    _one_line(capsys, "claravid-eval", "pass --statistics to say how to run it")
+    assert not any((tmp_path / n).exists() for n in "xyz")  # refused before any work
+    # The statistics named, never assumed: ImageNet's equal the same model trained with them.
+    report, foreign = _eval(tmp_path / "f", *argv, "--statistics", "imagenet", "--scale", "0.5")
     settings = report["source"]["settings"]
     assert settings["normalisation"] == {"mean": list(IMAGENET_MEAN), "std": list(IMAGENET_STD)}
-    assert settings["from"]["normalisation"] == "default"
+    assert settings["from"]["normalisation"] == "flag"
     _, imagenet = _eval(tmp_path / "i", "--checkpoint", str(files["ckpt_imagenet"]))
     np.testing.assert_array_equal(foreign, imagenet)
     _, ckpt = _eval(tmp_path / "c", "--checkpoint", str(files["ckpt"]))
     assert not np.array_equal(foreign, ckpt)  # the statistics matter to this model
+    report, sat = _eval(tmp_path / "s", *argv, "--statistics", "sat493m", "--scale", "0.5")
+    sat_norm = report["source"]["settings"]["normalisation"]
+    assert sat_norm == {"mean": [0.430, 0.411, 0.296], "std": [0.213, 0.156, 0.143]}
+    assert not np.array_equal(sat, foreign)
     image = str(files["images"][0])
     assert predict_main(["--onnx", str(files["foreign"]), image, "-o", str(tmp_path / "p")]) == 2
-    _one_line(capsys, "claravid-predict", "--palette and --window")
+    _one_line(capsys, "claravid-predict", "--palette, --window and --statistics")
+
+
+def test_statistics_are_refused_where_the_model_file_records_its_own(
+    files, claravid_root, tmp_path, capsys
+):
+    out = tmp_path / "r"
+    for flags in (["--checkpoint", str(files["ckpt"])], ["--onnx", str(files["onnx"])]):
+        argv = [*flags, "--data", str(claravid_root), "--statistics", "sat493m", "-o", str(out)]
+        assert eval_main(argv) == 2
+        _one_line(capsys, "claravid-eval", "--statistics is for an ONNX file exported elsewhere",
+                  "records the statistics its model was trained with")  # fmt: skip
+        assert not out.exists()
+    argv = ["--predictions", str(tmp_path), "--data", str(claravid_root), "--statistics",
+            "imagenet", "-o", str(out)]  # fmt: skip
+    assert eval_main(argv) == 2
+    _one_line(capsys, "claravid-eval", "--statistics does nothing with --predictions")
+    with pytest.raises(SystemExit):
+        eval_main([*argv[:-4], "--statistics", "lvd", "-o", str(out)])
+    assert "invalid choice: 'lvd'" in capsys.readouterr().err
+    with pytest.raises(ValueError, match=r"unknown --statistics 'lvd' \(input statistics\); use "
+                       r"one of imagenet, sat493m"):  # fmt: skip
+        InferenceSettings(statistics="lvd")  # the Python API's check
 
 
 def test_provider_flag(files, tmp_path, capsys):
@@ -179,7 +210,7 @@ def test_eval_report_gives_the_onnx_files_precision(files, claravid_root, tmp_pa
             "--precision", "int8", "--min-agreement", "0"]  # fmt: skip
     assert export_main(argv) == 0
     _eval.split = files["split"]
-    foreign = ["--palette", "uavid", "--window", "14"]
+    foreign = ["--palette", "uavid", "--window", "14", "--statistics", "imagenet"]
     for path, flags, expected in ((int8, [], "int8"), (files["onnx"], [], "fp32"),
                                   (files["foreign"], foreign, None)):  # fmt: skip
         report, _ = _eval(tmp_path / path.stem, "--onnx", str(path), "--data",

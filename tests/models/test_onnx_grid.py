@@ -122,9 +122,12 @@ def test_a_file_without_metadata_has_the_patch_of_its_graph(dynamic_v3):
         runner(np.zeros((1, 3, 42, 42), np.float32))
     source = load_source(onnx=foreign)
     # 64 = 4 patches of 16 is valid (it was refused, as no multiple of 14); 630 is not.
-    settings = resolve_settings(source, window=64, palette="uavid")
+    settings = resolve_settings(source, window=64, palette="uavid", statistics="sat493m")
     assert settings.window.size == (64, 64)
+    assert settings.window.mean == (0.430, 0.411, 0.296)  # named, not ImageNet's by default
     with pytest.raises(UsageError, match=r"patch size 16: use 624x624 or 640x640"):
-        resolve_settings(source, window=630, palette="uavid")
-    with pytest.raises(UsageError, match=r"no claravid metadata.*--window"):
-        resolve_settings(source, palette="uavid")  # no window assumed either
+        resolve_settings(source, window=630, palette="uavid", statistics="sat493m")
+    with pytest.raises(UsageError, match=r"no claravid metadata.*pass --window to say"):
+        resolve_settings(source, palette="uavid", statistics="imagenet")  # nor a window
+    with pytest.raises(UsageError, match=r"unknown --statistics 'imagenet1k'"):
+        resolve_settings(source, window=64, palette="uavid", statistics="imagenet1k")
