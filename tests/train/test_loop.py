@@ -15,7 +15,8 @@ from claravid.models.checkpoint import read_checkpoint
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.checkpoint import save_training_checkpoint
 from claravid.train.cli import main
-from tests.train.conftest import HEAD_OVERRIDES, miou_by_hand, tiny, tiny_v3
+from tests.helpers.scoring import miou_by_hand
+from tests.tiny import HEAD_OVERRIDES, tiny, tiny_v3
 
 
 def rows(out):
@@ -161,9 +162,8 @@ def test_tensorboard_event_files_hold_the_logged_scalars(claravid_root, tmp_path
     assert miou.step == 2 and miou.value == pytest.approx(logged[-1]["miou"], rel=1e-6)
 
 
-def test_atomic_checkpoint_write_survives_a_crash_mid_write(claravid_root, tmp_path, monkeypatch):
-    out = tmp_path / "run"
-    train(load_config("demo", tiny(claravid_root, out, "train.steps=2", "val.every=0")))
+def test_atomic_checkpoint_write_survives_a_crash_mid_write(trained_v2_copy, monkeypatch):
+    out = trained_v2_copy
     before = (out / "last.pt").read_bytes()
     ckpt = read_checkpoint(out / "last.pt")
     model = models.load_checkpoint(out / "last.pt")
@@ -286,18 +286,16 @@ SAT493M = ((0.430, 0.411, 0.296), (0.213, 0.156, 0.143))  # DINOv3 SAT's publish
 IMAGENET = ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225))
 
 
-def test_a_sat_backbone_trains_on_sat_statistics_without_naming_them(claravid_root, tmp_path):
-    """No data.augment.mean/std in the config: a dinov3_*_sat backbone's crops reach it
-    normalised with SAT-493M's statistics (not ImageNet's), and the checkpoint records them."""
-    out = tmp_path / "run"
-    cfg = load_config("demo", tiny_v3(claravid_root, out, "train.steps=1", "val.every=0",
-                                      backbone="dinov3_vitl16_sat"))  # fmt: skip
-    x = _first_model_input(lambda: train(cfg))
+def test_a_sat_backbone_trains_on_sat_statistics_without_naming_them(trained_sat):
+    """No data.augment.mean/std in the config (the session's tiny SAT run): a dinov3_*_sat
+    backbone's crops reach it normalised with SAT-493M's statistics (not ImageNet's), and the
+    checkpoint records them."""
+    x = trained_sat["first_input"]
     assert x.dtype == torch.float32 and x.shape[1:] == (3, 32, 32)
     _assert_normalised_with(x, *SAT493M)
     with pytest.raises(AssertionError):  # the check tells the two apart
         _assert_normalised_with(x, *IMAGENET)
-    augment = read_checkpoint(out / "last.pt")["config"]["data"]["augment"]
+    augment = read_checkpoint(trained_sat["ckpt"])["config"]["data"]["augment"]
     assert (tuple(augment["mean"]), tuple(augment["std"])) == SAT493M
 
 

@@ -15,7 +15,7 @@ import torch
 from claravid.models.checkpoint import read_checkpoint
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.logs import read_metrics
-from tests.train.conftest import tiny, tiny_v3
+from tests.tiny import tiny, tiny_v3
 
 STEPS = 40
 EXTRA = (f"train.steps={STEPS}", "train.checkpoint_every=3", "val.every=10", "train.log_every=1",

@@ -5,7 +5,7 @@ from collections import Counter
 from claravid import ClaraVidSegmentation
 from claravid.train import load_config
 from claravid.train.data import build_train_dataset, split_table
-from tests.train.conftest import tiny
+from tests.tiny import tiny
 
 
 def test_split_table_shows_the_shares_the_splits_hold(claravid_root, tmp_path):
