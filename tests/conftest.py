@@ -11,9 +11,10 @@ from claravid.synth import synthesize
 os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
 matplotlib.use("agg")
 
-# The session fixtures shared by tests/models, tests/train and tests/eval: tiny trained runs and
-# their ONNX exports, each built once.
-pytest_plugins = ["tests.helpers.sessions"]
+# The session fixtures shared by tests/models, tests/train and tests/eval (tiny trained runs and
+# their ONNX exports, each built once), and the short explanation of a failing comparison of
+# large values (pytest's own takes minutes under CI).
+pytest_plugins = ["tests.helpers.sessions", "tests.helpers.fail_fast"]
 
 #: The missions of the tiny tree.
 MISSIONS = ["rural_1", "urban_1"]

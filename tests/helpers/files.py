@@ -54,3 +54,11 @@ def unreadable_files(folder: Path) -> dict[Path, str]:
     torch.save(torch.nn.Linear(2, 2), folder / "module.pth")  # pickled code, not tensors
     cases["module.pth"] = (None, "pickled Python objects")
     return {folder / name: match for name, (_, match) in cases.items()}
+
+
+def sha256(data: bytes | Path) -> str:
+    """The SHA-256 of bytes or of a file's content: compare large contents by this, never with
+    ``==`` on the bytes (a failing comparison renders their whole difference)."""
+    import hashlib
+
+    return hashlib.sha256(data if isinstance(data, bytes) else Path(data).read_bytes()).hexdigest()

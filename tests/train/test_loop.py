@@ -15,6 +15,7 @@ from claravid.models.checkpoint import read_checkpoint
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.checkpoint import save_training_checkpoint
 from claravid.train.cli import main
+from tests.helpers.files import sha256
 from tests.helpers.scoring import miou_by_hand
 from tests.tiny import HEAD_OVERRIDES, tiny, tiny_v3
 
@@ -164,7 +165,7 @@ def test_tensorboard_event_files_hold_the_logged_scalars(claravid_root, tmp_path
 
 def test_atomic_checkpoint_write_survives_a_crash_mid_write(trained_v2_copy, monkeypatch):
     out = trained_v2_copy
-    before = (out / "last.pt").read_bytes()
+    before = sha256(out / "last.pt")
     ckpt = read_checkpoint(out / "last.pt")
     model = models.load_checkpoint(out / "last.pt")
     opt = torch.optim.AdamW(model.head.parameters())
@@ -182,7 +183,7 @@ def test_atomic_checkpoint_write_survives_a_crash_mid_write(trained_v2_copy, mon
             frames_per_step=4, best_miou=None, best_step=None, metrics=None,
             backbone_trained=False,
         )  # fmt: skip
-    assert (out / "last.pt").read_bytes() == before  # the old file, whole
+    assert sha256(out / "last.pt") == before  # the old file, whole
     assert sorted(os.listdir(out)) == sorted(  # and no temp file left behind
         ["config.yaml", "metrics.jsonl", "curves.png", "last.pt", "best.pt"]
     )
