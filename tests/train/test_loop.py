@@ -15,6 +15,7 @@ from claravid.models.checkpoint import read_checkpoint
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.checkpoint import save_training_checkpoint
 from claravid.train.cli import main
+from claravid.train.config import StatisticsWarning
 from tests.helpers.files import sha256
 from tests.helpers.scoring import miou_by_hand
 from tests.tiny import HEAD_OVERRIDES, tiny, tiny_v3
@@ -248,7 +249,9 @@ def test_the_model_sees_crops_normalised_with_the_config_s_mean_and_std(claravid
     try:
         extra = ["train.steps=1", "val.every=0", f"data.augment.mean={list(mean)}",
                  f"data.augment.std={list(std)}"]  # fmt: skip
-        train(load_config("demo", tiny(claravid_root, tmp_path / "run", *extra)))
+        cfg = load_config("demo", tiny(claravid_root, tmp_path / "run", *extra))
+        with pytest.warns(StatisticsWarning, match=r"not the statistics dinov2_vits14 was pre"):
+            train(cfg)
     finally:
         handle.remove()
     (x,) = seen
