@@ -11,8 +11,33 @@ from claravid.synth import synthesize
 os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
 matplotlib.use("agg")
 
+# The session fixtures shared by tests/models, tests/train and tests/eval (tiny trained runs and
+# their ONNX exports, each built once), and the short explanation of a failing comparison of
+# large values (pytest's own takes minutes under CI).
+pytest_plugins = ["tests.helpers.sessions", "tests.helpers.fail_fast"]
+
 #: The missions of the tiny tree.
 MISSIONS = ["rural_1", "urban_1"]
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _dataloader_workers_joined_quickly():
+    """Wait 0.25 s, not torch's 5 s, for each DataLoader worker at shutdown.
+
+    A worker's error re-raised by torch leaves its iterator in a reference cycle (the raising
+    frame holds the exception, whose traceback holds the frame), and so do some abandoned
+    iterators: the garbage collector then shuts the workers down after their queues are
+    finalised, so no worker hears the stop and each join waits out torch's whole status interval
+    (5 s) in whichever later test the collection happens to run: 5 to 10 s several times a run.
+    The join timeout is all this changes: a worker that does not exit in time is terminated, as
+    torch does after 5 s.
+    """
+    from torch.utils.data import _utils
+
+    before = _utils.MP_STATUS_CHECK_INTERVAL
+    _utils.MP_STATUS_CHECK_INTERVAL = 0.25
+    yield
+    _utils.MP_STATUS_CHECK_INTERVAL = before
 
 
 @pytest.fixture(autouse=True)

@@ -22,8 +22,8 @@ from claravid.eval.cli import main as eval_main
 from claravid.models.checkpoint import read_checkpoint
 from claravid.train import load_config, train
 from claravid.train.logs import read_metrics
-from tests.torchrun import free_port
-from tests.train.conftest import tiny
+from tests.helpers.torchrun import free_port
+from tests.tiny import tiny
 
 # data.val_split=val: the tiny tree's val split holds an odd count of frames (5 of 36), so the
 # two ranks get uneven shards.

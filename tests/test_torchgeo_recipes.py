@@ -11,9 +11,10 @@ from torch.utils.data import DataLoader
 from claravid import ClaraVidSegmentation
 from claravid.data.transforms import train_transforms
 from claravid.models import InputRangeWarning, build_model
+from tests.tiny import VIT
+from tests.tiny import WIDE_HEAD as HEAD
 
-TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 28}
-HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
+TINY = {**VIT, "img_size": 28}  # a 2x2 grid at patch 14
 CROP = {"crop_height": 28, "crop_width": 42}
 
 

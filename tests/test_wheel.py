@@ -17,7 +17,7 @@ import pytest
 
 from claravid.models.checkpoint import read_checkpoint
 from claravid.train.config import from_plain
-from tests.train.conftest import miou_by_hand
+from tests.helpers.scoring import miou_by_hand
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -8,6 +8,7 @@ them).
 """
 
 import json
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -22,9 +23,9 @@ from claravid.eval.inference.windows import WindowConfig, predict_labels
 from claravid.eval.predict import main as predict_main
 from claravid.io.modalities import read_dynamic_mask as read_label  # any 8-bit grey PNG
 from claravid.models.onnx_metadata import build_metadata, read_metadata
-from claravid.train import load_config, train
+from claravid.train import load_config
 from claravid.train.config import to_plain
-from tests.train.conftest import tiny, tiny_v3
+from tests.tiny import HEAD, MODEL, tiny, tiny_v3
 
 # The published statistics, typed here (not read from the code under test).
 SAT493M = ([0.430, 0.411, 0.296], [0.213, 0.156, 0.143])
@@ -33,28 +34,22 @@ FRAMES = ["001_rural_1/45deg_low_h/000000", "003_urban_1/90deg_high_v/000002"]
 
 
 @pytest.fixture(scope="module")
-def sat_run(claravid_root, tmp_path_factory):
-    """A tiny dinov3_vitl16_sat model trained 2 steps from a config that names no statistics,
-    and a split file of two frames."""
+def sat_run(trained_sat, tmp_path_factory):
+    """The session's tiny dinov3_vitl16_sat model, trained 2 steps from a config that names no
+    statistics, and a split file of two frames."""
     folder = tmp_path_factory.mktemp("sat")
-    torch.set_num_threads(1)
-    cfg = load_config("demo", tiny_v3(claravid_root, folder / "run", "train.steps=2",
-                                      "val.every=0", backbone="dinov3_vitl16_sat"))  # fmt: skip
-    train(cfg)
     split = folder / "split.txt"
     split.write_text("\n".join(FRAMES) + "\n")
-    images = [claravid_root / f.replace("/", "/left_rgb/", 1) for f in FRAMES]
-    return {"ckpt": folder / "run" / "last.pt", "split": split, "root": str(claravid_root),
-            "folder": folder, "images": [p.with_suffix(".jpg") for p in images]}  # fmt: skip
+    root = Path(trained_sat["root"])
+    images = [root / f.replace("/", "/left_rgb/", 1) for f in FRAMES]
+    return {"ckpt": trained_sat["ckpt"], "split": split, "root": str(root), "folder": folder,
+            "images": [p.with_suffix(".jpg") for p in images]}  # fmt: skip
 
 
-@pytest.fixture(scope="module")
-def sat_onnx(sat_run):
+@pytest.fixture
+def sat_onnx(sat_exports):
     """The SAT model's fixed-size export at its recorded window (32²), through claravid-export."""
-    path = sat_run["folder"] / "m.onnx"
-    assert export_main(["--checkpoint", str(sat_run["ckpt"]), "-o", str(path), "--size", "32",
-                        "--no-progress"]) == 0  # fmt: skip
-    return path
+    return sat_exports["fixed"]
 
 
 def _inputs_while(run):
@@ -158,28 +153,21 @@ def test_the_export_records_sat_statistics_and_onnx_runs_as_the_checkpoint(
 
 @pytest.mark.slow
 def test_the_sat_model_exports_dynamic_fp16_and_int8_checked_by_onnx_runtime(
-    sat_run, tmp_path, capsys
+    sat_run, sat_exports, tmp_path, capsys
 ):
     """As for DINOv2: every export passes the ONNX Runtime check (exit 0 only then) and
     records the SAT statistics."""
-    ckpt = str(sat_run["ckpt"])
-    cases = {
-        "dyn.onnx": ["--dynamic"],
-        "h.onnx": ["--size", "32", "--precision", "fp16"],
-        "q.onnx": ["--size", "32", "--precision", "int8"],
-    }
-    for name, flags in cases.items():
-        assert export_main(["--checkpoint", ckpt, "-o", str(tmp_path / name), *flags]) == 0, name
-        assert "argmax agreement" in capsys.readouterr().out  # the check ran
-        runner = models.OnnxSegmenter(tmp_path / name)
+    for name in ("dynamic", "fp16", "int8"):
+        assert "argmax agreement" in sat_exports["printed"][name], name  # the check ran
+        runner = models.OnnxSegmenter(sat_exports[name])
         assert runner.normalisation["mean"] == SAT493M[0] and runner.patch_size == 16
-    assert models.OnnxSegmenter(tmp_path / "dyn.onnx").input_size is None
+    assert models.OnnxSegmenter(sat_exports["dynamic"]).input_size is None
     # The dynamic file runs any patch multiple: a 48 x 64 frame's windows of 32.
-    report, _ = _eval(tmp_path / "d", "--onnx", str(tmp_path / "dyn.onnx"), "--split",
+    report, _ = _eval(tmp_path / "d", "--onnx", str(sat_exports["dynamic"]), "--split",
                       str(sat_run["split"]), "--data", sat_run["root"])  # fmt: skip
     assert report["source"]["settings"]["window"] == [32, 32]
     # A window off its patch grid: one line naming the two nearest, from --onnx too.
-    argv = ["--onnx", str(tmp_path / "dyn.onnx"), "--data", sat_run["root"], "--split",
+    argv = ["--onnx", str(sat_exports["dynamic"]), "--data", sat_run["root"], "--split",
             str(sat_run["split"]), "--window", "630", "-o", str(tmp_path / "w")]  # fmt: skip
     capsys.readouterr()
     assert eval_main(argv) == 2
@@ -187,7 +175,7 @@ def test_the_sat_model_exports_dynamic_fp16_and_int8_checked_by_onnx_runtime(
     image = str(sat_run["images"][0])
     argv = [
         "--onnx",
-        str(tmp_path / "dyn.onnx"),
+        str(sat_exports["dynamic"]),
         image,
         "--window",
         "630",
@@ -206,8 +194,7 @@ def test_statistics_a_config_named_are_the_ones_evaluation_reads(claravid_root, 
                                                backbone="dinov3_vitl16_sat")))  # fmt: skip
     torch.manual_seed(0)
     kwargs = cfg["model"]["backbone_kwargs"]
-    model = models.build_model("dinov3_vitl16_sat", 8, backbone_kwargs=kwargs, layers=[0, 1, 2, 3],
-                               features=8, out_channels=[8, 8, 8, 8])  # fmt: skip
+    model = models.build_model("dinov3_vitl16_sat", 8, backbone_kwargs=kwargs, **HEAD)
     ckpt = models.save_checkpoint(model, tmp_path / "imagenet.pt", config=cfg)
     split = tmp_path / "split.txt"
     split.write_text(FRAMES[0] + "\n")
@@ -249,9 +236,7 @@ def _old_checkpoint(claravid_root, folder):
     cfg["val"]["window"] = 28
     cfg["data"]["palette"] = "uavid"
     torch.manual_seed(4)
-    kwargs = {"embed_dim": 32, "depth": 4, "num_heads": 2}
-    model = models.build_model("dinov2_vits14", 8, backbone_kwargs=kwargs, layers=[0, 1, 2, 3],
-                               features=8, out_channels=[8, 8, 8, 8]).eval()  # fmt: skip
+    model = models.build_model("dinov2_vits14", 8, **MODEL).eval()
     return model, models.save_checkpoint(model, folder / "old.pt", config=cfg, step=5)
 
 

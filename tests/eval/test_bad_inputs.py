@@ -15,7 +15,7 @@ from claravid.eval.cli import main
 from claravid.eval.predict import main as predict_main
 from claravid.eval.report.build import build_report
 from claravid.eval.report.files import load_result
-from tests.eval.conftest import WINDOW
+from tests.tiny import WINDOW
 
 FRAMES = ["001_rural_1/45deg_low_h/000000", "003_urban_1/55deg_mid_v/000001"]
 
@@ -135,7 +135,7 @@ def test_predict_finds_webp_in_a_folder(claravid_root, tmp_path, capsys):
     the uavid colours half and half."""
     from claravid import models
     from claravid.data.transforms import IMAGENET_MEAN, IMAGENET_STD
-    from tests.eval.conftest import tiny_model
+    from tests.tiny import tiny_model
 
     # Seed 1: a model whose labels follow the pixels (seed 0's are one class everywhere).
     checkpoint = models.save_checkpoint(tiny_model(seed=1), tmp_path / "m.pt",
@@ -272,7 +272,7 @@ def test_labels_read_with_the_wrong_palette_stop_naming_the_right_one(uavid_case
 
 def test_a_moved_data_root_says_the_path_came_from_the_checkpoint(tmp_path, capsys):
     from claravid import models
-    from tests.eval.conftest import tiny_model
+    from tests.tiny import tiny_model
 
     moved = tmp_path / "moved"
     ckpt = models.save_checkpoint(
@@ -343,7 +343,7 @@ def test_a_label_png_claiming_more_than_2_30_pixels_is_one_line(
     model_files, writable_root, two_frames, tmp_path, capsys
 ):
     # OpenCV's cv2.error, which nothing mapped, ended the evaluation in a traceback.
-    from tests.claravid.io.test_modalities import png_claiming
+    from tests.helpers.files import png_claiming
 
     pan = writable_root / "003_urban_1" / "panoptic_seg" / "55deg_mid_v" / "000001.png"
     pan.write_bytes(png_claiming(40000, 30000))

@@ -14,8 +14,8 @@ from claravid.data.transforms import eval_transforms
 from claravid.eval.cli import main
 from claravid.eval.inference.sources import checkpoint_defaults
 from claravid.eval.inference.windows import WindowConfig, predict_labels
-from tests.eval.conftest import WINDOW
-from tests.torchrun import torchrun
+from tests.helpers.torchrun import torchrun
+from tests.tiny import WINDOW
 
 FIRST = ["001_rural_1/45deg_low_h/000000", "001_rural_1/45deg_low_v/000001",
          "001_rural_1/90deg_high_v/000002"]  # fmt: skip

@@ -11,7 +11,7 @@ from claravid.eval.cli import main
 from claravid.eval.inference.windows import WindowConfig, predict_labels
 from claravid.eval.predict import main as predict_main
 from claravid.io import modalities
-from tests.eval.conftest import tiny_model
+from tests.tiny import tiny_model
 
 
 def _report(folder, palette, bins):

@@ -12,7 +12,7 @@ import pytest
 
 from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.eval.cli import main
-from tests.eval.conftest import write_noisy_predictions
+from tests.helpers.files import write_noisy_predictions
 
 K = 8  # uavid palette
 

@@ -21,7 +21,7 @@ from claravid.eval.export_cli import main as export_main
 from claravid.eval.predict import main as predict_main
 from claravid.eval.settings import InferenceSettings
 from claravid.io.modalities import read_dynamic_mask as read_label  # any 8-bit grey PNG
-from tests.eval.conftest import tiny_model
+from tests.tiny import tiny_model
 
 FRAMES = ["001_rural_1/45deg_low_h/000000", "001_rural_1/45deg_low_v/000001",
           "003_urban_1/90deg_high_v/000002"]  # fmt: skip
@@ -202,13 +202,10 @@ def test_provider_flag(files, tmp_path, capsys):
     assert predict_main([*argv[:-1], "cpu", "--no-progress"]) == 0
 
 
-def test_eval_report_gives_the_onnx_files_precision(files, claravid_root, tmp_path):
+def test_eval_report_gives_the_onnx_files_precision(files, sat_exports, claravid_root, tmp_path):
     # An ONNX file runs at the precision it was exported in; the report said "fp32" (PyTorch's
-    # autocast setting on a CPU) for an int8 file.
-    int8 = tmp_path / "m-int8.onnx"
-    argv = ["--checkpoint", str(files["ckpt"]), "-o", str(int8), "--size", "14",
-            "--precision", "int8", "--min-agreement", "0"]  # fmt: skip
-    assert export_main(argv) == 0
+    # autocast setting on a CPU) for an int8 file (the session's, of the tiny SAT model).
+    int8 = sat_exports["int8"]
     _eval.split = files["split"]
     foreign = ["--palette", "uavid", "--window", "14", "--statistics", "imagenet"]
     for path, flags, expected in ((int8, [], "int8"), (files["onnx"], [], "fp32"),

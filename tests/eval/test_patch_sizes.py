@@ -17,7 +17,7 @@ from claravid.eval.inference.run_model import evaluate_model
 from claravid.eval.inference.windows import WindowConfig
 from claravid.eval.predict import main as predict_main
 from claravid.infra.cli import UsageError
-from tests.eval.conftest import TINY
+from tests.tiny import MODEL as TINY
 
 FRAME = "001_rural_1/45deg_low_h/000000"
 # 630 with patches of 16: 39 x 16 = 624 or 40 x 16 = 640, said width x height.

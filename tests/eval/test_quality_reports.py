@@ -14,8 +14,8 @@ import pytest
 
 from claravid.eval.cli import main
 from claravid.eval.report.files import load_result
-from tests.eval.conftest import WINDOW
-from tests.torchrun import torchrun
+from tests.helpers.torchrun import torchrun
+from tests.tiny import WINDOW
 
 # Frames of the tiny tree: rural_1/45deg_low_h/000001 -> 000002 and urban_1/55deg_mid_h/000000
 # -> 000001 are pairs with overlap; the first is split between the two parts.

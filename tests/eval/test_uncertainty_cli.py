@@ -24,7 +24,7 @@ from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.cli import main
 from claravid.io import modalities
 from claravid.io.layout import MISSIONS, frame_file
-from tests.eval.conftest import write_noisy_predictions
+from tests.helpers.files import write_noisy_predictions
 
 K = 8  # uavid palette
 

@@ -21,9 +21,6 @@ import re
 
 import torch
 
-#: Tiny architecture overrides shared by the DINOv3 tests (head width 16: 4 RoPE periods).
-TINY_V3 = {"embed_dim": 64, "depth": 3, "num_heads": 4}
-
 
 def random_official_v3_state(model: torch.nn.Module, seed: int = 0) -> dict[str, torch.Tensor]:
     """Random official-layout values for every key of ``model``'s state dict."""

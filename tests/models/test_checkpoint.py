@@ -5,9 +5,9 @@ import torch
 
 from claravid.models import CheckpointError, build_model, load_checkpoint, save_checkpoint
 from tests.models.reference import random_official_state
-
-TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
-HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
+from tests.tiny import VIT
+from tests.tiny import VIT_56 as TINY
+from tests.tiny import WIDE_HEAD as HEAD
 
 
 def _outputs(model, x):
@@ -73,9 +73,9 @@ def test_foreign_and_newer_files(tmp_path):
 
 
 def test_unreadable_checkpoints_name_the_file(tmp_path):
-    from tests.models.test_weights import _unreadable_files
+    from tests.helpers.files import unreadable_files
 
-    files = _unreadable_files(tmp_path)
+    files = unreadable_files(tmp_path)
     for path, match in files.items():
         with pytest.raises(CheckpointError) as info:
             load_checkpoint(path)
@@ -141,8 +141,7 @@ def test_checkpoint_written_before_dinov3_support_loads_with_identical_outputs(t
 
 
 def test_dinov3_checkpoint_round_trip(tmp_path):
-    tiny = {"embed_dim": 32, "depth": 4, "num_heads": 2}
-    model = build_model("dinov3_vitl16_sat", num_classes=3, backbone_kwargs=tiny, **HEAD)
+    model = build_model("dinov3_vitl16_sat", num_classes=3, backbone_kwargs=VIT, **HEAD)
     path = save_checkpoint(model, tmp_path / "m.pt")
     ckpt = torch.load(path, weights_only=True)
     assert "backbone.rope_embed.periods" in ckpt["model"]

@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from claravid.models import build_backbone, build_model
-from tests.models.official_v3 import TINY_V3, random_official_v3_state, to_hugging_face
+from tests.models.official_v3 import random_official_v3_state, to_hugging_face
+from tests.tiny import TINY_V3
 
 transformers = pytest.importorskip("transformers")
 

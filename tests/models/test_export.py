@@ -10,13 +10,14 @@ from claravid.models import (
     OnnxSegmenter,
     build_model,
     export_onnx,
+    load_checkpoint,
     save_checkpoint,
 )
 from claravid.models.export import ExportSettings, check_export
 from tests.models.official_v3 import random_official_v3_state
-
-TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
-HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
+from tests.tiny import VIT
+from tests.tiny import VIT_56 as TINY
+from tests.tiny import WIDE_HEAD as HEAD
 
 
 def _model(name):
@@ -90,11 +91,12 @@ def test_fixed_size_export(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_dynamic_export_other_sizes(tmp_path):
-    # Example at the native 4x4 grid: the offset bicubic must still follow other sizes.
-    model = _model("dinov2_vits14")
-    export_onnx(model, tmp_path / "d.onnx", ExportSettings(height=56, width=56, dynamic=True))
-    runner = OnnxSegmenter(tmp_path / "d.onnx")
+def test_dynamic_export_other_sizes(model_files):
+    """The session's dynamic export, made at the native 4x4 grid: the offset bicubic must still
+    follow other sizes."""
+    model = model_files["model"]
+    assert model_files["export"]["max_abs_diff"] < 1e-4
+    runner = OnnxSegmenter(model_files["onnx"])
     assert runner.input_size is None
     rng = np.random.default_rng(1)
     for shape in [(1, 3, 56, 56), (4, 3, 84, 42), (1, 3, 14, 98)]:
@@ -105,13 +107,12 @@ def test_dynamic_export_other_sizes(tmp_path):
 
 
 @pytest.mark.slow
-def test_dinov3_fixed_and_dynamic_export(tmp_path):
+def test_dinov3_fixed_and_dynamic_export(trained_sat, sat_exports, tmp_path):
     """RoPE exports both ways: stored sin/cos at a fixed size, computed from the symbolic grid
     when H and W are dynamic (ONNX Runtime then agrees at sizes other than the example's).
     Both use the periods the model holds (a loaded file's), not the formula's."""
     torch.manual_seed(0)
-    tiny = {"embed_dim": 32, "depth": 4, "num_heads": 2}
-    model = build_model("dinov3_vits16", num_classes=3, backbone_kwargs=tiny, **HEAD).eval()
+    model = build_model("dinov3_vits16", num_classes=3, backbone_kwargs=VIT, **HEAD).eval()
     # Weights of official scale (a random init's attention is nearly uniform, and RoPE would
     # hardly show in the logits), then periods no formula gives.
     model.backbone.load_state_dict(random_official_v3_state(model.backbone, seed=1))
@@ -125,11 +126,11 @@ def test_dinov3_fixed_and_dynamic_export(tmp_path):
     assert model.backbone.rope_embed._frozen is None  # export leaves the model as it was
     runner = OnnxSegmenter(tmp_path / "f.onnx")
     assert runner.patch_size == 16 and runner.input_size == (48, 80)
-    dynamic = export_onnx(
-        model, tmp_path / "d.onnx", ExportSettings(height=48, width=48, dynamic=True)
-    )
-    assert dynamic["max_abs_diff"] < 1e-4
-    runner = OnnxSegmenter(tmp_path / "d.onnx")
+    x = np.random.default_rng(2).standard_normal((2, 3, 48, 80)).astype(np.float32)
+    np.testing.assert_allclose(runner(x), _torch_logits(model, x), atol=1e-4)
+    model = load_checkpoint(trained_sat["ckpt"]).eval()
+    runner = OnnxSegmenter(sat_exports["dynamic"])
+    assert runner.patch_size == 16 and runner.input_size is None
     rng = np.random.default_rng(3)
     for shape in [(1, 3, 48, 48), (2, 3, 64, 96), (1, 3, 80, 48)]:
         x = rng.standard_normal(shape).astype(np.float32)

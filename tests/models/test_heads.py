@@ -16,8 +16,8 @@ from claravid.models import (
     load_checkpoint,
     save_checkpoint,
 )
+from tests.tiny import VIT as TINY
 
-TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2}
 SETTINGS = {
     "dpt": {"layers": [0, 1, 2, 3], "features": 8, "out_channels": [8, 8, 16, 16]},
     "linear": {"layers": [1, 3], "use_cls": True},

@@ -12,9 +12,9 @@ from claravid.eval.inference.sources import load_source, resolve_settings
 from claravid.infra.cli import UsageError
 from claravid.models import ExportSettings, OnnxSegmenter, build_model, export_onnx
 from claravid.models.onnx_grid import guard_name, guard_patch_grid, patch_size_from_graph
+from tests.tiny import WIDE_HEAD as HEAD
 
 TINY_V3 = {"embed_dim": 32, "depth": 4, "num_heads": 2}
-HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
 
 
 def _conv_graph(kernel, stride, *, attribute=True, cast=False, weight_kernel=None):

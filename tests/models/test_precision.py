@@ -11,9 +11,9 @@ from claravid.models.export import ExportSettings, check_export, export_onnx, sm
 from claravid.models.onnx_fp16 import convert_to_fp16
 from claravid.models.onnx_metadata import normalisation_from_config
 from claravid.models.quantize import quantize_int8
+from tests.tiny import VIT_56 as TINY
+from tests.tiny import WIDE_HEAD as HEAD
 
-TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
-HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
 SIZE = 28
 
 

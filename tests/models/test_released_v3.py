@@ -12,12 +12,8 @@ import torch
 from safetensors.torch import save_file
 
 from claravid.models import WeightsError, build_backbone
-from tests.models.official_v3 import (
-    TINY_V3,
-    official_periods,
-    released_v3_state,
-    to_hugging_face,
-)
+from tests.models.official_v3 import official_periods, released_v3_state, to_hugging_face
+from tests.tiny import TINY_V3
 
 transformers = pytest.importorskip("transformers")
 

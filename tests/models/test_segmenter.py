@@ -6,9 +6,9 @@ import torch
 
 from claravid.models import DPTHead, build_model
 from tests.models.reference import random_official_state, reference_layers
-
-TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
-HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
+from tests.tiny import VIT
+from tests.tiny import VIT_56 as TINY
+from tests.tiny import WIDE_HEAD as HEAD
 
 
 def _model(name="dinov2_vits14", **kw):
@@ -236,8 +236,7 @@ def test_uint8_input_is_normalised_with_the_backbones_own_statistics():
     """A satellite backbone's uint8 input equals the float path normalised by hand with the
     SAT-493M statistics (ImageNet's would give other logits)."""
     torch.manual_seed(0)
-    tiny = {"embed_dim": 32, "depth": 4, "num_heads": 2}
-    model = build_model("dinov3_vitl16_sat", num_classes=5, backbone_kwargs=tiny, **HEAD).eval()
+    model = build_model("dinov3_vitl16_sat", num_classes=5, backbone_kwargs=VIT, **HEAD).eval()
     assert model.mean == (0.430, 0.411, 0.296) and model.std == (0.213, 0.156, 0.143)
     pixels = torch.randint(0, 256, (2, 3, 32, 48), dtype=torch.uint8)
     sat_mean = torch.tensor([0.430, 0.411, 0.296]).view(1, 3, 1, 1)

@@ -7,9 +7,9 @@ import pytest
 import torch
 
 from claravid.models import InputRangeWarning, build_model, load_checkpoint, save_checkpoint
+from tests.tiny import VIT_56 as TINY
+from tests.tiny import WIDE_HEAD as HEAD
 
-TINY = {"embed_dim": 32, "depth": 4, "num_heads": 2, "img_size": 56}
-HEAD = {"layers": [0, 1, 2, 3], "features": 16, "out_channels": [8, 16, 32, 32]}
 IMAGENET_MEAN = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
 IMAGENET_STD = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
 

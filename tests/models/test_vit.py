@@ -7,8 +7,7 @@ import torch.nn.functional as F
 from claravid.models import BACKBONES, build_backbone
 from claravid.models.vit import bicubic_matrix, swiglu_hidden
 from tests.models.reference import random_official_state, reference_layers
-
-TINY = {"embed_dim": 32, "depth": 3, "num_heads": 2, "img_size": 56}  # native grid 4x4
+from tests.tiny import VIT_3 as TINY  # native grid 4x4
 
 
 def _tiny(name: str, **extra) -> tuple[torch.nn.Module, dict]:

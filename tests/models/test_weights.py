@@ -14,9 +14,9 @@ from claravid.models import (
     official_url,
 )
 from claravid.models.weights import official_checkpoint_path
+from tests.helpers.files import unreadable_files
 from tests.models.reference import random_official_state
-
-TINY = {"embed_dim": 32, "depth": 2, "num_heads": 2, "img_size": 28}
+from tests.tiny import VIT_2 as TINY
 
 
 def _official_state(name="dinov2_vits14_reg", **extra):
@@ -115,26 +115,8 @@ def test_missing_and_unreadable_files(tmp_path):
         build_backbone("dinov2_vits14", weights=tmp_path, **TINY)
 
 
-def _unreadable_files(folder):
-    """(file, what its message must say): every way a weights/checkpoint file can be unusable."""
-    torch.save({"w": torch.zeros(3)}, folder / "good.pt")
-    whole = (folder / "good.pt").read_bytes()
-    cases = {
-        "junk.pth": (b"not a checkpoint", "not a PyTorch tensor file"),
-        "empty.pth": (b"", "is empty"),
-        "truncated.pth": (whole[: len(whole) // 2], "truncated or corrupt"),
-        "garbage.safetensors": (b"\x10\x00\x00\x00\x00\x00\x00\x00{bad json", "safetensors"),
-        "pth_named.safetensors": (whole, "as safetensors"),
-    }
-    for name, (data, _) in cases.items():
-        (folder / name).write_bytes(data)
-    torch.save(torch.nn.Linear(2, 2), folder / "module.pth")  # pickled code, not tensors
-    cases["module.pth"] = (None, "pickled Python objects")
-    return {folder / name: match for name, (_, match) in cases.items()}
-
-
 def test_unreadable_weights_name_the_file_and_never_advise_unsafe_loading(tmp_path):
-    files = _unreadable_files(tmp_path)
+    files = unreadable_files(tmp_path)
     assert len(files) == 6
     for path, match in files.items():
         with pytest.raises(WeightsError) as info:

@@ -9,7 +9,8 @@ import torch
 from safetensors.torch import save_file
 
 from claravid.models import WeightsError, build_backbone, build_model, save_checkpoint
-from tests.models.official_v3 import TINY_V3, released_v3_state, to_hugging_face, to_timm
+from tests.models.official_v3 import released_v3_state, to_hugging_face, to_timm
+from tests.tiny import TINY_V3
 
 transformers = pytest.importorskip("transformers")
 

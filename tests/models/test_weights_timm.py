@@ -7,8 +7,9 @@ import torch
 from safetensors.torch import save_file
 
 from claravid.models import WeightsError, build_backbone
-from tests.models.official_v3 import TINY_V3, released_v3_state, to_timm
+from tests.models.official_v3 import released_v3_state, to_timm
 from tests.models.reference import random_official_state, to_timm_dinov2
+from tests.tiny import TINY_V3
 
 TINY_V2 = {"embed_dim": 32, "depth": 2, "num_heads": 2, "img_size": 28}
 X3 = torch.randn(1, 3, 48, 80, generator=torch.Generator().manual_seed(0))

@@ -7,10 +7,11 @@ from safetensors.torch import save_file
 
 from claravid.models import WeightsError, build_backbone, build_model, official_url
 from claravid.models.memory import NotEnoughMemoryError
-from tests.models.official_v3 import TINY_V3, random_official_v3_state, to_hugging_face
+from tests.models.official_v3 import random_official_v3_state, to_hugging_face
 from tests.models.reference import random_official_state
+from tests.tiny import TINY_V3
+from tests.tiny import VIT_2 as TINY_V2
 
-TINY_V2 = {"embed_dim": 32, "depth": 2, "num_heads": 2, "img_size": 28}
 X = torch.randn(1, 3, 32, 48, generator=torch.Generator().manual_seed(0))
 
 

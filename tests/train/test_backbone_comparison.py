@@ -7,25 +7,20 @@ import pytest
 
 from claravid.eval.cli import main as eval_main
 from claravid.models.checkpoint import read_checkpoint
-from claravid.train import load_config, train
-from tests.train.conftest import tiny, tiny_v3
-
-STEPS = ("train.steps=3", "val.every=0")
 
 
 @pytest.mark.slow
-def test_a_dinov2_and_a_dinov3_model_compare_paired_per_bin(claravid_root, tmp_path, capsys):
-    runs = {
-        "dinov2": tiny(claravid_root, tmp_path / "dinov2", *STEPS),
-        "dinov3": tiny_v3(claravid_root, tmp_path / "dinov3", *STEPS),
-    }
+def test_a_dinov2_and_a_dinov3_model_compare_paired_per_bin(
+    trained_v2, trained_sat, tmp_path, capsys
+):
+    """The session's tiny runs: dinov2_vits14 and dinov3_vitl16_sat on the same split."""
     reports = {}
-    for name, args in runs.items():
-        result = train(load_config("demo", args))
+    for name, run in {"dinov2": trained_v2, "dinov3": trained_sat}.items():
+        result = run["result"]
         # Validated per delentropy bin of the val images (3 quantile bins, val.bins).
         assert list(result.last_val["miou_bins"]) == ["low", "medium", "high"], name
         assert all(0 <= v <= 1 for v in result.last_val["miou_bins"].values())
-        ckpt = tmp_path / name / "last.pt"
+        ckpt = run["ckpt"]
         assert read_checkpoint(ckpt)["config"]["data"]["val_split"] == "test"
         out = tmp_path / f"report_{name}"
         # The checkpoint's own split (the same test frames for both): 2 quantile bins.

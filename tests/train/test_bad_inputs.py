@@ -12,7 +12,7 @@ from claravid.train import load_config
 from claravid.train.cli import main
 from claravid.train.config import ConfigError
 from claravid.train.validate import Validator
-from tests.train.conftest import tiny
+from tests.tiny import tiny
 
 
 def _one_line(capsys, *words):

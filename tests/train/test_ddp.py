@@ -20,8 +20,8 @@ import torch
 from claravid.models.checkpoint import read_checkpoint
 from claravid.train import load_config, train
 from claravid.train.logs import read_metrics
-from tests.torchrun import torchrun
-from tests.train.conftest import tiny
+from tests.helpers.torchrun import torchrun
+from tests.tiny import tiny
 
 EXTRA = ("train.steps=8", "train.checkpoint_every=4", "val.every=4", "train.log_every=1")
 

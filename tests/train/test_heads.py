@@ -12,7 +12,7 @@ from claravid.models.checkpoint import read_checkpoint
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.cli import main as train_main
 from claravid.train.config import ConfigError, changed_keys
-from tests.train.conftest import HEAD_OVERRIDES, tiny_v3
+from tests.tiny import HEAD_OVERRIDES, tiny_v3
 from tests.train.test_resume import assert_same_state, training_rows
 
 

@@ -11,7 +11,7 @@ from claravid.data.transforms import AugmentConfig
 from claravid.train import load_config
 from claravid.train.cli import main
 from claravid.train.data import CropDataset, build_train_dataset, collate_crops
-from tests.train.conftest import tiny
+from tests.tiny import tiny
 
 
 def _error_lines(capsys):

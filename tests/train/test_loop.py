@@ -15,7 +15,10 @@ from claravid.models.checkpoint import read_checkpoint
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.checkpoint import save_training_checkpoint
 from claravid.train.cli import main
-from tests.train.conftest import HEAD_OVERRIDES, miou_by_hand, tiny, tiny_v3
+from claravid.train.config import StatisticsWarning
+from tests.helpers.files import sha256
+from tests.helpers.scoring import miou_by_hand
+from tests.tiny import HEAD_OVERRIDES, tiny, tiny_v3
 
 
 def rows(out):
@@ -161,10 +164,9 @@ def test_tensorboard_event_files_hold_the_logged_scalars(claravid_root, tmp_path
     assert miou.step == 2 and miou.value == pytest.approx(logged[-1]["miou"], rel=1e-6)
 
 
-def test_atomic_checkpoint_write_survives_a_crash_mid_write(claravid_root, tmp_path, monkeypatch):
-    out = tmp_path / "run"
-    train(load_config("demo", tiny(claravid_root, out, "train.steps=2", "val.every=0")))
-    before = (out / "last.pt").read_bytes()
+def test_atomic_checkpoint_write_survives_a_crash_mid_write(trained_v2_copy, monkeypatch):
+    out = trained_v2_copy
+    before = sha256(out / "last.pt")
     ckpt = read_checkpoint(out / "last.pt")
     model = models.load_checkpoint(out / "last.pt")
     opt = torch.optim.AdamW(model.head.parameters())
@@ -182,7 +184,7 @@ def test_atomic_checkpoint_write_survives_a_crash_mid_write(claravid_root, tmp_p
             frames_per_step=4, best_miou=None, best_step=None, metrics=None,
             backbone_trained=False,
         )  # fmt: skip
-    assert (out / "last.pt").read_bytes() == before  # the old file, whole
+    assert sha256(out / "last.pt") == before  # the old file, whole
     assert sorted(os.listdir(out)) == sorted(  # and no temp file left behind
         ["config.yaml", "metrics.jsonl", "curves.png", "last.pt", "best.pt"]
     )
@@ -247,7 +249,9 @@ def test_the_model_sees_crops_normalised_with_the_config_s_mean_and_std(claravid
     try:
         extra = ["train.steps=1", "val.every=0", f"data.augment.mean={list(mean)}",
                  f"data.augment.std={list(std)}"]  # fmt: skip
-        train(load_config("demo", tiny(claravid_root, tmp_path / "run", *extra)))
+        cfg = load_config("demo", tiny(claravid_root, tmp_path / "run", *extra))
+        with pytest.warns(StatisticsWarning, match=r"not the statistics dinov2_vits14 was pre"):
+            train(cfg)
     finally:
         handle.remove()
     (x,) = seen
@@ -286,18 +290,16 @@ SAT493M = ((0.430, 0.411, 0.296), (0.213, 0.156, 0.143))  # DINOv3 SAT's publish
 IMAGENET = ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225))
 
 
-def test_a_sat_backbone_trains_on_sat_statistics_without_naming_them(claravid_root, tmp_path):
-    """No data.augment.mean/std in the config: a dinov3_*_sat backbone's crops reach it
-    normalised with SAT-493M's statistics (not ImageNet's), and the checkpoint records them."""
-    out = tmp_path / "run"
-    cfg = load_config("demo", tiny_v3(claravid_root, out, "train.steps=1", "val.every=0",
-                                      backbone="dinov3_vitl16_sat"))  # fmt: skip
-    x = _first_model_input(lambda: train(cfg))
+def test_a_sat_backbone_trains_on_sat_statistics_without_naming_them(trained_sat):
+    """No data.augment.mean/std in the config (the session's tiny SAT run): a dinov3_*_sat
+    backbone's crops reach it normalised with SAT-493M's statistics (not ImageNet's), and the
+    checkpoint records them."""
+    x = trained_sat["first_input"]
     assert x.dtype == torch.float32 and x.shape[1:] == (3, 32, 32)
     _assert_normalised_with(x, *SAT493M)
     with pytest.raises(AssertionError):  # the check tells the two apart
         _assert_normalised_with(x, *IMAGENET)
-    augment = read_checkpoint(out / "last.pt")["config"]["data"]["augment"]
+    augment = read_checkpoint(trained_sat["ckpt"])["config"]["data"]["augment"]
     assert (tuple(augment["mean"]), tuple(augment["std"])) == SAT493M
 
 

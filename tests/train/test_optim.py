@@ -7,6 +7,7 @@ import pytest
 from claravid import models
 from claravid.train.config import load_config
 from claravid.train.optim import build_optimizer, lr_factor
+from tests.tiny import MODEL
 
 
 def test_warmup_then_poly_and_cosine():
@@ -23,10 +24,7 @@ def test_warmup_then_poly_and_cosine():
 
 
 def test_frozen_backbone_is_not_optimised():
-    model = models.build_model(
-        "dinov2_vits14", 3, backbone_kwargs={"embed_dim": 32, "depth": 4, "num_heads": 2},
-        layers=[0, 1, 2, 3], features=8, out_channels=[8, 8, 8, 8],
-    )  # fmt: skip
+    model = models.build_model("dinov2_vits14", 3, **MODEL)
     cfg = load_config("demo", ["train.lr=0.01", "train.weight_decay=0.5"])
     opt = build_optimizer(model, cfg)
     params = {id(p) for g in opt.param_groups for p in g["params"]}

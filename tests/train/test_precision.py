@@ -10,7 +10,7 @@ from claravid.infra.precision import autocast_dtype
 from claravid.models.checkpoint import read_checkpoint
 from claravid.train import load_config, train
 from claravid.train.cli import main
-from tests.train.conftest import tiny
+from tests.tiny import tiny
 
 STEPS = ("train.steps=8", "train.lr=3e-3", "train.log_every=1", "val.every=0")
 

@@ -10,7 +10,7 @@ import torch
 
 from claravid import models
 from claravid.train import load_config, train
-from tests.train.conftest import tiny
+from tests.tiny import tiny
 
 
 def boundary_by_erosion(mask: np.ndarray, ratio: float = 0.02) -> np.ndarray:

@@ -14,7 +14,7 @@ import tifffile
 from claravid.data.cache_cli import main
 from claravid.data.index import list_frames
 from claravid.data.label_cache import LabelCache
-from tests.claravid.io.test_modalities import png_claiming
+from tests.helpers.files import png_claiming
 
 
 def _run(argv):

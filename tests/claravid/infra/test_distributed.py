@@ -6,7 +6,7 @@ import textwrap
 import pytest
 
 from claravid.infra.distributed import gather_in_order, shard_indices
-from tests.torchrun import torchrun
+from tests.helpers.torchrun import torchrun
 
 SCRIPT = textwrap.dedent(
     """

@@ -6,7 +6,6 @@ arrays so our OpenCV path is compared value for value.
 
 import json
 import struct
-import zlib
 
 import cv2
 import numpy as np
@@ -16,6 +15,7 @@ from PIL import Image
 from claravid.infra.errors import CorruptFileError, UnsupportedFileError
 from claravid.io import modalities
 from claravid.io.layout import INTRINSICS
+from tests.helpers.files import png_claiming
 
 
 def sdk_depth(path):
@@ -260,18 +260,6 @@ def test_extrinsics_with_nan_or_inf_name_the_file(tmp_path, bad):
 
 # ------------------------------------------------------------------------------------------
 # Headers that claim too much (issue 24): refused before decoding, naming the file and limit.
-
-
-def png_claiming(width, height, color_type=2, bit_depth=8):
-    """A PNG whose IHDR claims ``width``×``height``, with one tiny IDAT (never decoded)."""
-
-    def chunk(kind, body):
-        crc = zlib.crc32(kind + body).to_bytes(4, "big")
-        return len(body).to_bytes(4, "big") + kind + body + crc
-
-    ihdr = struct.pack(">IIBBBBB", width, height, bit_depth, color_type, 0, 0, 0)
-    idat = zlib.compress(b"\x00" * 64)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
 
 
 LABEL_READERS = {

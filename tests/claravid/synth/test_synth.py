@@ -23,6 +23,7 @@ from claravid.io.layout import (
     viewpoint_folder,
 )
 from claravid.synth import MARKER, main, synthesize
+from tests.helpers.files import sha256
 
 TINY = (64, 48)
 INSTANCE_CLASSES = {c.id for c in CLASSES if c.has_instances}
@@ -181,7 +182,7 @@ def test_same_seed_same_bytes_other_seed_other_scene(tmp_path, tiny):
     )
     files = sorted(p.relative_to(tiny) for p in tiny.rglob("*") if p.is_file())
     for rel in files:
-        assert (tiny / rel).read_bytes() == (again / rel).read_bytes(), rel
+        assert sha256(tiny / rel) == sha256(again / rel), rel
     other = synthesize(
         tmp_path / "other",
         seed=4,
@@ -204,7 +205,7 @@ def test_workers_write_the_same_bytes(tmp_path, tiny):
     assert files == sorted(p.relative_to(tmp_path / "w") for p in (tmp_path / "w").rglob("*")
                            if p.is_file())  # fmt: skip
     for rel in files:
-        assert (tiny / rel).read_bytes() == (tmp_path / "w" / rel).read_bytes(), rel
+        assert sha256(tiny / rel) == sha256(tmp_path / "w" / rel), rel
 
 
 def test_a_subset_renders_the_same_frames(tmp_path, tiny):
@@ -219,7 +220,7 @@ def test_a_subset_renders_the_same_frames(tmp_path, tiny):
     )
     for p in part.rglob("*"):
         if p.is_file():
-            assert p.read_bytes() == (tiny / p.relative_to(part)).read_bytes()
+            assert sha256(p) == sha256(tiny / p.relative_to(part)), p
 
 
 def _gradient(root: Path, mission: str) -> float:

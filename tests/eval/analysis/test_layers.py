@@ -1,8 +1,7 @@
-"""The evaluation package's layers: analysis and report never load torch; imports point one way."""
+"""The evaluation package's layers: imports point one way (that analysis and report never load
+torch is one of the claims of tests/claravid/test_imports.py's probe)."""
 
 import ast
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -12,50 +11,6 @@ LAYERS = ("inference", "analysis", "report")
 # Which layer may import which (the console scripts beside them may import all three).
 ALLOWED = {"inference": {"inference", "analysis"}, "analysis": {"analysis"},
            "report": {"report", "analysis"}}  # fmt: skip
-
-
-def _modules(layer: str) -> list[str]:
-    return sorted(
-        f"claravid.eval.{layer}" + ("" if f.stem == "__init__" else f".{f.stem}")
-        for f in (EVAL / layer).glob("*.py")
-    )
-
-
-#: What the numpy-only analysis layer may load of the toolkit (packages and these modules): the
-#: profile fit and the measures' names of claravid.dsp, not its image code or the file readers;
-#: the ClaraVid facts (the ignore id) of claravid.io, not its readers; the user-error class of
-#: claravid.infra.cli (with the precision names its flags take); the packages' lazy names from
-#: claravid.infra.lazy; the memory a bootstrap may take from claravid.infra.memory (the
-#: kernel's MemAvailable, standard library only).
-ANALYSIS_MAY_LOAD = ("claravid.eval.analysis", "claravid.dsp.measures", "claravid.dsp.profile",
-                     "claravid.infra.cli", "claravid.infra.lazy", "claravid.infra.memory",
-                     "claravid.infra.precision", "claravid.io.layout")  # fmt: skip
-PACKAGES = {"claravid", "claravid.dsp", "claravid.eval", "claravid.infra", "claravid.io"}
-
-
-def _loaded_after_importing(names: list[str]) -> set[str]:
-    """The modules a fresh interpreter holds after importing ``names``."""
-    code = f"import sys\nfor m in {names!r}: __import__(m)\nprint('\\n'.join(sys.modules))"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    return set(out.stdout.split())
-
-
-def test_analysis_loads_no_torch_no_opencv_no_files():
-    """The analysis layer is numpy (and scipy) only: no torch, no OpenCV, no plots, and none of
-    the toolkit's file readers or writers (claravid.io, the data layer, claravid.dsp's image code,
-    claravid.infra.files, the report layer)."""
-    loaded = _loaded_after_importing(["claravid.eval", *_modules("analysis")])
-    heavy = sorted({"torch", "cv2", "matplotlib", "PIL", "tifffile"} & loaded)
-    assert not heavy, heavy
-    ours = {m for m in loaded if m.startswith("claravid")} - PACKAGES
-    assert sorted(m for m in ours if not m.startswith(ANALYSIS_MAY_LOAD)) == []
-    assert "claravid.dsp.profile" in ours  # the check sees what is loaded
-
-
-def test_the_report_layer_does_not_load_torch():
-    # Importing every module of the layer (and claravid.eval itself, whose names are lazy) must
-    # leave torch unloaded, so --merge/--compare never pay for it.
-    assert "torch" not in _loaded_after_importing(["claravid.eval", *_modules("report")])
 
 
 def _eval_imports(path: Path) -> set[str]:

@@ -14,6 +14,7 @@ from claravid.eval.inference.windows import (
     window_starts,
 )
 from claravid.infra.precision import flag_precision
+from tests.tiny import MODEL
 
 
 def test_window_starts_cover_the_axis_with_the_last_flush():
@@ -150,14 +151,7 @@ def test_matches_a_real_segmenter_within_one_window():
     """Inside one window, the windowed logits are the segmenter's own forward."""
     from claravid import models
 
-    model = models.build_model(
-        "dinov2_vits14",
-        num_classes=3,
-        backbone_kwargs={"embed_dim": 32, "depth": 4, "num_heads": 2},
-        layers=[0, 1, 2, 3],
-        features=8,
-        out_channels=[8, 8, 8, 8],
-    ).eval()
+    model = models.build_model("dinov2_vits14", num_classes=3, **MODEL).eval()
     image = _normalised_noise(3, 28, 42)
     out = sliding_window_logits(model, image, WindowConfig(size=(28, 42)))
     with torch.no_grad():
@@ -189,13 +183,9 @@ def test_window_not_a_patch_multiple_names_the_two_nearest():
     WindowConfig(size=(32, 48)).check_patch(16)  # multiples: nothing to say
 
 
-TINY_HEAD = {"layers": [0, 1, 2, 3], "features": 8, "out_channels": [8, 8, 8, 8]}
-
-
 def _tiny(backbone):
     torch.manual_seed(0)
-    kwargs = {"embed_dim": 32, "depth": 4, "num_heads": 2}
-    return models.build_model(backbone, 8, backbone_kwargs=kwargs, **TINY_HEAD).eval()
+    return models.build_model(backbone, 8, **MODEL).eval()
 
 
 @pytest.mark.parametrize(
@@ -310,10 +300,7 @@ def _tiny_segmenter(num_classes=5):
     from claravid import models
 
     torch.manual_seed(0)
-    return models.build_model(
-        "dinov2_vits14", num_classes=num_classes, layers=[0, 1, 2, 3], features=8,
-        out_channels=[8, 8, 8, 8], backbone_kwargs={"embed_dim": 32, "depth": 4, "num_heads": 2},
-    ).eval()  # fmt: skip
+    return models.build_model("dinov2_vits14", num_classes=num_classes, **MODEL).eval()
 
 
 def _smooth_image(h, w, seed=0):

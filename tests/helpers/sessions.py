@@ -1,0 +1,130 @@
+"""Session fixtures: the tiny trained runs and ONNX exports that tests/models, tests/train and
+tests/eval share (registered by tests/conftest.py).
+
+Each is built once, on first use, in a session temp folder. Tests read them and never change
+them: a test that damages a file copies it first. An export costs seconds (torch.export traces
+the whole graph) and a run about one, so building each once is most of what keeps the suite
+fast.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import shutil
+
+import pytest
+import torch
+
+from tests.tiny import HEAD, VIT_56, tiny, tiny_v3
+
+
+def _trained(cfg):
+    """``train(cfg)`` on one thread, with the first tensor a module received (the normalised
+    crops of the first step: the outermost call of a step is the model's forward)."""
+    from claravid.train import train
+
+    seen = []
+
+    def first_input(module, args):
+        if not seen and args and isinstance(args[0], torch.Tensor):
+            seen.append(args[0].detach().clone())
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    handle = torch.nn.modules.module.register_module_forward_pre_hook(first_input)
+    try:
+        result = train(cfg)
+    finally:
+        handle.remove()
+        torch.set_num_threads(before)
+    return result, seen[0]
+
+
+@pytest.fixture(scope="session")
+def trained_v2(claravid_root, tmp_path_factory):
+    """A tiny DINOv2 run (dinov2_vits14, 28² crops and windows) trained 3 steps on the tiny
+    tree, validated once at the end: ``{"out", "ckpt" (last.pt), "cfg", "result",
+    "first_input"}``."""
+    from claravid.train import load_config
+
+    out = tmp_path_factory.mktemp("v2_run") / "run"
+    cfg = load_config("demo", tiny(claravid_root, out, "train.steps=3", "val.every=0"))
+    result, first = _trained(cfg)
+    return {"out": out, "ckpt": out / "last.pt", "cfg": cfg, "result": result,
+            "first_input": first}  # fmt: skip
+
+
+@pytest.fixture(scope="session")
+def trained_sat(claravid_root, tmp_path_factory):
+    """A tiny dinov3_vitl16_sat run (32² crops and windows) trained 2 steps from a config that
+    names no statistics, validated once at the end: ``{"out", "ckpt" (last.pt), "cfg",
+    "result", "first_input", "root"}``."""
+    from claravid.train import load_config
+
+    out = tmp_path_factory.mktemp("sat_run") / "run"
+    overrides = tiny_v3(claravid_root, out, "train.steps=2", "val.every=0",
+                        backbone="dinov3_vitl16_sat")  # fmt: skip
+    cfg = load_config("demo", overrides)
+    result, first = _trained(cfg)
+    return {"out": out, "ckpt": out / "last.pt", "cfg": cfg, "result": result,
+            "first_input": first, "root": str(claravid_root)}  # fmt: skip
+
+
+@pytest.fixture(scope="session")
+def sat_exports(trained_sat, tmp_path_factory):
+    """`trained_sat`'s exports through claravid-export, each checked by ONNX Runtime (exit 0 only
+    then): ``fixed`` (its recorded 32² window), ``dynamic`` (height and width), ``fp16`` and
+    ``int8`` (32²); ``printed`` holds what each export printed (the check's numbers)."""
+    from claravid.eval.export_cli import main as export_main
+
+    folder = tmp_path_factory.mktemp("sat_exports")
+    flags = {
+        "fixed": ["--size", "32"],
+        "dynamic": ["--dynamic", "--size", "32"],  # the example size; any patch multiple runs
+        "fp16": ["--size", "32", "--precision", "fp16"],
+        "int8": ["--size", "32", "--precision", "int8"],
+    }
+    files, printed = {}, {}
+    for name, extra in flags.items():
+        files[name] = folder / f"{name}.onnx"
+        text = io.StringIO()
+        with contextlib.redirect_stdout(text):
+            code = export_main(["--checkpoint", str(trained_sat["ckpt"]), "-o", str(files[name]),
+                                *extra])  # fmt: skip
+        assert code == 0, (name, text.getvalue())
+        printed[name] = text.getvalue()
+    return {**files, "printed": printed}
+
+
+@pytest.fixture(scope="session")
+def model_files(claravid_root, tmp_path_factory):
+    """One untrained tiny DINOv2 segmenter (8 classes, `VIT_56`: a 4x4 positional grid) as a
+    training-style checkpoint (its config names the data and the uavid palette), a plain one
+    (no config), and its dynamic-size ONNX export, made at the native 56x56 grid (so every
+    other size interpolates the positional table); ``model`` is the model itself."""
+    from claravid import models
+
+    folder = tmp_path_factory.mktemp("models")
+    torch.manual_seed(0)
+    model = models.build_model("dinov2_vits14", 8, backbone_kwargs=VIT_56, **HEAD).eval()
+    config = {
+        "data": {"root": str(claravid_root), "palette": "uavid", "split": {"seed": 0}},
+        "val": {"window": 28, "scale": 1.0, "batch_size": 8},
+        "other": [1, 2],
+    }
+    files = {
+        "checkpoint": models.save_checkpoint(model, folder / "best.pt", config=config, epoch=1),
+        "plain": models.save_checkpoint(model, folder / "plain.pt"),
+        "onnx": folder / "model.onnx",
+    }
+    result = models.export_onnx(
+        model, files["onnx"], models.ExportSettings(height=56, width=56, dynamic=True)
+    )
+    return {**files, "model": model, "export": result}
+
+
+@pytest.fixture
+def trained_v2_copy(trained_v2, tmp_path):
+    """A private copy of `trained_v2`'s folder, for tests that damage it."""
+    return shutil.copytree(trained_v2["out"], tmp_path / "run")
