@@ -82,7 +82,7 @@ def test_training_drops_channels_before_the_batchnorm():
 def test_the_official_initialisation():
     head = LinearHead(1024, 19)
     assert head.bn.num_features == 1024 and head.conv.kernel_size == (1, 1)
-    assert abs(float(head.conv.weight.std()) - 0.01) < 1e-3 and not head.conv.bias.any()
+    assert abs(float(head.conv.weight.detach().std()) - 0.01) < 1e-3 and not head.conv.bias.any()
     assert LinearHead(1024, 19, num_layers=4, use_cls=True).bn.num_features == 8192
 
 
