@@ -11,6 +11,18 @@ from claravid.synth import synthesize
 os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
 matplotlib.use("agg")
 
+
+def pytest_configure(config):
+    """Under ``pytest -n N`` (make test), the cores shared out: each worker's torch takes its share
+    of the threads instead of all of them (N workers of 2 threads each on 2 cores run slower than
+    N workers of one)."""
+    workers = os.environ.get("PYTEST_XDIST_WORKER_COUNT")
+    if workers:
+        import torch
+
+        torch.set_num_threads(max(1, (os.cpu_count() or 1) // int(workers)))
+
+
 # The session fixtures shared by tests/models, tests/train and tests/eval (tiny trained runs and
 # their ONNX exports, each built once), and the short explanation of a failing comparison of
 # large values (pytest's own takes minutes under CI).

@@ -38,10 +38,10 @@ SHARED = {
     "claravid-dsp": ("--data",),
     "claravid-export": ("--checkpoint",),  # its --precision is the file's, not an autocast
     "claravid-eval": ("--data", "--checkpoint", "--missions", "--altitude", "--direction",
-                      "--window", "--stride", "--scale", "--batch-size", "--device",
-                      "--precision"),
+                      "--window", "--stride", "--scale", "--batch-size", "--statistics",
+                      "--device", "--precision"),
     "claravid-predict": ("--checkpoint", "--window", "--stride", "--scale", "--batch-size",
-                         "--device", "--precision"),
+                         "--statistics", "--device", "--precision"),
     "claravid-train": ("--data", "--precision"),
 }  # fmt: skip
 COMMANDS = {name: (module.build_parser, needed) for name, (module, needed) in MODULES.items()}
@@ -172,6 +172,7 @@ BAD_VALUES = {
     "--scale": ("0", "expected a finite number > 0, got '0'"),
     "--batch-size": ("-2", "expected a positive integer, got '-2'"),
     "--precision": ("fp8", "invalid choice: 'fp8' (choose from "),
+    "--statistics": ("lvd1689m", "invalid choice: 'lvd1689m' (choose from "),
 }
 
 

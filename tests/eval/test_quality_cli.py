@@ -83,7 +83,8 @@ def test_boundary_iou_by_hand(halves):
 def test_ece_and_boundary_of_constant_logits_by_hand(halves):
     tmp, _, common = halves
     model = constant_onnx(tmp / "constant.onnx", [1.0, 0, 0, 0, 0, 0])
-    argv = ["--onnx", str(model), *common, "--window", "14x14", "--output", str(tmp / "rep")]
+    argv = ["--onnx", str(model), *common, "--window", "14x14", "--statistics", "imagenet",
+            "--output", str(tmp / "rep")]  # fmt: skip
     assert main(argv) == 0
     report = json.loads((tmp / "rep" / "report.json").read_text())
     # Every pixel: class 0 predicted with confidence e / (e + 5); half the pixels are class 0.
