@@ -158,8 +158,8 @@ def test_the_sat_model_exports_dynamic_fp16_and_int8_checked_by_onnx_runtime(
     """As for DINOv2: every export passes the ONNX Runtime check (exit 0 only then) and
     records the SAT statistics."""
     for name in ("dynamic", "fp16", "int8"):
-        assert "argmax agreement" in sat_exports["printed"][name], name  # the check ran
         runner = models.OnnxSegmenter(sat_exports[name])
+        assert "argmax agreement" in sat_exports.printed[name], name  # the check ran
         assert runner.normalisation["mean"] == SAT493M[0] and runner.patch_size == 16
     assert models.OnnxSegmenter(sat_exports["dynamic"]).input_size is None
     # The dynamic file runs any patch multiple: a 48 x 64 frame's windows of 32.

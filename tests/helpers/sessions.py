@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import io
 import shutil
+from collections.abc import Mapping
 
 import pytest
 import torch
@@ -71,30 +72,52 @@ def trained_sat(claravid_root, tmp_path_factory):
             "first_input": first, "root": str(claravid_root)}  # fmt: skip
 
 
+#: claravid-export's flags of each of `trained_sat`'s exports.
+SAT_EXPORT_FLAGS = {
+    "fixed": ["--size", "32"],
+    "dynamic": ["--dynamic", "--size", "32"],  # the example size; any patch multiple runs
+    "fp16": ["--size", "32", "--precision", "fp16"],
+    "int8": ["--size", "32", "--precision", "int8"],
+}
+
+
+class _Exports(Mapping):
+    """`trained_sat`'s exports by name, each made on first use (an export costs seconds, and
+    a worker of ``pytest -n`` runs only some of the tests that read them)."""
+
+    def __init__(self, checkpoint, folder):
+        self._checkpoint, self._folder = checkpoint, folder
+        self._files: dict[str, object] = {}
+        #: What each export made so far printed (the check's numbers).
+        self.printed: dict[str, str] = {}
+
+    def __getitem__(self, name):
+        if name not in self._files:
+            from claravid.eval.export_cli import main as export_main
+
+            path = self._folder / f"{name}.onnx"
+            text = io.StringIO()
+            with contextlib.redirect_stdout(text):
+                code = export_main(["--checkpoint", str(self._checkpoint), "-o", str(path),
+                                    *SAT_EXPORT_FLAGS[name]])  # fmt: skip
+            assert code == 0, (name, text.getvalue())
+            self.printed[name] = text.getvalue()
+            self._files[name] = path
+        return self._files[name]
+
+    def __iter__(self):
+        return iter(SAT_EXPORT_FLAGS)
+
+    def __len__(self):
+        return len(SAT_EXPORT_FLAGS)
+
+
 @pytest.fixture(scope="session")
 def sat_exports(trained_sat, tmp_path_factory):
     """`trained_sat`'s exports through claravid-export, each checked by ONNX Runtime (exit 0 only
-    then): ``fixed`` (its recorded 32² window), ``dynamic`` (height and width), ``fp16`` and
-    ``int8`` (32²); ``printed`` holds what each export printed (the check's numbers)."""
-    from claravid.eval.export_cli import main as export_main
-
-    folder = tmp_path_factory.mktemp("sat_exports")
-    flags = {
-        "fixed": ["--size", "32"],
-        "dynamic": ["--dynamic", "--size", "32"],  # the example size; any patch multiple runs
-        "fp16": ["--size", "32", "--precision", "fp16"],
-        "int8": ["--size", "32", "--precision", "int8"],
-    }
-    files, printed = {}, {}
-    for name, extra in flags.items():
-        files[name] = folder / f"{name}.onnx"
-        text = io.StringIO()
-        with contextlib.redirect_stdout(text):
-            code = export_main(["--checkpoint", str(trained_sat["ckpt"]), "-o", str(files[name]),
-                                *extra])  # fmt: skip
-        assert code == 0, (name, text.getvalue())
-        printed[name] = text.getvalue()
-    return {**files, "printed": printed}
+    then) and made on first use: ``fixed`` (its recorded 32² window), ``dynamic`` (height and
+    width), ``fp16`` and ``int8`` (32²); ``.printed[name]`` holds what an export printed."""
+    return _Exports(trained_sat["ckpt"], tmp_path_factory.mktemp("sat_exports"))
 
 
 @pytest.fixture(scope="session")
