@@ -195,10 +195,12 @@ def test_wrong_palette_for_the_model(model_files, claravid_root, tmp_path, capsy
 
 
 @pytest.mark.slow
-def test_onnx_and_pytorch_give_the_same_report(model_files, claravid_root, splits, tmp_path):
+def test_onnx_and_pytorch_give_the_same_report(
+    model_files, model_onnx, claravid_root, splits, tmp_path
+):
     common = ["--data", str(claravid_root), "--palette", "uavid", "--split", str(splits["both"])]
     torch_report = _run(tmp_path / "pt", "--checkpoint", str(model_files["checkpoint"]), *common)
-    onnx_report = _run(tmp_path / "onnx", "--onnx", str(model_files["onnx"]), *common)
+    onnx_report = _run(tmp_path / "onnx", "--onnx", str(model_onnx["onnx"]), *common)
     assert onnx_report["source"]["kind"] == "onnx"
     # Labels, confusions and every count agree exactly; confidences are ONNX Runtime's floats.
     assert _without_calibration(onnx_report) == _without_calibration(torch_report)

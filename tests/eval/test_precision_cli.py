@@ -77,8 +77,8 @@ def test_bad_precision_is_one_line_exit_2(model_files, tmp_path, capsys, value):
     assert not (tmp_path / "e").exists() and not (tmp_path / "p").exists()
 
 
-def test_bf16_is_for_the_pytorch_model_only(model_files, tmp_path, capsys):
-    onnx = ["--onnx", str(model_files["onnx"]), "--precision", "bf16"]
+def test_bf16_is_for_the_pytorch_model_only(model_files, model_onnx, tmp_path, capsys):
+    onnx = ["--onnx", str(model_onnx["onnx"]), "--precision", "bf16"]
     assert eval_main([*onnx, "--output", str(tmp_path / "e")]) == 2
     message = "--precision does nothing with --onnx"  # any precision: it runs as exported
     assert message in capsys.readouterr().err

@@ -123,9 +123,8 @@ def sat_exports(trained_sat, tmp_path_factory):
 @pytest.fixture(scope="session")
 def model_files(claravid_root, tmp_path_factory):
     """One untrained tiny DINOv2 segmenter (8 classes, `VIT_56`: a 4x4 positional grid) as a
-    training-style checkpoint (its config names the data and the uavid palette), a plain one
-    (no config), and its dynamic-size ONNX export, made at the native 56x56 grid (so every
-    other size interpolates the positional table); ``model`` is the model itself."""
+    training-style checkpoint (its config names the data and the uavid palette) and a plain
+    one (no config); ``model`` is the model itself. Its ONNX export is `model_onnx`."""
     from claravid import models
 
     folder = tmp_path_factory.mktemp("models")
@@ -136,15 +135,24 @@ def model_files(claravid_root, tmp_path_factory):
         "val": {"window": 28, "scale": 1.0, "batch_size": 8},
         "other": [1, 2],
     }
-    files = {
+    return {
         "checkpoint": models.save_checkpoint(model, folder / "best.pt", config=config, epoch=1),
         "plain": models.save_checkpoint(model, folder / "plain.pt"),
-        "onnx": folder / "model.onnx",
+        "model": model,
     }
-    result = models.export_onnx(
-        model, files["onnx"], models.ExportSettings(height=56, width=56, dynamic=True)
-    )
-    return {**files, "model": model, "export": result}
+
+
+@pytest.fixture(scope="session")
+def model_onnx(model_files, tmp_path_factory):
+    """`model_files`' model exported with dynamic height and width, made at the native 56x56
+    grid (so every other size interpolates the positional table): ``{"onnx", "export"}`` (the
+    file and what `export_onnx` returned). Apart from `model_files`, as most of its users
+    read only the checkpoints and an export costs seconds."""
+    from claravid import models
+
+    path = tmp_path_factory.mktemp("model_onnx") / "model.onnx"
+    settings = models.ExportSettings(height=56, width=56, dynamic=True)
+    return {"onnx": path, "export": models.export_onnx(model_files["model"], path, settings)}
 
 
 @pytest.fixture

@@ -91,12 +91,12 @@ def test_fixed_size_export(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_dynamic_export_other_sizes(model_files):
+def test_dynamic_export_other_sizes(model_files, model_onnx):
     """The session's dynamic export, made at the native 4x4 grid: the offset bicubic must still
     follow other sizes."""
     model = model_files["model"]
-    assert model_files["export"]["max_abs_diff"] < 1e-4
-    runner = OnnxSegmenter(model_files["onnx"])
+    assert model_onnx["export"]["max_abs_diff"] < 1e-4
+    runner = OnnxSegmenter(model_onnx["onnx"])
     assert runner.input_size is None
     rng = np.random.default_rng(1)
     for shape in [(1, 3, 56, 56), (4, 3, 84, 42), (1, 3, 14, 98)]:

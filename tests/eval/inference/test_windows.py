@@ -339,13 +339,13 @@ def test_precision_settings():
     assert flag_precision(None, pytorch=False) == "auto"
 
 
-def test_onnx_windows_equal_pytorch_windows(model_files):
+def test_onnx_windows_equal_pytorch_windows(model_files, model_onnx):
     """The fast ONNX-vs-PyTorch numeric check of the default run (the export tests are slow):
     the session fixture's dynamic export, through the same windows as its checkpoint."""
     from claravid.models import OnnxSegmenter, load_checkpoint
 
     model = load_checkpoint(model_files["checkpoint"]).eval()
-    runner = OnnxSegmenter(model_files["onnx"])
+    runner = OnnxSegmenter(model_onnx["onnx"])
     image = _smooth_image(48, 64, seed=3)
     config = WindowConfig(size=(28, 42), stride=(14, 14))
     torch_logits = sliding_window_logits(model, image, config)
