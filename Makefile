@@ -24,7 +24,7 @@ demo: $(STAMP)
 	$(BIN)/claravid-eval --checkpoint runs/demo/train/best.pt --output runs/demo/train/report
 
 test: lint
-	$(BIN)/python -m pytest -q -n auto --dist worksteal --durations=20  # a worker per core; the slowest 20 (docs/contributing.md)
+	$(BIN)/python -m pytest -q -n auto --dist loadfile --durations=20  # a worker per core; the slowest 20 (docs/contributing.md)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -324,6 +324,16 @@ def worker_message(exc: BaseException) -> str:
     return message
 
 
+def _leave_process_group() -> None:
+    """Under torchrun, tear down the process group the command made while the interpreter is
+    whole: left to interpreter shutdown, gloo's threads can abort the process after the work is
+    done ("terminate called without an active exception"). Nothing to do unless the command
+    imported the distributed helpers."""
+    distributed = sys.modules.get("claravid.infra.distributed")
+    if distributed is not None:
+        distributed.shutdown()
+
+
 def run_cli(
     prog: str,
     run: Callable[[argparse.Namespace], int | None],
@@ -357,4 +367,6 @@ def run_cli(
             message = "; ".join(line.strip() for line in message.splitlines() if line.strip())
             print(f"{prog}: error: {message}", file=sys.stderr)
             return EXIT_USAGE
+        finally:
+            _leave_process_group()
     return EXIT_OK if code is None else int(code)

@@ -52,16 +52,26 @@ def init_distributed(device: str | None = None) -> DistInfo:
         torch.cuda.set_device(local_rank)
     if not dist.is_initialized():
         dist.init_process_group("nccl" if use_cuda else "gloo")
+        global _OWNED
+        _OWNED = True
         # A group left to interpreter shutdown can abort the process ("terminate called
-        # without an active exception" from gloo's threads): tear it down first.
-        atexit.register(_destroy)
+        # without an active exception" from gloo's threads): the console scripts tear it down
+        # when their work is done (`shutdown`), and this catches any other exit.
+        atexit.register(shutdown)
     dev = torch.device("cuda", local_rank) if use_cuda else torch.device("cpu")
     return DistInfo(dist.get_rank(), dist.get_world_size(), local_rank, dev)
 
 
-def _destroy() -> None:
-    if dist.is_available() and dist.is_initialized():
+#: Whether `init_distributed` made the process group (a group the caller made is theirs).
+_OWNED = False
+
+
+def shutdown() -> None:
+    """Tear down the process group `init_distributed` made, if any (idempotent)."""
+    global _OWNED
+    if _OWNED and dist.is_available() and dist.is_initialized():
         dist.destroy_process_group()
+    _OWNED = False
 
 
 def current() -> DistInfo:

@@ -10,14 +10,26 @@ from tests.helpers.torchrun import torchrun
 
 SCRIPT = textwrap.dedent(
     """
-    import sys
+    import argparse, sys
     from pathlib import Path
+    import torch.distributed as dist
+    from claravid.infra.cli import run_cli
     from claravid.infra.distributed import init_distributed, shard_indices, gather_in_order
-    info = init_distributed("cpu")
-    mine = shard_indices(7)
-    out = gather_in_order([f"item{i}" for i in mine], mine)
-    line = f"rank{info.rank}/{info.world_size} {mine} {','.join(out)}"
-    Path(sys.argv[1], f"rank{info.rank}.txt").write_text(line)
+
+    def run(args):
+        info = init_distributed("cpu")
+        mine = shard_indices(7)
+        out = gather_in_order([f"item{i}" for i in mine], mine)
+        line = f"rank{info.rank}/{info.world_size} {mine} {','.join(out)}"
+        Path(args.folder, f"rank{info.rank}.txt").write_text(line)
+        return 0
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("folder")
+    code = run_cli("probe", run, parser)
+    # A console script leaves no process group to interpreter shutdown.
+    assert not dist.is_initialized(), "the group outlived the command"
+    raise SystemExit(code)
     """
 )
 
