@@ -1,0 +1,54 @@
+"""Joint counts of two byte images against numpy's bincount, with and without the C module."""
+
+import numpy as np
+import pytest
+
+from claravid.eval.inference import joint_counts
+from claravid.eval.inference.joint_counts import joint_counts as count_pairs
+
+
+def plain_counts(first, second):
+    index = first.astype(np.int64).ravel() * 256 + second.ravel()
+    return np.bincount(index, minlength=1 << 16).reshape(256, 256)
+
+
+def runs(rng, shape, values):
+    """Rows of runs of random lengths (1 to 40 pixels), as label images are made of."""
+    flat = np.repeat(
+        rng.integers(0, values, shape[0] * shape[1]), rng.integers(1, 41, shape[0] * shape[1])
+    )
+    return flat[: shape[0] * shape[1]].reshape(shape).astype(np.uint8)
+
+
+@pytest.mark.parametrize("native", [True, False], ids=["C", "OpenCV"])
+@pytest.mark.parametrize("shape", [(1, 1), (3, 7), (17, 45), (64, 129)])
+def test_counts_match_bincount_on_runs_and_noise(monkeypatch, native, shape):
+    if not native:
+        monkeypatch.setattr(joint_counts, "_native", None)
+    rng = np.random.default_rng(shape[1])
+    for first, second in (
+        (runs(rng, shape, 4), runs(rng, shape, 3)),  # runs that break in one image only
+        (rng.integers(0, 256, shape, dtype=np.uint8), runs(rng, shape, 256)),  # noise
+        (np.full(shape, 255, np.uint8), np.full(shape, 7, np.uint8)),  # one run: the whole image
+    ):
+        got = count_pairs(first, second)
+        assert got.dtype == np.int64 and got.shape == (256, 256)
+        np.testing.assert_array_equal(got, plain_counts(first, second))
+
+
+def test_the_c_module_is_built_here():
+    assert joint_counts._native is not None, "reinstall with a C compiler to build _joint_counts"
+
+
+def test_a_strided_view_is_counted_as_its_pixels():
+    rng = np.random.default_rng(2)
+    both = runs(rng, (20, 60), 5)
+    first, second = both[:, ::2], both[:, 1::2]  # not contiguous
+    np.testing.assert_array_equal(count_pairs(first, second), plain_counts(first, second))
+
+
+def test_bad_images_say_what_is_wrong():
+    with pytest.raises(ValueError, match="two uint8 images of one shape"):
+        count_pairs(np.zeros((2, 3), np.uint8), np.zeros((3, 2), np.uint8))
+    with pytest.raises(ValueError, match="two uint8 images of one shape, got int64"):
+        count_pairs(np.zeros((2, 3), np.int64), np.zeros((2, 3), np.uint8))
