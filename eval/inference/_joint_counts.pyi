@@ -4,7 +4,9 @@ import numpy as np
 from typing_extensions import Buffer
 
 def count(
-    first: Buffer | np.ndarray, second: Buffer | np.ndarray, out: Buffer | np.ndarray, /
-) -> None:
+    first: Buffer | np.ndarray, second: Buffer | np.ndarray, out: Buffer | np.ndarray,
+    channels: int = 1, channel: int = 0, /,
+) -> None:  # fmt: skip
     """Add the joint counts of two byte images to ``out`` (int64 [65536], index
-    ``first << 8 | second``, in place); ValueError for sizes that do not match."""
+    ``first << 8 | second``, in place); ``second`` may interleave two channels, of which
+    ``channel`` counts. ValueError for sizes that do not match."""

@@ -34,6 +34,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from claravid.eval.inference.joint_counts import joint_counts
 from claravid.eval.inference.label_ids import as_numpy, check_ids, check_num_classes, label_image
 from claravid.io.layout import (
     DEPTH_MAX_M,
@@ -175,15 +176,17 @@ def cross_view(
         )  # fmt: skip
 
     # Pixels of t that can be kept: a depth hit, static, not ignored.
-    valid_t = cv2.bitwise_and(valid_t, _hits(depth_t))
+    valid_t = cv2.bitwise_and(valid_t, _hits(depth_t), dst=valid_t)
     if static_t is not None:
-        valid_t = cv2.bitwise_and(valid_t, static_t)
-    # Pixels of s that can be looked up: the same, folded into its depth (0: never visible).
-    usable_s = cv2.bitwise_and(valid_s, _hits(depth_s))
+        valid_t = cv2.bitwise_and(valid_t, static_t, dst=valid_t)
+    # Pixels of s that can be looked up: the same, folded into its labels (255: never kept; a
+    # carried 255 falls outside the K×K counts).
+    usable_s = cv2.bitwise_and(valid_s, _hits(depth_s), dst=valid_s)
     if static_s is not None:
-        usable_s = cv2.bitwise_and(usable_s, static_s)
-    depth_s = cv2.bitwise_and(depth_s, depth_s, mask=usable_s)  # 0.0 where not usable
-    labels_s = cv2.merge([labels["pred_s"], labels["gt_s"]])
+        usable_s = cv2.bitwise_and(usable_s, static_s, dst=usable_s)
+    unusable_s = cv2.bitwise_not(usable_s, dst=usable_s)
+    labels_s = cv2.merge([cv2.bitwise_or(labels["pred_s"], unusable_s),
+                          cv2.bitwise_or(labels["gt_s"], unusable_s)])  # fmt: skip
     pred_joint, gt_joint = _carry(
         _transfer(c2w_t, c2w_s, intrinsics), depth_t, valid_t, depth_s, labels_s,
         labels["pred_t"], labels["gt_t"], np.float32(tolerance), k,
@@ -266,36 +269,28 @@ def _carry(
             looked = cv2.remap(depth_s, near, None, cv2.INTER_NEAREST,  # type: ignore[call-overload]
                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)  # fmt: skip
             # Visible: |depth_s − d_s| <= τ·d_s, i.e. |depth_s / d_s − 1| <= τ; this also needs
-            # d_s > 0 and a depth hit of s there (its unusable pixels hold depth 0).
+            # d_s > 0 (s's unusable pixels carry label 255, counted nowhere).
             looked *= inverse
         # OpenCV takes scalar operands; its stubs want arrays.
         kept = cv2.compare(cv2.absdiff(looked, 1.0), float(tolerance), cv2.CMP_LE)  # type: ignore[call-overload]
-        kept = cv2.bitwise_and(kept, valid_t[band])
+        kept = cv2.bitwise_and(kept, valid_t[band], dst=kept)
         cv2.remap(labels_s, near, None, cv2.INTER_NEAREST, dst=carried[band],  # type: ignore[call-overload]
                   borderMode=cv2.BORDER_CONSTANT, borderValue=(255, 255, 0, 0))  # fmt: skip
-        dropped = cv2.bitwise_not(kept)
+        dropped = cv2.bitwise_not(kept, dst=kept)
         cv2.bitwise_or(pred_t[band], dropped, dst=keys[0, band])  # kept ids are < K
         cv2.bitwise_or(gt_t[band], dropped, dst=keys[1, band])
-    return _joint(keys[0], carried, 0, num_classes), _joint(keys[1], carried, 1, num_classes)
-
-
-def _joint(key: np.ndarray, carried: np.ndarray, channel: int, k: int) -> np.ndarray:
-    """int64 K×K counts of (key, carried channel) pairs whose key is a class (< K)."""
-    if key.size < 1 << 24:  # float32 histogram counts are exact below 2^24
-        # The full 256×256 byte histogram: OpenCV's fast path (narrower ranges are slower).
-        hist = cv2.calcHist([key, carried], [0, 1 + channel], None, [256, 256], [0, 256, 0, 256])
-        return hist[:k, :k].astype(np.int64)
-    index = key.astype(np.int64) * 256 + carried[..., channel]
-    return np.bincount(index.ravel(), minlength=1 << 16).reshape(256, 256)[:k, :k]
+    k = num_classes
+    return joint_counts(keys[0], carried, 0)[:k, :k], joint_counts(keys[1], carried, 1)[:k, :k]
 
 
 def _hits(depth: np.ndarray) -> np.ndarray:
     """255 where the depth is a hit: 0 < d < 1000 m (0 and 1000 m are nothing and sky)."""
-    # OpenCV takes scalar operands; its stubs want arrays.
-    return cv2.bitwise_and(
-        cv2.compare(depth, 0.0, cv2.CMP_GT),  # type: ignore[call-overload]
-        cv2.compare(depth, DEPTH_MAX_M, cv2.CMP_LT),  # type: ignore[call-overload]
-    )
+    # One integer pass: a non-negative float32's bits order as the floats do, and -0.0,
+    # negatives and NaNs fall outside [1, bits(1000 m) − 1] (no float compare, no denormal mode).
+    return cv2.inRange(depth.view(np.int32), 1, _BELOW_MAX_BITS)
+
+
+_BELOW_MAX_BITS = int(np.float32(DEPTH_MAX_M).view(np.int32)) - 1
 
 
 def _depth(array: Any, name: str) -> np.ndarray:

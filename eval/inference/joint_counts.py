@@ -20,33 +20,49 @@ except ImportError:  # pragma: no cover - depends on the build
     _native = None  # type: ignore[assignment]  # mypy types a module name as never None
 
 
-def joint_counts(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+def joint_counts(first: np.ndarray, second: np.ndarray, channel: int = 0) -> np.ndarray:
     """int64 [256, 256]: entry (a, b) counts the pixels where ``first`` is a and ``second`` b.
 
     Args:
-        first, second: uint8 images of one shape.
+        first: uint8 H×W.
+        second: uint8 H×W, or H×W×2 (two interleaved channels, of which ``channel`` counts:
+            read in place, not split).
+        channel: 0 or 1, the channel of a two-channel ``second``.
 
     Raises:
-        ValueError: not uint8 or not of one shape.
+        ValueError: not uint8, not of one size, or no such channel.
     """
-    if first.dtype != np.uint8 or second.dtype != np.uint8 or first.shape != second.shape:
+    channels = second.shape[2] if second.ndim == 3 else 1
+    if (
+        first.dtype != np.uint8
+        or second.dtype != np.uint8
+        or first.ndim != 2
+        or second.shape[:2] != first.shape
+        or second.ndim not in (2, 3)
+        or channels not in (1, 2)
+        or not 0 <= channel < channels
+    ):
         raise ValueError(
-            f"joint counts take two uint8 images of one shape, got {first.dtype} "
-            f"{first.shape} and {second.dtype} {second.shape}"
+            f"joint counts take two uint8 images of one shape (the second H×W or H×W×2 with "
+            f"channel 0 or 1), got {first.dtype} {first.shape} and {second.dtype} "
+            f"{second.shape}, channel {channel}"
         )
     if _native is not None:
         counts = np.zeros(1 << 16, np.int64)
-        _native.count(np.ascontiguousarray(first), np.ascontiguousarray(second), counts)
+        _native.count(
+            np.ascontiguousarray(first), np.ascontiguousarray(second), counts, channels, channel
+        )
         return counts.reshape(256, 256)
-    return _fallback_counts(first, second)
+    return _fallback_counts(first, second, channel)
 
 
-def _fallback_counts(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+def _fallback_counts(first: np.ndarray, second: np.ndarray, channel: int) -> np.ndarray:
     """The same table with OpenCV (numpy for 2^24 pixels and more)."""
     if first.size < 1 << 24:  # float32 histogram counts are exact below 2^24
         # The full 256×256 byte histogram: OpenCV's fastest (narrower ranges take a slow path).
         pair = [np.ascontiguousarray(first), np.ascontiguousarray(second)]
-        joint = cv2.calcHist(pair, [0, 1], None, [256, 256], [0, 256, 0, 256])
+        joint = cv2.calcHist(pair, [0, 1 + channel], None, [256, 256], [0, 256, 0, 256])
         return joint.astype(np.int64)
-    index = first.astype(np.int64) * 256 + second
+    other = second[..., channel] if second.ndim == 3 else second
+    index = first.astype(np.int64) * 256 + other
     return np.bincount(index.ravel(), minlength=1 << 16).reshape(256, 256)

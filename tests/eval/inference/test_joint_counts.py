@@ -36,6 +36,23 @@ def test_counts_match_bincount_on_runs_and_noise(monkeypatch, native, shape):
         np.testing.assert_array_equal(got, plain_counts(first, second))
 
 
+@pytest.mark.parametrize("native", [True, False], ids=["C", "OpenCV"])
+@pytest.mark.parametrize("shape", [(1, 1), (5, 9), (33, 70)])
+def test_one_channel_of_an_interleaved_pair_is_counted_in_place(monkeypatch, native, shape):
+    if not native:
+        monkeypatch.setattr(joint_counts, "_native", None)
+    rng = np.random.default_rng(shape[0])
+    first = runs(rng, shape, 3)
+    for second in (
+        np.stack([runs(rng, shape, 4), runs(rng, shape, 2)], -1),  # channels break apart
+        np.stack([first, np.full(shape, 9, np.uint8)], -1),  # one long run in channel 1
+        rng.integers(0, 256, (*shape, 2), dtype=np.uint8),
+    ):
+        for channel in (0, 1):
+            expected = plain_counts(first, np.ascontiguousarray(second[..., channel]))
+            np.testing.assert_array_equal(count_pairs(first, second, channel), expected)
+
+
 def test_the_c_module_is_built_here():
     assert joint_counts._native is not None, "reinstall with a C compiler to build _joint_counts"
 
@@ -50,5 +67,9 @@ def test_a_strided_view_is_counted_as_its_pixels():
 def test_bad_images_say_what_is_wrong():
     with pytest.raises(ValueError, match="two uint8 images of one shape"):
         count_pairs(np.zeros((2, 3), np.uint8), np.zeros((3, 2), np.uint8))
-    with pytest.raises(ValueError, match="two uint8 images of one shape, got int64"):
+    with pytest.raises(ValueError, match=r"two uint8 images of one shape .*, got int64"):
         count_pairs(np.zeros((2, 3), np.int64), np.zeros((2, 3), np.uint8))
+    with pytest.raises(ValueError, match=r"channel 0 or 1.*channel 2"):
+        count_pairs(np.zeros((2, 3), np.uint8), np.zeros((2, 3, 2), np.uint8), 2)
+    with pytest.raises(ValueError, match="channel 0 or 1"):
+        count_pairs(np.zeros((2, 3), np.uint8), np.zeros((2, 3, 3), np.uint8))
