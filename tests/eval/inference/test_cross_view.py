@@ -124,6 +124,11 @@ def test_what_is_not_kept():
                 dynamic_s=dynamic_s, gt_t=gt_t, gt_s=gt_s, pred_s=gt_s)  # fmt: skip
     assert sums.kept == len(pairs) - 8
     assert sums.gt_agree == sums.kept and sums.status == "ok"
+    # The predictions (those of s hold t's classes where s has no depth or moves) count over
+    # the kept pixels only, as the ground truth.
+    assert sums.agree == sums.kept
+    np.testing.assert_array_equal(sums.intersection, sums.gt_intersection)
+    np.testing.assert_array_equal(sums.union, sums.gt_union)
 
 
 def test_a_pose_that_is_not_rigid_or_intrinsics_that_are_not_pinhole_are_refused():
