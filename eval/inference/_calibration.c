@@ -98,21 +98,30 @@ static void flush(Pass *s) {
 }
 
 #ifdef HAVE_AVX2_PATH
+/* What the eight-pixel pass keeps in registers (read once: stores to the counters could
+ * otherwise alias the pass's fields). */
+typedef struct {
+    const float *c;
+    const uint8_t *t, *p;
+    uint64_t *lane;
+    __m256 bins, near_low, near_high;
+    __m256i last, spare, offsets;
+} Group;
+
 /* Eight pixels from i; returns 0 when done, 1 when one of them needs the table. */
-__attribute__((target("avx2"))) static inline int avx2_group(Pass *s, Py_ssize_t i) {
-    const __m256 x = _mm256_loadu_ps(s->c + i);
-    const __m256i truth = _mm256_cvtepu8_epi32(_mm_loadl_epi64((const __m128i *)(s->t + i)));
-    const __m256i pred = _mm256_cvtepu8_epi32(_mm_loadl_epi64((const __m128i *)(s->p + i)));
+__attribute__((target("avx2"))) static inline int avx2_group(const Group *g, Py_ssize_t i) {
+    const __m256 x = _mm256_loadu_ps(g->c + i);
+    const __m256i truth = _mm256_cvtepu8_epi32(_mm_loadl_epi64((const __m128i *)(g->t + i)));
+    const __m256i pred = _mm256_cvtepu8_epi32(_mm_loadl_epi64((const __m128i *)(g->p + i)));
     const __m256i ignored = _mm256_cmpeq_epi32(truth, _mm256_set1_epi32(IGNORE));
     /* x · bins and its whole part: the bin, unless within NEAR of a whole number (of an edge;
      * 1.0 is not: it belongs to the last bin). */
-    const __m256 scaled = _mm256_mul_ps(x, _mm256_set1_ps((float)s->bins));
+    const __m256 scaled = _mm256_mul_ps(x, g->bins);
     const __m256i whole = _mm256_cvttps_epi32(scaled);
     const __m256 part = _mm256_sub_ps(scaled, _mm256_cvtepi32_ps(whole));
-    const __m256 near = _mm256_and_ps(
-        _mm256_or_ps(_mm256_cmp_ps(part, _mm256_set1_ps(NEAR), _CMP_LT_OQ),
-                     _mm256_cmp_ps(part, _mm256_set1_ps(1.0f - NEAR), _CMP_GT_OQ)),
-        _mm256_cmp_ps(x, _mm256_set1_ps(1.0f), _CMP_LT_OQ));
+    const __m256 near = _mm256_and_ps(_mm256_or_ps(_mm256_cmp_ps(part, g->near_low, _CMP_LT_OQ),
+                                                   _mm256_cmp_ps(part, g->near_high, _CMP_GT_OQ)),
+                                      _mm256_cmp_ps(x, _mm256_set1_ps(1.0f), _CMP_LT_OQ));
     /* Taken here: ignored, or a pattern in [2^-7, 1] (as signed integers: -0.0 and NaN fail)
      * not near an edge. */
     const __m256i pattern = _mm256_castps_si256(x);
@@ -121,38 +130,51 @@ __attribute__((target("avx2"))) static inline int avx2_group(Pass *s, Py_ssize_t
     const __m256i other = _mm256_andnot_si256(
         ignored, _mm256_or_si256(_mm256_or_si256(low, high), _mm256_castps_si256(near)));
     if (!_mm256_testz_si256(other, other)) return 1;
-    const __m256i k = _mm256_min_epi32(whole, _mm256_set1_epi32((int)s->bins - 1));
+    const __m256i k = _mm256_min_epi32(whole, g->last);
     /* Slot lane · slots + 2k + correct; ignored pixels to the spare slot past the bins. */
     __m256i slot = _mm256_sub_epi32(_mm256_add_epi32(k, k), _mm256_cmpeq_epi32(truth, pred));
-    slot = _mm256_blendv_epi8(slot, _mm256_set1_epi32((int)(2 * s->bins)), ignored);
-    const __m256i lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-    slot = _mm256_add_epi32(slot, _mm256_mullo_epi32(lanes, _mm256_set1_epi32((int)s->slots)));
+    slot = _mm256_add_epi32(_mm256_blendv_epi8(slot, g->spare, ignored), g->offsets);
     /* count << 48 | x · 2^30, in 64-bit lanes. */
     const __m256i fixed = _mm256_cvttps_epi32(_mm256_mul_ps(x, _mm256_set1_ps(FIXED_SCALE)));
     const __m256i one = _mm256_set1_epi64x((int64_t)1 << COUNT_SHIFT);
-    const __m256i add_lo = _mm256_add_epi64(
-        _mm256_cvtepu32_epi64(_mm256_castsi256_si128(fixed)), one);
-    const __m256i add_hi = _mm256_add_epi64(
-        _mm256_cvtepu32_epi64(_mm256_extracti128_si256(fixed, 1)), one);
+    const __m256i add_lo =
+        _mm256_add_epi64(_mm256_cvtepu32_epi64(_mm256_castsi256_si128(fixed)), one);
+    const __m256i add_hi =
+        _mm256_add_epi64(_mm256_cvtepu32_epi64(_mm256_extracti128_si256(fixed, 1)), one);
     int32_t where[8];
     uint64_t add[8];
     _mm256_storeu_si256((__m256i *)where, slot);
     _mm256_storeu_si256((__m256i *)add, add_lo);
     _mm256_storeu_si256((__m256i *)(add + 4), add_hi);
-    uint64_t *lane = s->lane;
+    /* Read back from memory (the empty asm may have changed them): eight scalar loads cost
+     * less than the eight lane extractions the compiler would make of the registers. */
+    __asm__("" : "+m"(where), "+m"(add));
+    uint64_t *lane = g->lane;
     for (int j = 0; j < LANES; j++) lane[where[j]] += add[j];
     return 0;
 }
 
 /* The pixels of [i, end) in groups of eight; returns the first bad pixel, or -1. */
 __attribute__((target("avx2"))) static Py_ssize_t avx2_span(Pass *s, Py_ssize_t i, Py_ssize_t end) {
+    Group g;
+    g.c = s->c;
+    g.t = s->t;
+    g.p = s->p;
+    g.lane = s->lane;
+    g.bins = _mm256_set1_ps((float)s->bins);
+    g.near_low = _mm256_set1_ps(NEAR);
+    g.near_high = _mm256_set1_ps(1.0f - NEAR);
+    g.last = _mm256_set1_epi32((int)s->bins - 1);
+    g.spare = _mm256_set1_epi32((int)(2 * s->bins));
+    g.offsets = _mm256_mullo_epi32(_mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+                                   _mm256_set1_epi32((int)s->slots));
     for (; i + LANES <= end; i += LANES) {
-        _mm_prefetch((const char *)(s->c + i) + 1024, _MM_HINT_T0);
+        _mm_prefetch((const char *)(g.c + i) + 1024, _MM_HINT_T0);
         if ((i & 63) == 0) {
-            _mm_prefetch((const char *)(s->t + i) + 512, _MM_HINT_T0);
-            _mm_prefetch((const char *)(s->p + i) + 512, _MM_HINT_T0);
+            _mm_prefetch((const char *)(g.t + i) + 512, _MM_HINT_T0);
+            _mm_prefetch((const char *)(g.p + i) + 512, _MM_HINT_T0);
         }
-        if (avx2_group(s, i)) {
+        if (avx2_group(&g, i)) {
             for (int lane = 0; lane < LANES; lane++)
                 if (table_pixel(s, i + lane, lane)) return i + lane;
         }
