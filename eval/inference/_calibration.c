@@ -9,10 +9,13 @@
  * torch.bucketize(right=True)); the few patterns whose range holds an edge, 1.0, -0.0 or the
  * limit of the fixed-point sums below are marked AMBIGUOUS and compared with the edges
  * themselves, those that can only be outside [0, 1] (NaN included) are OUTSIDE. Where the CPU
- * has AVX2 (checked at run time), eight pixels at a time take the bin from x · bins, corrected by
- * one against the two nearest edges (the same bins: the float32 product is never more than one
- * bin off), and whatever that pass cannot take (an ignored pixel aside: a confidence outside
- * [0, 1], below 2^-7, or -0.0) goes through the table.
+ * has AVX2 (checked at run time) and the edges are within EDGE_SLACK of j / bins (linspace
+ * edges are), eight pixels at a time take the bin as the whole part of x · bins: the float32
+ * product is off by under 1e-6 of a bin, so that is the table's bin unless x · bins is within
+ * NEAR of a whole number. A group holding such a pixel, or one the pass cannot take otherwise
+ * (a confidence outside [0, 1], below 2^-7, or -0.0; ignored pixels aside), goes through the
+ * table. Both give the same bins for every float32 in [0, 1] (checked exhaustively for several
+ * bin counts when this was written).
  *
  * Sums: a confidence x >= 2^-7 is a multiple of 2^-30, so x · 2^30 is an integer below 2^31 and
  * their sum is exact in int64; smaller ones (0, or a class count past 128) add their 24-bit
