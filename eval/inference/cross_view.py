@@ -176,17 +176,19 @@ def cross_view(
         )  # fmt: skip
 
     # Pixels of t that can be kept: a depth hit, static, not ignored.
-    valid_t = cv2.bitwise_and(valid_t, _hits(depth_t), dst=valid_t)
+    hits = _hits(depth_t)
+    valid_t = cv2.bitwise_and(valid_t, hits, dst=valid_t)
     if static_t is not None:
         valid_t = cv2.bitwise_and(valid_t, static_t, dst=valid_t)
     # Pixels of s that can be looked up: the same, folded into its labels (255: never kept; a
     # carried 255 falls outside the K×K counts).
-    usable_s = cv2.bitwise_and(valid_s, _hits(depth_s), dst=valid_s)
+    usable_s = cv2.bitwise_and(valid_s, _hits(depth_s, dst=hits), dst=valid_s)
     if static_s is not None:
         usable_s = cv2.bitwise_and(usable_s, static_s, dst=usable_s)
-    unusable_s = cv2.bitwise_not(usable_s, dst=usable_s)
-    labels_s = cv2.merge([cv2.bitwise_or(labels["pred_s"], unusable_s),
-                          cv2.bitwise_or(labels["gt_s"], unusable_s)])  # fmt: skip
+    labels_s = cv2.merge([labels["pred_s"], labels["gt_s"]])
+    # OpenCV takes a scalar operand; its stubs want an array.
+    cv2.bitwise_or(labels_s, (255, 255, 0, 0), dst=labels_s,  # type: ignore[call-overload]
+                   mask=cv2.bitwise_not(usable_s, dst=usable_s))  # fmt: skip
     pred_joint, gt_joint = _carry(
         _transfer(c2w_t, c2w_s, intrinsics), depth_t, valid_t, depth_s, labels_s,
         labels["pred_t"], labels["gt_t"], np.float32(tolerance), k,
@@ -246,48 +248,55 @@ def _carry(
     m = transfer.astype(np.float32)
     cols = np.arange(width, dtype=np.float32)
     along = [m[i, 0] * cols for i in range(3)]  # the column part of M · (u, v, 1)
-    # Each band writes its keys into whole-frame images, counted once at the end.
-    keys = np.empty((2, height, width), np.uint8)  # t's prediction and truth, 255 unless kept
-    carried = np.empty((height, width, 2), np.uint8)  # s's prediction and truth, carried back
+    # Band-sized buffers, written in place band after band (they stay in the CPU's cache), and
+    # the two joint counts, added to band after band.
+    q_all = np.empty((3, rows_per_band, width), np.float32)
+    keys_all = np.empty((2, rows_per_band, width), np.uint8)  # t's labels, 255 unless kept
+    carried_all = np.empty((rows_per_band, width, 2), np.uint8)  # s's labels, carried back
+    pred_joint, gt_joint = np.zeros((256, 256), np.int64), np.zeros((256, 256), np.int64)
     for r0 in range(0, height, rows_per_band):
         band = slice(r0, min(height, r0 + rows_per_band))
+        n = band.stop - band.start
         d = depth_t[band]
         rows = np.arange(band.start, band.stop, dtype=np.float32)[:, None]
         # q = d · (M · (u, v, 1)) + h, row by row of M; q[2] is the depth in s.
-        q = []
+        q = q_all[:, :n]
         for i in range(3):
-            qi = along[i] + (m[i, 1] * rows + m[i, 2])
-            qi *= d
-            qi += m[i, 3]
-            q.append(qi)
+            np.add(along[i], m[i, 1] * rows + m[i, 2], out=q[i])
+            q[i] *= d
+            q[i] += m[i, 3]
         with np.errstate(divide="ignore", invalid="ignore"):
             inverse = np.divide(np.float32(1), q[2], out=q[2])
             x, y = np.multiply(q[0], inverse, out=q[0]), np.multiply(q[1], inverse, out=q[1])
             # Nearest pixel of s (NaN or far outside: remap's border), looked up twice.
             near, _ = cv2.convertMaps(x, y, cv2.CV_16SC2, nninterpolation=True)
             # OpenCV takes map2 None beside a CV_16SC2 map1; its stubs want an array.
-            looked = cv2.remap(depth_s, near, None, cv2.INTER_NEAREST,  # type: ignore[call-overload]
+            looked = cv2.remap(depth_s, near, None, cv2.INTER_NEAREST, dst=x,  # type: ignore[call-overload]
                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)  # fmt: skip
             # Visible: |depth_s − d_s| <= τ·d_s, i.e. |depth_s / d_s − 1| <= τ; this also needs
             # d_s > 0 (s's unusable pixels carry label 255, counted nowhere).
             looked *= inverse
         # OpenCV takes scalar operands; its stubs want arrays.
-        kept = cv2.compare(cv2.absdiff(looked, 1.0), float(tolerance), cv2.CMP_LE)  # type: ignore[call-overload]
+        kept = cv2.compare(cv2.absdiff(looked, 1.0, dst=looked), float(tolerance), cv2.CMP_LE)  # type: ignore[call-overload]
         kept = cv2.bitwise_and(kept, valid_t[band], dst=kept)
-        cv2.remap(labels_s, near, None, cv2.INTER_NEAREST, dst=carried[band],  # type: ignore[call-overload]
+        carried = carried_all[:n]
+        cv2.remap(labels_s, near, None, cv2.INTER_NEAREST, dst=carried,  # type: ignore[call-overload]
                   borderMode=cv2.BORDER_CONSTANT, borderValue=(255, 255, 0, 0))  # fmt: skip
         dropped = cv2.bitwise_not(kept, dst=kept)
-        cv2.bitwise_or(pred_t[band], dropped, dst=keys[0, band])  # kept ids are < K
-        cv2.bitwise_or(gt_t[band], dropped, dst=keys[1, band])
+        keys = keys_all[:, :n]
+        cv2.bitwise_or(pred_t[band], dropped, dst=keys[0])  # kept ids are < K
+        cv2.bitwise_or(gt_t[band], dropped, dst=keys[1])
+        joint_counts(keys[0], carried, 0, out=pred_joint)
+        joint_counts(keys[1], carried, 1, out=gt_joint)
     k = num_classes
-    return joint_counts(keys[0], carried, 0)[:k, :k], joint_counts(keys[1], carried, 1)[:k, :k]
+    return pred_joint[:k, :k], gt_joint[:k, :k]
 
 
-def _hits(depth: np.ndarray) -> np.ndarray:
+def _hits(depth: np.ndarray, dst: np.ndarray | None = None) -> np.ndarray:
     """255 where the depth is a hit: 0 < d < 1000 m (0 and 1000 m are nothing and sky)."""
     # One integer pass: a non-negative float32's bits order as the floats do, and -0.0,
     # negatives and NaNs fall outside [1, bits(1000 m) − 1] (no float compare, no denormal mode).
-    return cv2.inRange(depth.view(np.int32), 1, _BELOW_MAX_BITS)
+    return cv2.inRange(depth.view(np.int32), 1, _BELOW_MAX_BITS, dst=dst)
 
 
 _BELOW_MAX_BITS = int(np.float32(DEPTH_MAX_M).view(np.int32)) - 1

@@ -20,7 +20,9 @@ except ImportError:  # pragma: no cover - depends on the build
     _native = None  # type: ignore[assignment]  # mypy types a module name as never None
 
 
-def joint_counts(first: np.ndarray, second: np.ndarray, channel: int = 0) -> np.ndarray:
+def joint_counts(
+    first: np.ndarray, second: np.ndarray, channel: int = 0, out: np.ndarray | None = None
+) -> np.ndarray:
     """int64 [256, 256]: entry (a, b) counts the pixels where ``first`` is a and ``second`` b.
 
     Args:
@@ -28,6 +30,8 @@ def joint_counts(first: np.ndarray, second: np.ndarray, channel: int = 0) -> np.
         second: uint8 H×W, or H×W×2 (two interleaved channels, of which ``channel`` counts:
             read in place, not split).
         channel: 0 or 1, the channel of a two-channel ``second``.
+        out: a C-contiguous int64 [256, 256] table to add the counts to (an image counted in
+            parts); a new one when None.
 
     Raises:
         ValueError: not uint8, not of one size, or no such channel.
@@ -47,13 +51,18 @@ def joint_counts(first: np.ndarray, second: np.ndarray, channel: int = 0) -> np.
             f"channel 0 or 1), got {first.dtype} {first.shape} and {second.dtype} "
             f"{second.shape}, channel {channel}"
         )
+    if out is None:
+        out = np.zeros((256, 256), np.int64)
+    elif out.dtype != np.int64 or out.shape != (256, 256) or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous int64 256×256 table, got {out.dtype} "
+                         f"{out.shape}")  # fmt: skip
     if _native is not None:
-        counts = np.zeros(1 << 16, np.int64)
         _native.count(
-            np.ascontiguousarray(first), np.ascontiguousarray(second), counts, channels, channel
+            np.ascontiguousarray(first), np.ascontiguousarray(second), out, channels, channel
         )
-        return counts.reshape(256, 256)
-    return _fallback_counts(first, second, channel)
+    else:
+        out += _fallback_counts(first, second, channel)
+    return out
 
 
 def _fallback_counts(first: np.ndarray, second: np.ndarray, channel: int) -> np.ndarray:

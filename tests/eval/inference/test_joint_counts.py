@@ -53,6 +53,20 @@ def test_one_channel_of_an_interleaved_pair_is_counted_in_place(monkeypatch, nat
             np.testing.assert_array_equal(count_pairs(first, second, channel), expected)
 
 
+@pytest.mark.parametrize("native", [True, False], ids=["C", "OpenCV"])
+def test_an_image_counted_in_bands_adds_up(monkeypatch, native):
+    if not native:
+        monkeypatch.setattr(joint_counts, "_native", None)
+    rng = np.random.default_rng(4)
+    first, second = runs(rng, (30, 41), 5), np.stack([runs(rng, (30, 41), 3)] * 2, -1)
+    total = np.zeros((256, 256), np.int64)
+    for band in (slice(0, 7), slice(7, 8), slice(8, 30)):
+        assert count_pairs(first[band], second[band], 1, out=total) is total
+    np.testing.assert_array_equal(total, plain_counts(first, second[..., 1]))
+    with pytest.raises(ValueError, match="C-contiguous int64 256×256"):
+        count_pairs(first, second, 1, out=np.zeros((256, 256), np.int32))
+
+
 def test_the_c_module_is_built_here():
     assert joint_counts._native is not None, "reinstall with a C compiler to build _joint_counts"
 
