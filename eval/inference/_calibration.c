@@ -172,10 +172,10 @@ __attribute__((target("avx2"))) static Py_ssize_t avx2_span(Pass *s, Py_ssize_t 
     g.offsets = _mm256_mullo_epi32(_mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
                                    _mm256_set1_epi32((int)s->slots));
     for (; i + LANES <= end; i += LANES) {
-        _mm_prefetch((const char *)(g.c + i) + 1024, _MM_HINT_T0);
+        _mm_prefetch((const char *)(g.c + i) + 2048, _MM_HINT_T0);
         if ((i & 63) == 0) {
-            _mm_prefetch((const char *)(g.t + i) + 512, _MM_HINT_T0);
-            _mm_prefetch((const char *)(g.p + i) + 512, _MM_HINT_T0);
+            _mm_prefetch((const char *)(g.t + i) + 1024, _MM_HINT_T0);
+            _mm_prefetch((const char *)(g.p + i) + 1024, _MM_HINT_T0);
         }
         if (avx2_group(&g, i)) {
             for (int lane = 0; lane < LANES; lane++)
