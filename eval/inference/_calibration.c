@@ -59,28 +59,53 @@ typedef struct {
     int64_t *cnt, *ok, *fixed;
 } Pass;
 
-/* One pixel through the table; returns 0, or -1 for a confidence outside [0, 1]. */
-static inline int table_pixel(Pass *s, Py_ssize_t i, int lane) {
-    const uint8_t truth = s->t[i];
+/* One pixel through the table; returns 0, or -1 for a confidence outside [0, 1]. The pass's
+ * fields come as arguments: read once by the caller, not again after each counter store. */
+static inline int one_pixel(const float *c, const uint32_t *bits, const uint8_t *p,
+                            const uint8_t *t, const uint8_t *bin_of, const float *e,
+                            Py_ssize_t bins, uint64_t *lane, int64_t *small, Py_ssize_t i) {
+    const uint8_t truth = t[i];
     if (truth == IGNORE) return 0;
-    const uint32_t b = s->bits[i];
-    const float x = s->c[i];
-    Py_ssize_t k = s->bin_of[b >> 16];
+    const uint32_t b = bits[i];
+    const float x = c[i];
+    Py_ssize_t k = bin_of[b >> 16];
     if (k >= AMBIGUOUS) {
         if (k == OUTSIDE || !(x >= 0.0f && x <= 1.0f)) return -1; /* NaN too */
-        for (k = 0; k < s->bins - 1 && x >= s->e[k + 1]; k++) {
+        for (k = 0; k < bins - 1 && x >= e[k + 1]; k++) {
         }
     }
     uint64_t add = (uint64_t)1 << COUNT_SHIFT;
     if (b < SMALL_BITS) { /* +0, subnormals and x < 2^-7: significand at its exponent */
         const uint32_t exponent = b >> 23, significand = b & 0x7FFFFF;
-        s->small[k * EXPONENTS + (exponent ? exponent : 1)] +=
+        small[k * EXPONENTS + (exponent ? exponent : 1)] +=
             exponent ? significand | 0x800000 : significand;
     } else {
-        add += (uint64_t)(x * FIXED_SCALE); /* -0.0 adds 0 */
+        add += (uint64_t)(int64_t)(x * FIXED_SCALE); /* below 2^31; -0.0 adds 0 */
     }
-    s->lane[lane * s->slots + 2 * k + (s->p[i] == truth)] += add;
+    lane[2 * k + (p[i] == truth)] += add;
     return 0;
+}
+
+/* The pixels of [i, end) one by one (pixel i in lane i % LANES); returns the first bad one or
+ * -1. */
+static Py_ssize_t table_span(const Pass *s, Py_ssize_t i, Py_ssize_t end) {
+    const float *c = s->c, *e = s->e;
+    const uint32_t *bits = s->bits;
+    const uint8_t *p = s->p, *t = s->t, *bin_of = s->bin_of;
+    const Py_ssize_t bins = s->bins, slots = s->slots;
+    uint64_t *lane = s->lane;
+    int64_t *small = s->small;
+    int j = (int)(i % LANES);
+    uint64_t *mine = lane + j * slots;
+    for (; i < end; i++) {
+        if (one_pixel(c, bits, p, t, bin_of, e, bins, mine, small, i)) return i;
+        mine += slots;
+        if (++j == LANES) {
+            j = 0;
+            mine = lane;
+        }
+    }
+    return -1;
 }
 
 /* Empty the lane counters into the per-bin totals. */
@@ -178,8 +203,8 @@ __attribute__((target("avx2"))) static Py_ssize_t avx2_span(Pass *s, Py_ssize_t 
             _mm_prefetch((const char *)(g.p + i) + 1024, _MM_HINT_T0);
         }
         if (avx2_group(&g, i)) {
-            for (int lane = 0; lane < LANES; lane++)
-                if (table_pixel(s, i + lane, lane)) return i + lane;
+            const Py_ssize_t bad = table_span(s, i, i + LANES);
+            if (bad >= 0) return bad;
         }
     }
     return -1;
@@ -233,8 +258,7 @@ static PyObject *exact_sums(PyObject *self, PyObject *args) {
                     i = start + (end - start) / LANES * LANES;
                 }
 #endif
-                for (; i < end && bad < 0; i++)
-                    if (table_pixel(&s, i, (int)(i % LANES))) bad = i;
+                if (bad < 0) bad = table_span(&s, i, end);
                 flush(&s);
             }
             Py_END_ALLOW_THREADS
