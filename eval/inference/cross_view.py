@@ -245,6 +245,7 @@ def _carry(
     """Joint counts (int64 K×K) over the kept pixels of (t, carried s): predictions, truth."""
     height, width = depth_t.shape
     rows_per_band = max(1, _BAND_PIXELS // width)
+    visible = visible_range(tolerance)
     m = transfer.astype(np.float32)
     cols = np.arange(width, dtype=np.float32)
     along = [m[i, 0] * cols for i in range(3)]  # the column part of M · (u, v, 1)
@@ -273,11 +274,12 @@ def _carry(
             # OpenCV takes map2 None beside a CV_16SC2 map1; its stubs want an array.
             looked = cv2.remap(depth_s, near, None, cv2.INTER_NEAREST, dst=x,  # type: ignore[call-overload]
                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)  # fmt: skip
-            # Visible: |depth_s − d_s| <= τ·d_s, i.e. |depth_s / d_s − 1| <= τ; this also needs
-            # d_s > 0 (s's unusable pixels carry label 255, counted nowhere).
+            # Visible: |depth_s − d_s| <= τ·d_s, i.e. |depth_s / d_s − 1| <= τ (one range test,
+            # see visible_range); this also needs d_s > 0 (s's unusable pixels carry label 255,
+            # counted nowhere).
             looked *= inverse
         # OpenCV takes scalar operands; its stubs want arrays.
-        kept = cv2.compare(cv2.absdiff(looked, 1.0, dst=looked), float(tolerance), cv2.CMP_LE)  # type: ignore[call-overload]
+        kept = cv2.inRange(looked, *visible)
         kept = cv2.bitwise_and(kept, valid_t[band], dst=kept)
         carried = carried_all[:n]
         cv2.remap(labels_s, near, None, cv2.INTER_NEAREST, dst=carried,  # type: ignore[call-overload]
@@ -290,6 +292,29 @@ def _carry(
         joint_counts(keys[1], carried, 1, out=gt_joint)
     k = num_classes
     return pred_joint[:k, :k], gt_joint[:k, :k]
+
+
+def visible_range(tolerance: np.float32) -> tuple[float, float]:
+    """``[lo, hi]``: the float32 ratios r with ``|r − 1| <= τ`` as float32 arithmetic has it.
+
+    The rounded ``|r − 1|`` grows as r moves away from 1 on either side, so the ratios that pass
+    are one interval; walking from ``1 ± τ`` to its ends, float32 by float32, finds it, and one
+    range test per pixel then decides as the subtraction and comparison would.
+    """
+    one, up, down = np.float32(1), np.float32(np.inf), np.float32(0)
+
+    def passes(r: np.float32) -> bool:
+        return bool(np.abs(r - one) <= tolerance)
+
+    ends = []
+    for start, outward in ((one - tolerance, down), (one + tolerance, up)):
+        end = np.float32(start)
+        while not passes(end):
+            end = np.nextafter(end, one)
+        while passes(np.nextafter(end, outward)):
+            end = np.nextafter(end, outward)
+        ends.append(float(end))
+    return ends[0], ends[1]
 
 
 def _hits(depth: np.ndarray, dst: np.ndarray | None = None) -> np.ndarray:
