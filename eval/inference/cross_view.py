@@ -254,6 +254,9 @@ def _carry(
     q_all = np.empty((3, rows_per_band, width), np.float32)
     keys_all = np.empty((2, rows_per_band, width), np.uint8)  # t's labels, 255 unless kept
     carried_all = np.empty((rows_per_band, width, 2), np.uint8)  # s's labels, carried back
+    # The two labels of a pixel move as one 16-bit value (OpenCV's one-channel remap is faster
+    # than its two-channel one); the bytes come back in their order whatever the endianness.
+    pairs_s, pairs_carried = labels_s.view(np.uint16)[..., 0], carried_all.view(np.uint16)[..., 0]
     pred_joint, gt_joint = np.zeros((256, 256), np.int64), np.zeros((256, 256), np.int64)
     for r0 in range(0, height, rows_per_band):
         band = slice(r0, min(height, r0 + rows_per_band))
@@ -278,12 +281,11 @@ def _carry(
             # see visible_range); this also needs d_s > 0 (s's unusable pixels carry label 255,
             # counted nowhere).
             looked *= inverse
-        # OpenCV takes scalar operands; its stubs want arrays.
         kept = cv2.inRange(looked, *visible)
         kept = cv2.bitwise_and(kept, valid_t[band], dst=kept)
         carried = carried_all[:n]
-        cv2.remap(labels_s, near, None, cv2.INTER_NEAREST, dst=carried,  # type: ignore[call-overload]
-                  borderMode=cv2.BORDER_CONSTANT, borderValue=(255, 255, 0, 0))  # fmt: skip
+        cv2.remap(pairs_s, near, None, cv2.INTER_NEAREST, dst=pairs_carried[:n],  # type: ignore[call-overload]
+                  borderMode=cv2.BORDER_CONSTANT, borderValue=0xFFFF)  # fmt: skip
         dropped = cv2.bitwise_not(kept, dst=kept)
         keys = keys_all[:, :n]
         cv2.bitwise_or(pred_t[band], dropped, dst=keys[0])  # kept ids are < K
