@@ -32,7 +32,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#if defined(__GNUC__) && defined(__x86_64__)
+#if defined(__GNUC__) && defined(__x86_64__) && !defined(CLARAVID_NO_AVX2) /* a build may opt out */
 #include <immintrin.h>
 #define HAVE_AVX2_PATH 1
 #endif
@@ -244,9 +244,10 @@ static PyObject *exact_sums(PyObject *self, PyObject *args) {
             PyErr_NoMemory();
         } else {
             Py_ssize_t bad = -1;
-            int use_avx2 = 0;
 #ifdef HAVE_AVX2_PATH
-            use_avx2 = vector && __builtin_cpu_supports("avx2") && edges_even(&s);
+            const int use_avx2 = vector && __builtin_cpu_supports("avx2") && edges_even(&s);
+#else
+            (void)vector;
 #endif
             Py_BEGIN_ALLOW_THREADS
             for (Py_ssize_t start = 0; start < n && bad < 0; start += CHUNK) {
