@@ -99,17 +99,17 @@ def boundary_iou(
 def band(labels: np.ndarray, d: int) -> np.ndarray:
     """uint8 H×W, 255 where a pixel is in the boundary (width ``d``) of its label's mask, else 0."""
     edges = cv2.dilate(labels, _SQUARE)
-    near = cv2.erode(labels, _SQUARE)
-    cv2.compare(edges, near, cv2.CMP_NE, dst=edges)  # 255 where the 3×3 max and min differ
+    out = cv2.erode(labels, _SQUARE)  # the 3×3 minimum, then (its buffer reused) the band
+    cv2.compare(edges, out, cv2.CMP_NE, dst=edges)  # 255 where the 3×3 max and min differ
     edges[0], edges[-1], edges[:, 0], edges[:, -1] = 255, 255, 255, 255  # the padding differs
     side = 2 * d - 1
     if side * side * 255 < 1 << 31:  # OpenCV's running sum is int32
         # Sums of 255s saturate in bytes: 255 where an edge pixel is near, 0 where none is.
-        return cv2.boxFilter(edges, cv2.CV_8U, (side, side), dst=near, normalize=False)
+        return cv2.boxFilter(edges, cv2.CV_8U, (side, side), dst=out, normalize=False)
     # A diagonal past 72,000 pixels: count 1s, then mark the positive sums.
     cv2.threshold(edges, 0, 1, cv2.THRESH_BINARY, dst=edges)
-    cv2.boxFilter(edges, cv2.CV_8U, (side, side), dst=near, normalize=False)
-    return cv2.compare(near, 0, cv2.CMP_NE, dst=near)  # type: ignore[call-overload]
+    cv2.boxFilter(edges, cv2.CV_8U, (side, side), dst=out, normalize=False)
+    return cv2.compare(out, 0, cv2.CMP_NE, dst=out)  # type: ignore[call-overload]
 
 
 def _intersections_unions(
