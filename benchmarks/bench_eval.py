@@ -25,7 +25,9 @@ On generated full-size 4032×3024 ClaraVid frames (uavid palette: panoptic PNG +
    (urban_1, low altitude), against a full cv2.imread of the frame's RGB JPEG in the same run:
    Boundary IoU of all 19 classes (target <= 1x), the calibration sums from each pixel's
    confidence and predicted class (target <= 0.2x; from [19, H, W] probabilities beside it), and
-   the cross-view sums of one pair including reading both depth PNGs (target <= 2x).
+   the cross-view sums of one pair including reading both depth PNGs (target <= 2x); beside it,
+   the cost per pair of an evaluation walking a pass, which reads each frame's geometry once
+   for the two pairs it belongs to (one frame's geometry + the sums).
 4. Bootstrap (one core: a child process pinned to one CPU, BLAS limited to one thread): 1000
    cluster resamples of mIoU and pixel accuracy for 20,000 images, 19 classes, overall + 3 bins
    + 8 groups (what ``claravid.eval.analysis.miou_bins.add_intervals`` computes), with every
@@ -67,7 +69,7 @@ from claravid.eval.inference.calibration import calibration_bins, calibration_su
 from claravid.eval.inference.collect import CollectSettings, collect
 from claravid.eval.inference.cross_view import cross_view
 from claravid.eval.inference.data import open_data
-from claravid.eval.inference.pairs import pass_pairs, read_pair
+from claravid.eval.inference.pairs import pass_pairs, read_geometry, read_pair
 from claravid.eval.inference.quality_plan import plan_quality
 from claravid.eval.inference.run_model import evaluate_model
 from claravid.eval.inference.sources import load_source
@@ -339,6 +341,13 @@ def section_measures(repeats: int) -> None:
                        gt_s, gt.dynamic, gs.dynamic, num_classes=19)  # fmt: skip
 
         geometry = read_pair(root, t, s)
+
+        def walked() -> None:  # a pass's frames are read once each, for the two pairs they are in
+            gs = read_geometry(root, s)
+            cross_view(geometry[0].depth, gs.depth, geometry[0].c2w, gs.c2w,
+                       geometry[0].intrinsics, pred_t, pred_s, gt_t, gt_s, geometry[0].dynamic,
+                       gs.dynamic, num_classes=19)  # fmt: skip
+
         sums = cross_view(geometry[0].depth, geometry[1].depth, geometry[0].c2w, geometry[1].c2w,
                           geometry[0].intrinsics, pred_t, pred_s, gt_t, gt_s,
                           geometry[0].dynamic, geometry[1].dynamic, num_classes=19)  # fmt: skip
@@ -358,6 +367,7 @@ def section_measures(repeats: int) -> None:
                 geometry[0].depth, geometry[1].depth, geometry[0].c2w, geometry[1].c2w,
                 geometry[0].intrinsics, pred_t, pred_s, gt_t, gt_s, geometry[0].dynamic,
                 geometry[1].dynamic, num_classes=19), None),
+            ("  per pair walking a pass: one frame's geometry + the sums", walked, None),
         ]  # fmt: skip
         print(f"   pair {t.key} -> {s.key}: {100 * sums.kept_fraction:.0f}% kept, consistency "
               f"{sums.consistency:.3f}, ground truth {sums.gt_consistency:.4f}")  # fmt: skip

@@ -16,10 +16,13 @@ Here every class comes from one pass over each label image, not ``d`` erosions p
 - the nearest such pixel is one step past an *edge pixel* of class c (a pixel with a
   differently labelled 8-neighbour, or on the image's border), and no edge pixel of another
   class is nearer; so the condition is: an edge pixel (of any class) within distance ``d − 1``;
-- edge pixels are where the 3×3 maximum and minimum of the labels differ; "within ``d − 1``" is
-  a (2d−1)² box sum over them being positive (a running sum, whatever ``d``);
-- intersections and unions of every class come from one joint histogram of (truth, prediction)
-  keys, a key being the class where the pixel is in its image's boundary band.
+- edge pixels are where the 3×3 maximum and minimum of the labels differ; "within
+  ``d − 1``" is a (2d−1)² box sum over them being positive (a running sum, whatever ``d``),
+  taken in bytes: edges are 255, so any positive sum saturates to 255 and the box is a 0/255
+  mask at once;
+- intersections and unions of every class come from one joint count of (truth, prediction)
+  keys (:mod:`claravid.eval.inference.joint_counts`), a key being the class where the pixel is
+  in its image's boundary band.
 
 ``tests/eval/inference/test_boundary.py`` holds the plain definition (the erosions) as the oracle.
 """
@@ -32,6 +35,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from claravid.eval.inference.joint_counts import joint_counts
 from claravid.eval.inference.label_ids import check_ids, check_num_classes, label_image
 
 #: The reference's dilation ratio: d = 101 pixels on a 4032×3024 frame.
@@ -83,37 +87,35 @@ def boundary_iou(
     if truth.size == 0:
         return np.zeros(k, np.int64), np.zeros(k, np.int64)
     d = boundary_width(truth.shape, dilation_ratio)
-    # Keys: the class id inside the image's boundary band, 255 outside it (and where ignored).
-    truth_key = cv2.bitwise_or(truth, outside_band(truth, d))
-    pred_key = cv2.bitwise_or(prediction, cv2.bitwise_or(outside_band(prediction, d),
-                                                         cv2.bitwise_not(valid)))  # fmt: skip
+    # Keys: the class id inside the image's boundary band, 255 outside it (and where ignored);
+    # written over the band masks (no 12-Mpixel image allocated more than needed).
+    truth_key = band(truth, d)
+    cv2.bitwise_or(truth, cv2.bitwise_not(truth_key, dst=truth_key), dst=truth_key)
+    pred_key = cv2.bitwise_and(band(prediction, d), valid, dst=valid)
+    cv2.bitwise_or(prediction, cv2.bitwise_not(pred_key, dst=pred_key), dst=pred_key)
     return _intersections_unions(truth_key, pred_key, k)
 
 
-def outside_band(labels: np.ndarray, d: int) -> np.ndarray:
-    """uint8 H×W, 255 where a pixel is *not* in the boundary (width ``d``) of its label's mask."""
-    # An edge pixel: the 3×3 maximum and minimum differ (two passes; MORPH_GRADIENT is slower).
-    edges = cv2.compare(cv2.dilate(labels, _SQUARE), cv2.erode(labels, _SQUARE), cv2.CMP_NE)
-    edges = cv2.threshold(edges, 0, 1, cv2.THRESH_BINARY)[1]  # 1 on an edge, else 0
-    edges[0], edges[-1], edges[:, 0], edges[:, -1] = 1, 1, 1, 1  # the padding is another label
+def band(labels: np.ndarray, d: int) -> np.ndarray:
+    """uint8 H×W, 255 where a pixel is in the boundary (width ``d``) of its label's mask, else 0."""
+    edges = cv2.dilate(labels, _SQUARE)
+    out = cv2.erode(labels, _SQUARE)  # the 3×3 minimum, then (its buffer reused) the band
+    cv2.compare(edges, out, cv2.CMP_NE, dst=edges)  # 255 where the 3×3 max and min differ
+    edges[0], edges[-1], edges[:, 0], edges[:, -1] = 255, 255, 255, 255  # the padding differs
     side = 2 * d - 1
-    # The box sum counts edge pixels: exact in uint16 up to 255², in float32 up to 4096².
-    depth = cv2.CV_16U if side * side < 1 << 16 else cv2.CV_32F if side <= 4096 else cv2.CV_64F
-    near = cv2.boxFilter(edges, depth, (side, side), normalize=False)
-    # OpenCV takes a scalar operand; its stubs want an array.
-    return cv2.compare(near, 0, cv2.CMP_EQ)  # type: ignore[call-overload]
+    if side * side * 255 < 1 << 31:  # OpenCV's running sum is int32
+        # Sums of 255s saturate in bytes: 255 where an edge pixel is near, 0 where none is.
+        return cv2.boxFilter(edges, cv2.CV_8U, (side, side), dst=out, normalize=False)
+    # A diagonal past 72,000 pixels: count 1s, then mark the positive sums.
+    cv2.threshold(edges, 0, 1, cv2.THRESH_BINARY, dst=edges)
+    cv2.boxFilter(edges, cv2.CV_8U, (side, side), dst=out, normalize=False)
+    return cv2.compare(out, 0, cv2.CMP_NE, dst=out)  # type: ignore[call-overload]
 
 
 def _intersections_unions(
     truth_key: np.ndarray, pred_key: np.ndarray, k: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per class: |G ∩ P| (both keys c) and |G ∪ P| = |G| + |P| − |G ∩ P|, as int64 [K]."""
-    if truth_key.size < 1 << 24:  # float32 histogram counts are exact below 2^24
-        # The full 256×256 byte histogram: OpenCV's fastest (narrower ranges take a slow path).
-        joint = cv2.calcHist([truth_key, pred_key], [0, 1], None, [256, 256], [0, 256, 0, 256])
-        joint = joint.astype(np.int64)
-    else:
-        index = truth_key.astype(np.int64) * 256 + pred_key
-        joint = np.bincount(index.ravel(), minlength=1 << 16).reshape(256, 256)
+    joint = joint_counts(truth_key, pred_key)
     both = np.diagonal(joint)[:k].copy()
     return both, joint[:k].sum(axis=1) + joint[:, :k].sum(axis=0) - both

@@ -13,13 +13,18 @@ An image stores the three sums per bin, so a group's ECE = Σ_b |correct_b − c
 its reliability diagram (accuracy against confidence per bin) come from summed images, as mIoU
 comes from a summed confusion (:mod:`claravid.eval.analysis.calibration`).
 
-The sums are one pass in C when the optional module ``_calibration`` was built at install, and
-numpy otherwise; both give the same numbers to the bit.
+Confidence sums are exact: a confidence of at least 2^-7 is a multiple of 2^-30, so the sums of
+``x · 2^30`` are integers, and smaller ones add their significands per binary exponent; a bin's
+sum is the float64 nearest to the exact sum of its float32 confidences (``math.fsum`` of the
+parts), whatever the order of the pixels. The integers come from one pass in C when the
+optional module ``_calibration`` was built at install, and from numpy otherwise: the same
+numbers to the bit.
 """
 
 from __future__ import annotations
 
 import functools
+import math
 from typing import Any
 
 import numpy as np
@@ -32,6 +37,11 @@ try:  # the optional C pass (built at install when a compiler is there)
     from claravid.eval.inference import _calibration as _native
 except ImportError:  # pragma: no cover - depends on the build
     _native = None  # type: ignore[assignment]  # mypy types a module name as never None
+if not hasattr(_native, "exact_sums"):  # pragma: no cover - a build older than this module
+    _native = None  # type: ignore[assignment]
+#: Whether the C pass may take eight pixels at a time where the CPU has AVX2 (tests turn it off
+#: to check the one-pixel pass).
+_vector = True
 
 #: torchmetrics' default and the report's.
 N_BINS = 15
@@ -116,17 +126,27 @@ def calibration_sums(
         check_ids(truth, None, num_classes, "")
     bins = len(edges) - 1
     if _native is not None and bins < _AMBIGUOUS:
-        count, conf_sum, correct = (
-            np.zeros(bins, np.int64),
-            np.zeros(bins),
-            np.zeros(bins, np.int64),
-        )
+        count, correct, fixed = (np.zeros(bins, np.int64) for _ in range(3))
+        small = np.zeros((bins, _EXPONENTS), np.int64)
         try:
-            _native.sums(conf, pred, truth, edges, _bin_table(bins), count, conf_sum, correct)
+            _native.exact_sums(conf, pred, truth, edges, _bin_table(bins), count, correct, fixed,
+                               small, _vector)  # fmt: skip
         except ValueError as error:
             raise ValueError(f"{error}: pass probabilities (the softmax of the logits)") from None
-        return count, conf_sum, correct
-    return _numpy_sums(conf, pred, truth, edges)
+    else:
+        count, correct, fixed, small = _numpy_parts(conf, pred, truth, edges)
+    return count, _confidence_sums(fixed, small), correct
+
+
+def _confidence_sums(fixed: np.ndarray, small: np.ndarray) -> np.ndarray:
+    """float64 [bins]: each bin's ``fixed · 2^-30 + Σ_e small[e] · 2^(e − 150)``, rounded once."""
+    out = np.zeros(len(fixed))
+    for k, (whole, parts) in enumerate(zip(fixed.tolist(), small, strict=True)):
+        units, rest = divmod(whole, 1 << _FIXED_BITS)  # two exact float64 terms
+        terms = [float(units), math.ldexp(rest, -_FIXED_BITS)]
+        terms += [math.ldexp(int(parts[e]), int(e) - 150) for e in np.flatnonzero(parts)]
+        out[k] = math.fsum(terms)
+    return out
 
 
 @functools.lru_cache(maxsize=8)
@@ -153,12 +173,16 @@ def _bin_table(n_bins: int) -> np.ndarray:
 
 
 _AMBIGUOUS, _OUTSIDE = 254, 255  # as in _calibration.c
+_FIXED_BITS = 30  # x · 2^30 is whole for x >= 2^-7 (as FIXED_SCALE in _calibration.c)
+_SMALL_BITS = 0x3C000000  # the float32 pattern of 2^-7 (as SMALL_BITS)
+_EXPONENTS = 256  # small confidences' sums by binary exponent (as EXPONENTS)
 
 
-def _numpy_sums(
+def _numpy_parts(
     conf: np.ndarray, pred: np.ndarray, truth: np.ndarray, edges: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The same sums with numpy (the C module's reference and fallback)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Count, correct, fixed-point and small-confidence sums with numpy (the C module's
+    reference and fallback): the same integers."""
     bins = len(edges) - 1
     valid = truth != IGNORE_INDEX
     c = conf[valid]
@@ -172,11 +196,15 @@ def _numpy_sums(
     k = np.searchsorted(edges[1:-1], c, side="right")  # [e_i, e_i+1); 1.0 in the last bin
     count = np.bincount(k, minlength=bins).astype(np.int64)
     correct = np.bincount(k[pred[valid] == truth[valid]], minlength=bins).astype(np.int64)
-    # The C pass's summation order: _LANES interleaved partial sums, added lane by lane.
-    conf_sum = np.zeros(bins)
-    for lane in range(_LANES):
-        conf_sum += np.bincount(k[lane::_LANES], c[lane::_LANES].astype(np.float64), bins)
-    return count, conf_sum, correct
-
-
-_LANES = 4  # as LANES in _calibration.c
+    bits = c.view(np.uint32)
+    small = bits < _SMALL_BITS  # -0.0 (0x80000000) is not: it adds 0 as a whole number
+    whole = (c[~small].astype(np.float64) * (1 << _FIXED_BITS)).astype(np.int64)
+    # Integer sums through float64 bincounts, exact in 15-bit halves (< 2^53 each).
+    kw = k[~small]
+    fixed = np.rint(np.bincount(kw, whole >> 15, bins)).astype(np.int64) << 15
+    fixed += np.rint(np.bincount(kw, whole & 0x7FFF, bins)).astype(np.int64)
+    exponent = (bits[small] >> 23).astype(np.int64)
+    significand = (bits[small] & 0x7FFFFF) | np.where(exponent > 0, 0x800000, 0)
+    index = k[small] * _EXPONENTS + np.maximum(exponent, 1)
+    sums = np.bincount(index, significand.astype(np.float64), bins * _EXPONENTS)
+    return count, correct, fixed, np.rint(sums).astype(np.int64).reshape(bins, _EXPONENTS)

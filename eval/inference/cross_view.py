@@ -34,6 +34,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from claravid.eval.inference.joint_counts import joint_counts
 from claravid.eval.inference.label_ids import as_numpy, check_ids, check_num_classes, label_image
 from claravid.io.layout import (
     DEPTH_MAX_M,
@@ -175,15 +176,19 @@ def cross_view(
         )  # fmt: skip
 
     # Pixels of t that can be kept: a depth hit, static, not ignored.
-    valid_t = cv2.bitwise_and(valid_t, _hits(depth_t))
+    hits = _hits(depth_t)
+    valid_t = cv2.bitwise_and(valid_t, hits, dst=valid_t)
     if static_t is not None:
-        valid_t = cv2.bitwise_and(valid_t, static_t)
-    # Pixels of s that can be looked up: the same, folded into its depth (0: never visible).
-    usable_s = cv2.bitwise_and(valid_s, _hits(depth_s))
+        valid_t = cv2.bitwise_and(valid_t, static_t, dst=valid_t)
+    # Pixels of s that can be looked up: the same, folded into its labels (255: never kept; a
+    # carried 255 falls outside the K×K counts).
+    usable_s = cv2.bitwise_and(valid_s, _hits(depth_s, dst=hits), dst=valid_s)
     if static_s is not None:
-        usable_s = cv2.bitwise_and(usable_s, static_s)
-    depth_s = cv2.bitwise_and(depth_s, depth_s, mask=usable_s)  # 0.0 where not usable
+        usable_s = cv2.bitwise_and(usable_s, static_s, dst=usable_s)
     labels_s = cv2.merge([labels["pred_s"], labels["gt_s"]])
+    # OpenCV takes a scalar operand; its stubs want an array.
+    cv2.bitwise_or(labels_s, (255, 255, 0, 0), dst=labels_s,  # type: ignore[call-overload]
+                   mask=cv2.bitwise_not(usable_s, dst=usable_s))  # fmt: skip
     pred_joint, gt_joint = _carry(
         _transfer(c2w_t, c2w_s, intrinsics), depth_t, valid_t, depth_s, labels_s,
         labels["pred_t"], labels["gt_t"], np.float32(tolerance), k,
@@ -240,62 +245,88 @@ def _carry(
     """Joint counts (int64 K×K) over the kept pixels of (t, carried s): predictions, truth."""
     height, width = depth_t.shape
     rows_per_band = max(1, _BAND_PIXELS // width)
+    visible = visible_range(tolerance)
     m = transfer.astype(np.float32)
     cols = np.arange(width, dtype=np.float32)
     along = [m[i, 0] * cols for i in range(3)]  # the column part of M · (u, v, 1)
-    # Each band writes its keys into whole-frame images, counted once at the end.
-    keys = np.empty((2, height, width), np.uint8)  # t's prediction and truth, 255 unless kept
-    carried = np.empty((height, width, 2), np.uint8)  # s's prediction and truth, carried back
+    # Band-sized buffers, written in place band after band (they stay in the CPU's cache), and
+    # the two joint counts, added to band after band.
+    q_all = np.empty((3, rows_per_band, width), np.float32)
+    keys_all = np.empty((2, rows_per_band, width), np.uint8)  # t's labels, 255 unless kept
+    carried_all = np.empty((rows_per_band, width, 2), np.uint8)  # s's labels, carried back
+    # The two labels of a pixel move as one 16-bit value (OpenCV's one-channel remap is faster
+    # than its two-channel one); the bytes come back in their order whatever the endianness.
+    pairs_s, pairs_carried = labels_s.view(np.uint16)[..., 0], carried_all.view(np.uint16)[..., 0]
+    pred_joint, gt_joint = np.zeros((256, 256), np.int64), np.zeros((256, 256), np.int64)
     for r0 in range(0, height, rows_per_band):
         band = slice(r0, min(height, r0 + rows_per_band))
+        n = band.stop - band.start
         d = depth_t[band]
         rows = np.arange(band.start, band.stop, dtype=np.float32)[:, None]
         # q = d · (M · (u, v, 1)) + h, row by row of M; q[2] is the depth in s.
-        q = []
+        q = q_all[:, :n]
         for i in range(3):
-            qi = along[i] + (m[i, 1] * rows + m[i, 2])
-            qi *= d
-            qi += m[i, 3]
-            q.append(qi)
+            np.add(along[i], m[i, 1] * rows + m[i, 2], out=q[i])
+            q[i] *= d
+            q[i] += m[i, 3]
         with np.errstate(divide="ignore", invalid="ignore"):
             inverse = np.divide(np.float32(1), q[2], out=q[2])
             x, y = np.multiply(q[0], inverse, out=q[0]), np.multiply(q[1], inverse, out=q[1])
             # Nearest pixel of s (NaN or far outside: remap's border), looked up twice.
             near, _ = cv2.convertMaps(x, y, cv2.CV_16SC2, nninterpolation=True)
             # OpenCV takes map2 None beside a CV_16SC2 map1; its stubs want an array.
-            looked = cv2.remap(depth_s, near, None, cv2.INTER_NEAREST,  # type: ignore[call-overload]
+            looked = cv2.remap(depth_s, near, None, cv2.INTER_NEAREST, dst=x,  # type: ignore[call-overload]
                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)  # fmt: skip
-            # Visible: |depth_s − d_s| <= τ·d_s, i.e. |depth_s / d_s − 1| <= τ; this also needs
-            # d_s > 0 and a depth hit of s there (its unusable pixels hold depth 0).
+            # Visible: |depth_s − d_s| <= τ·d_s, i.e. |depth_s / d_s − 1| <= τ (one range test,
+            # see visible_range); this also needs d_s > 0 (s's unusable pixels carry label 255,
+            # counted nowhere).
             looked *= inverse
-        # OpenCV takes scalar operands; its stubs want arrays.
-        kept = cv2.compare(cv2.absdiff(looked, 1.0), float(tolerance), cv2.CMP_LE)  # type: ignore[call-overload]
-        kept = cv2.bitwise_and(kept, valid_t[band])
-        cv2.remap(labels_s, near, None, cv2.INTER_NEAREST, dst=carried[band],  # type: ignore[call-overload]
-                  borderMode=cv2.BORDER_CONSTANT, borderValue=(255, 255, 0, 0))  # fmt: skip
-        dropped = cv2.bitwise_not(kept)
-        cv2.bitwise_or(pred_t[band], dropped, dst=keys[0, band])  # kept ids are < K
-        cv2.bitwise_or(gt_t[band], dropped, dst=keys[1, band])
-    return _joint(keys[0], carried, 0, num_classes), _joint(keys[1], carried, 1, num_classes)
+        kept = cv2.inRange(looked, *visible)
+        kept = cv2.bitwise_and(kept, valid_t[band], dst=kept)
+        carried = carried_all[:n]
+        cv2.remap(pairs_s, near, None, cv2.INTER_NEAREST, dst=pairs_carried[:n],  # type: ignore[call-overload]
+                  borderMode=cv2.BORDER_CONSTANT, borderValue=0xFFFF)  # fmt: skip
+        dropped = cv2.bitwise_not(kept, dst=kept)
+        keys = keys_all[:, :n]
+        cv2.bitwise_or(pred_t[band], dropped, dst=keys[0])  # kept ids are < K
+        cv2.bitwise_or(gt_t[band], dropped, dst=keys[1])
+        joint_counts(keys[0], carried, 0, out=pred_joint)
+        joint_counts(keys[1], carried, 1, out=gt_joint)
+    k = num_classes
+    return pred_joint[:k, :k], gt_joint[:k, :k]
 
 
-def _joint(key: np.ndarray, carried: np.ndarray, channel: int, k: int) -> np.ndarray:
-    """int64 K×K counts of (key, carried channel) pairs whose key is a class (< K)."""
-    if key.size < 1 << 24:  # float32 histogram counts are exact below 2^24
-        # The full 256×256 byte histogram: OpenCV's fast path (narrower ranges are slower).
-        hist = cv2.calcHist([key, carried], [0, 1 + channel], None, [256, 256], [0, 256, 0, 256])
-        return hist[:k, :k].astype(np.int64)
-    index = key.astype(np.int64) * 256 + carried[..., channel]
-    return np.bincount(index.ravel(), minlength=1 << 16).reshape(256, 256)[:k, :k]
+def visible_range(tolerance: np.float32) -> tuple[float, float]:
+    """``[lo, hi]``: the float32 ratios r with ``|r − 1| <= τ`` as float32 arithmetic has it.
+
+    The rounded ``|r − 1|`` grows as r moves away from 1 on either side, so the ratios that pass
+    are one interval; walking from ``1 ± τ`` to its ends, float32 by float32, finds it, and one
+    range test per pixel then decides as the subtraction and comparison would.
+    """
+    one, up, down = np.float32(1), np.float32(np.inf), np.float32(0)
+
+    def passes(r: np.float32) -> bool:
+        return bool(np.abs(r - one) <= tolerance)
+
+    ends = []
+    for start, outward in ((one - tolerance, down), (one + tolerance, up)):
+        end = np.float32(start)
+        while not passes(end):
+            end = np.nextafter(end, one)
+        while passes(np.nextafter(end, outward)):
+            end = np.nextafter(end, outward)
+        ends.append(float(end))
+    return ends[0], ends[1]
 
 
-def _hits(depth: np.ndarray) -> np.ndarray:
+def _hits(depth: np.ndarray, dst: np.ndarray | None = None) -> np.ndarray:
     """255 where the depth is a hit: 0 < d < 1000 m (0 and 1000 m are nothing and sky)."""
-    # OpenCV takes scalar operands; its stubs want arrays.
-    return cv2.bitwise_and(
-        cv2.compare(depth, 0.0, cv2.CMP_GT),  # type: ignore[call-overload]
-        cv2.compare(depth, DEPTH_MAX_M, cv2.CMP_LT),  # type: ignore[call-overload]
-    )
+    # One integer pass: a non-negative float32's bits order as the floats do, and -0.0,
+    # negatives and NaNs fall outside [1, bits(1000 m) − 1] (no float compare, no denormal mode).
+    return cv2.inRange(depth.view(np.int32), 1, _BELOW_MAX_BITS, dst=dst)
+
+
+_BELOW_MAX_BITS = int(np.float32(DEPTH_MAX_M).view(np.int32)) - 1
 
 
 def _depth(array: Any, name: str) -> np.ndarray:

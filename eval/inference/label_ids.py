@@ -66,18 +66,20 @@ def check_ids(
     prefix = f"{name} " if name else ""
     # OpenCV takes a scalar operand; its stubs want an array.
     valid = cv2.compare(truth, IGNORE_INDEX, cv2.CMP_NE)  # type: ignore[call-overload]
-    # Cheap counts first; which ids are wrong is only worked out when some are.
-    if num_classes < IGNORE_INDEX and cv2.countNonZero(
-        cv2.inRange(truth, num_classes, IGNORE_INDEX - 1)
-    ):
+    # The largest id that counts first (one masked pass each); which ids are wrong is only
+    # worked out when some are.
+    if truth.size and num_classes < IGNORE_INDEX and cv2.minMaxLoc(truth, valid)[1] >= num_classes:
         bad = np.unique(truth[(truth >= num_classes) & (truth != IGNORE_INDEX)])
         _raise_outside(f"{prefix}ground truth", bad.tolist(), num_classes)
-    if prediction is not None:
+    if (
+        prediction is not None
+        and prediction.size
+        and cv2.minMaxLoc(prediction, valid)[1] >= num_classes
+    ):
         outside = cv2.bitwise_and(cv2.inRange(prediction, num_classes, 255), valid)
-        if cv2.countNonZero(outside):
-            _raise_outside(
-                f"{prefix}prediction", np.unique(prediction[outside > 0]).tolist(), num_classes
-            )
+        _raise_outside(
+            f"{prefix}prediction", np.unique(prediction[outside > 0]).tolist(), num_classes
+        )
     return valid
 
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from claravid.eval.inference import joint_counts
 from claravid.eval.inference.boundary import boundary_iou, boundary_width
 
 
@@ -90,7 +91,10 @@ def test_hand_counted_ignore_region():
         ((50, 1), 2, 0.1),  # one column
     ],
 )
-def test_random_masks_match_the_iterated_erosions(shape, num_classes, ratio):
+@pytest.mark.parametrize("native", [True, False], ids=["C", "OpenCV"])
+def test_random_masks_match_the_iterated_erosions(monkeypatch, native, shape, num_classes, ratio):
+    if not native:  # the pair counts without the optional C module
+        monkeypatch.setattr(joint_counts, "_native", None)
     rng = np.random.default_rng(sum(shape) + num_classes)
     for _ in range(4):
         gt = blobs(rng, shape, num_classes)
@@ -128,6 +132,20 @@ def test_one_class_everywhere_is_a_band_along_the_border():
     d = boundary_width(gt.shape, 0.1)  # round(0.1 · 50) = 5
     inter, union = boundary_iou(gt, gt, 1, dilation_ratio=0.1)
     assert d == 5 and inter[0] == union[0] == 30 * 40 - (30 - 2 * d) * (40 - 2 * d)
+
+
+def test_a_band_wider_than_any_int32_box_sum_is_every_pixel():
+    """d = 5000 (a 250,000-pixel diagonal's band, past the byte box sum's int32 range) on a
+    small image: every pixel is within d of the border, so each class's boundary is its mask."""
+    rng = np.random.default_rng(8)
+    gt, pred = blobs(rng, (30, 40), 3), blobs(rng, (30, 40), 3)
+    gt[:4, :6] = 255
+    assert boundary_width(gt.shape, 100.0) == 5000
+    inter, union = boundary_iou(pred, gt, 3, dilation_ratio=100.0)
+    valid = gt != 255
+    for c in range(3):
+        assert inter[c] == ((gt == c) & (pred == c) & valid).sum()
+        assert union[c] == (((gt == c) | (pred == c)) & valid).sum()
 
 
 def test_torch_tensors_and_integer_types_give_the_same_sums():

@@ -1,5 +1,7 @@
 """Calibration sums against torchmetrics' MulticlassCalibrationError on the same probabilities."""
 
+from fractions import Fraction
+
 import numpy as np
 import pytest
 import torch
@@ -24,6 +26,29 @@ def labels_near(probs, rng, right=0.7):
     return np.where(rng.random(pred.shape) < right, pred, other).astype(np.uint8)
 
 
+#: The C pass eight pixels at a time (AVX2, where the CPU has it), the C pass one pixel at a
+#: time, and numpy.
+PATHS = ["C", "C one by one", "numpy"]
+
+
+def use(monkeypatch, path):
+    if path == "numpy":
+        monkeypatch.setattr(calibration, "_native", None)
+    elif path == "C one by one":
+        monkeypatch.setattr(calibration, "_vector", False)
+
+
+def exact_sums(conf, gt, edges):
+    """Per bin, the exact sum of the confidences (fractions), rounded once to float64."""
+    bins = len(edges) - 1
+    out = [Fraction(0)] * bins
+    for c, t in zip(conf.ravel(), gt.ravel(), strict=True):
+        if t != 255:
+            b = min(int(np.sum(edges[1:] <= c)), bins - 1)
+            out[b] += Fraction(float(c))
+    return np.array([float(f) for f in out])
+
+
 def torchmetrics_errors(probs, gt, n_bins):
     """ECE and MCE from torchmetrics on the pixels whose ground truth is not ignored."""
     k = probs.shape[0]
@@ -41,10 +66,9 @@ def torchmetrics_errors(probs, gt, n_bins):
     ("k", "shape", "n_bins", "sharpness"),
     [(8, (37, 53), 15, 6.0), (19, (24, 40), 15, 7.0), (3, (31, 17), 10, 3.0), (5, (9, 64), 1, 4.0)],
 )
-@pytest.mark.parametrize("native", [True, False], ids=["C", "numpy"])
-def test_ece_and_mce_match_torchmetrics(monkeypatch, native, k, shape, n_bins, sharpness):
-    if not native:
-        monkeypatch.setattr(calibration, "_native", None)
+@pytest.mark.parametrize("path", PATHS)
+def test_ece_and_mce_match_torchmetrics(monkeypatch, path, k, shape, n_bins, sharpness):
+    use(monkeypatch, path)
     rng = np.random.default_rng(k * 100 + n_bins)
     probs = softmax_scores(rng, k, shape, sharpness)
     assert probs.max() < 1.0  # exactly 1.0 is binned differently by torchmetrics (see below)
@@ -81,11 +105,10 @@ def test_sums_are_the_definition_counted_here():
     np.testing.assert_array_equal(got[2], correct)
 
 
-@pytest.mark.parametrize("native", [True, False], ids=["C", "numpy"])
-def test_edges_and_exact_one_go_where_the_docs_say(monkeypatch, native):
+@pytest.mark.parametrize("path", PATHS)
+def test_edges_and_exact_one_go_where_the_docs_say(monkeypatch, path):
     """A confidence on an edge starts that bin ([e_i, e_i+1)); exactly 1.0 is in the last bin."""
-    if not native:
-        monkeypatch.setattr(calibration, "_native", None)
+    use(monkeypatch, path)
     edges = bin_edges(5)
     conf = np.array([[0.0, edges[1], np.nextafter(edges[1], 0), edges[4], 1.0, 0.5]], np.float32)
     pred = np.zeros(conf.shape, np.uint8)
@@ -94,6 +117,35 @@ def test_edges_and_exact_one_go_where_the_docs_say(monkeypatch, native):
     np.testing.assert_array_equal(count, [2, 1, 0, 0, 2])
     np.testing.assert_array_equal(correct, [1, 1, 0, 0, 2])
     assert conf_sum[4] == pytest.approx(float(edges[4]) + 1.0)
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_confidence_sums_are_exact_whatever_the_confidences(monkeypatch, path):
+    """Softmax confidences, tiny ones (a class count past 128), subnormals, 0, -0, values on and
+    beside every edge, ignored NaNs: each bin's sum is the exact sum rounded once."""
+    use(monkeypatch, path)
+    rng = np.random.default_rng(21)
+    edges = bin_edges(15)
+    near_edges = np.concatenate([edges, np.nextafter(edges, -1), np.nextafter(edges, 2)])
+    special = [0.0, -0.0, 1e-45, 3e-39, 1e-30, 2.0**-7, np.nextafter(2.0**-7, 0), 1e-3, 1.0]
+    conf = np.concatenate([
+        softmax_scores(rng, 6, (1, 900), 9.0).max(0).values.numpy().ravel(),
+        rng.uniform(0, 0.01, 300), np.clip(near_edges, -0.0, 1.0), special * 3,
+    ]).astype(np.float32)  # fmt: skip
+    rng.shuffle(conf)
+    conf = np.resize(conf, (37, 45))  # 1665 pixels: not a multiple of eight
+    gt = rng.integers(0, 3, conf.shape).astype(np.uint8)
+    gt[rng.random(conf.shape) < 0.1] = 255
+    conf[(gt == 255) & (rng.random(conf.shape) < 0.3)] = np.nan  # ignored: never looked at
+    pred = rng.integers(0, 3, conf.shape).astype(np.uint8)
+    count, conf_sum, correct = calibration_sums(conf, pred, gt)
+    np.testing.assert_array_equal(conf_sum, exact_sums(conf, gt, edges))
+    assert count.sum() == (gt != 255).sum() and correct.sum() == ((pred == gt) & (gt != 255)).sum()
+    # Only subnormals and tiny normals in bin 0: their own exponents, nothing to round them away.
+    tiny = np.array([[1e-45, 3e-39, 0.0, 2e-38, 1.2e-38, 5e-30, 1e-39, 7e-45, 0.0]], np.float32)
+    labels = np.zeros(tiny.shape, np.uint8)
+    _, conf_sum, _ = calibration_sums(tiny, labels, labels)
+    np.testing.assert_array_equal(conf_sum, exact_sums(tiny, labels, edges))
 
 
 def test_the_c_pass_and_numpy_agree_to_the_bit(monkeypatch):
@@ -105,6 +157,10 @@ def test_the_c_pass_and_numpy_agree_to_the_bit(monkeypatch):
     gt = labels_near(probs, rng)
     gt[rng.random(gt.shape) < 0.2] = 255
     native = calibration_bins(probs, gt)
+    monkeypatch.setattr(calibration, "_vector", False)
+    for a, b in zip(native, calibration_bins(probs, gt), strict=True):
+        np.testing.assert_array_equal(a, b)
+    monkeypatch.setattr(calibration, "_vector", True)
     # Confidences on, just below and just above every edge, 0, -0, 1 and the smallest floats:
     # the C pass's table of bit patterns must bin them as the edges say.
     edges = bin_edges(15)
@@ -132,7 +188,7 @@ def test_reliability_and_empty_groups():
     assert all(np.isnan(calibration_errors([0, 0], [0.0, 0.0], [0, 0])))
 
 
-@pytest.mark.parametrize("native", [True, False])
+@pytest.mark.parametrize("path", PATHS)
 @pytest.mark.parametrize(
     ("probs", "gt", "match"),
     [
@@ -148,9 +204,8 @@ def test_reliability_and_empty_groups():
         (np.zeros((3, 4, 5), int), np.zeros((4, 5), int), "floating point"),
     ],
 )
-def test_bad_inputs_say_what_is_wrong(monkeypatch, native, probs, gt, match):
-    if not native:
-        monkeypatch.setattr(calibration, "_native", None)
+def test_bad_inputs_say_what_is_wrong(monkeypatch, path, probs, gt, match):
+    use(monkeypatch, path)
     with pytest.raises(ValueError, match=match):
         calibration_bins(probs, gt)
 

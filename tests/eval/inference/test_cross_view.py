@@ -4,12 +4,13 @@ hand, generated frames of a pass against a plain restatement, and every bad inpu
 import json
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 import torch
 
 from claravid.data.index import list_frames
-from claravid.eval.inference.cross_view import cross_view
+from claravid.eval.inference.cross_view import cross_view, visible_range
 from claravid.eval.inference.pairs import pair_sums, pass_pairs, read_geometry
 from claravid.infra.errors import CorruptFileError
 from claravid.io import modalities
@@ -124,6 +125,11 @@ def test_what_is_not_kept():
                 dynamic_s=dynamic_s, gt_t=gt_t, gt_s=gt_s, pred_s=gt_s)  # fmt: skip
     assert sums.kept == len(pairs) - 8
     assert sums.gt_agree == sums.kept and sums.status == "ok"
+    # The predictions (those of s hold t's classes where s has no depth or moves) count over
+    # the kept pixels only, as the ground truth.
+    assert sums.agree == sums.kept
+    np.testing.assert_array_equal(sums.intersection, sums.gt_intersection)
+    np.testing.assert_array_equal(sums.union, sums.gt_union)
 
 
 def test_a_pose_that_is_not_rigid_or_intrinsics_that_are_not_pinhole_are_refused():
@@ -260,3 +266,27 @@ def test_missing_depth_or_extrinsics_make_a_pair_unavailable(forest, tmp_path):
     bad.write_text(json.dumps(matrix.tolist()))
     with pytest.raises(CorruptFileError, match=r"000003\.json: not a camera pose"):
         pair_sums(root, frames[3], frames[3], gt, gt, gt, gt, num_classes=23)
+
+
+@pytest.mark.parametrize("tolerance", [0.01, 1e-7, 0.3333, 0.5, 0.9])
+def test_the_visibility_range_is_the_rounded_test(tolerance):
+    """One range test per pixel decides as ``|r − 1| <= τ`` in float32 does, at both ends (the
+    ratios float32 by float32 around 1 ± τ), for NaN, infinities and everything between."""
+    tau = np.float32(tolerance)
+    ratios = [np.float32(v) for v in (1 - tau, 1 + tau, 1, 0, -1, np.inf, -np.inf, np.nan)]
+    for start in ratios[:2]:
+        r = start
+        for _ in range(300):  # 300 floats on each side of each end
+            r = np.nextafter(r, np.float32(0))
+        ratios += [r]
+        for _ in range(600):
+            r = np.nextafter(r, np.float32(2))
+            ratios.append(r)
+    ratios = np.array(ratios + list(np.random.default_rng(0).uniform(0, 2, 2000)), np.float32)
+    ratios = ratios.reshape(1, -1)
+    lo, hi = visible_range(tau)
+    rounded = (np.abs(ratios - np.float32(1)) <= tau).astype(np.uint8) * 255
+    np.testing.assert_array_equal(cv2.inRange(ratios, lo, hi), rounded)
+    # OpenCV's float32 difference and comparison (the test as once written) round alike.
+    former = cv2.compare(cv2.absdiff(ratios, 1.0), float(tau), cv2.CMP_LE)
+    np.testing.assert_array_equal(former, rounded)
