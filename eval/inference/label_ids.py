@@ -64,6 +64,8 @@ def check_ids(
         The valid pixels: uint8, 255 where the truth is not the ignore index.
     """
     prefix = f"{name} " if name else ""
+    if truth.size == 0:  # OpenCV refuses empty arrays; nothing to check, nothing valid
+        return np.zeros(truth.shape, np.uint8)
     # OpenCV takes a scalar operand; its stubs want an array.
     valid = cv2.compare(truth, IGNORE_INDEX, cv2.CMP_NE)  # type: ignore[call-overload]
     # The largest id that counts first (one masked pass each); which ids are wrong is only

@@ -134,6 +134,12 @@ def test_one_class_everywhere_is_a_band_along_the_border():
     assert d == 5 and inter[0] == union[0] == 30 * 40 - (30 - 2 * d) * (40 - 2 * d)
 
 
+@pytest.mark.parametrize("shape", [(0, 0), (0, 5), (4, 0)])
+def test_an_empty_image_counts_nothing(shape):
+    inter, union = boundary_iou(np.zeros(shape, np.uint8), np.zeros(shape, np.uint8), 3)
+    assert inter.tolist() == union.tolist() == [0, 0, 0]
+
+
 def test_a_band_wider_than_any_int32_box_sum_is_every_pixel():
     """d = 5000 (a 250,000-pixel diagonal's band, past the byte box sum's int32 range) on a
     small image: every pixel is within d of the border, so each class's boundary is its mask."""
