@@ -29,7 +29,7 @@ Backbones (``--backbones``): DINOv3-L/16 + DPT at 640x640 against DINOv2-L/14 + 
 (each model's natural size, the crops and windows of the paper configs: 1,600 tokens against
 2,025), batch 1, random init, in one run: PyTorch eager fp32 forward time (medians of
 alternated runs; target DINOv3 <= 0.8x DINOv2's time) and peak memory (each forward in a fresh
-forked process: its peak resident set, and the rise above the built model). Then onnxruntime
+spawned process: its peak resident set, and the rise above the built model). Then onnxruntime
 (fixed-size fp32 exports, checked) of both; exporting two ViT-L takes longer than a short run
 here, so ``--ort-depth`` (default 6 of 24 blocks, taps 1, 2, 4, 5) builds both with fewer
 blocks of the same width (the per-block costs compare alike); ``--ort-depth 24`` exports the
@@ -282,7 +282,7 @@ def _peak_child(name: str, size: int, out) -> None:
     import resource
 
     model = _segmenter(name)
-    x = torch.zeros(1, 3, size, size)
+    x = torch.randn(1, 3, size, size)  # normalised-looking (zeros warn of raw pixels)
     built = _rss_kib()
     with torch.inference_mode():
         model(x)
@@ -292,10 +292,11 @@ def _peak_child(name: str, size: int, out) -> None:
 
 def _peak_memory(name: str, size: int) -> tuple[float, float]:
     """(peak resident GiB, rise above the built model GiB) of one eager forward, measured in a
-    fresh forked process so that nothing else counts."""
+    fresh interpreter so that nothing else counts (spawned: a child forked after this process
+    ran torch's OpenMP threads, the CPU section's, hangs in its first parallel region)."""
     import multiprocessing as mp
 
-    context = mp.get_context("fork")
+    context = mp.get_context("spawn")
     out = context.Queue()
     job = context.Process(target=_peak_child, args=(name, size, out))
     job.start()
