@@ -24,8 +24,10 @@ demo: $(STAMP)
 	$(BIN)/claravid-train --config demo --resume
 	$(BIN)/claravid-eval --checkpoint runs/demo/train/best.pt --output runs/demo/train/report
 
+# A worker per core, at most 4 (each holds its own session fixtures: a many-core machine would
+# spend memory, not time); the 20 slowest tests printed at the end (docs/contributing.md).
 test: lint
-	$(BIN)/python -m pytest -q -n auto --dist loadfile --durations=20  # a worker per core; the slowest 20 (docs/contributing.md)
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadfile --durations=20
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -20,7 +20,9 @@ def pytest_configure(config):
     if workers:
         import torch
 
-        torch.set_num_threads(max(1, (os.cpu_count() or 1) // int(workers)))
+        # The cores this process may run on (a container's, not the host's os.cpu_count()).
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+        torch.set_num_threads(max(1, (cores or 1) // int(workers)))
 
 
 # The session fixtures shared by tests/models, tests/train and tests/eval (tiny trained runs and
