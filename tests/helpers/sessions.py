@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
+import os
 import shutil
 from collections.abc import Mapping
 
@@ -18,6 +20,35 @@ import pytest
 import torch
 
 from tests.tiny import HEAD, VIT_56, tiny, tiny_v3
+
+
+def _shared_folder(tmp_path_factory, name: str):
+    """A folder every worker of this run reads (``pytest -n``: each worker's temp folder is its
+    own, their parent the run's), for files that cost seconds to make and are the same in every
+    worker. Its name holds what the files are made from, so workers that differ never share."""
+    base = tmp_path_factory.getbasetemp()
+    # Shared only where `_made_once` can lock (POSIX); elsewhere each worker makes its own.
+    shared = os.environ.get("PYTEST_XDIST_WORKER") and os.name == "posix"
+    root = base.parent if shared else base
+    folder = root / "shared" / name
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+@contextlib.contextmanager
+def _made_once(folder):
+    """Hold ``folder``'s lock: the first worker makes the files, the others wait, then reuse."""
+    if os.name != "posix":  # a folder of this worker's own (`_shared_folder`)
+        yield
+        return
+    import fcntl
+
+    with open(folder / ".lock", "w") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 def _trained(cfg):
@@ -149,10 +180,17 @@ def model_onnx(model_files, tmp_path_factory):
     file and what `export_onnx` returned). Apart from `model_files`, as most of its users
     read only the checkpoints and an export costs seconds."""
     from claravid import models
+    from tests.helpers.files import sha256
 
-    path = tmp_path_factory.mktemp("model_onnx") / "model.onnx"
-    settings = models.ExportSettings(height=56, width=56, dynamic=True)
-    return {"onnx": path, "export": models.export_onnx(model_files["model"], path, settings)}
+    # Made once per run: the model is seeded, so every worker's is the same (its digest says so).
+    folder = _shared_folder(tmp_path_factory, f"model_onnx-{sha256(model_files['plain'])[:16]}")
+    path, record = folder / "model.onnx", folder / "export.json"
+    with _made_once(folder):
+        if not record.exists():
+            settings = models.ExportSettings(height=56, width=56, dynamic=True)
+            result = models.export_onnx(model_files["model"], path, settings)
+            record.write_text(json.dumps(result, default=str))
+    return {"onnx": path, "export": json.loads(record.read_text())}
 
 
 @pytest.fixture
