@@ -1,6 +1,5 @@
-"""Boundary IoU against the plain definition (iterated 3×3 erosions) and a hand-counted case."""
-
-import math
+"""Boundary IoU against the plain definition (iterated 3×3 erosions, tests/helpers/scoring.py)
+and a hand-counted case."""
 
 import numpy as np
 import pytest
@@ -8,31 +7,7 @@ import torch
 
 from claravid.eval.inference import joint_counts
 from claravid.eval.inference.boundary import boundary_iou, boundary_width
-
-
-def reference_boundary(mask: np.ndarray, d: int) -> np.ndarray:
-    """The reference's definition, restated with numpy only: pad one pixel of zeros, erode d
-    times by a 3×3 square (nothing beyond the padded image erodes), subtract."""
-    height, width = mask.shape
-    eroded = np.pad(mask.astype(bool), 1)
-    for _ in range(d):
-        e = np.pad(eroded, 1, constant_values=True)
-        shifted = [e[i : i + height + 2, j : j + width + 2] for i in range(3) for j in range(3)]
-        eroded = np.logical_and.reduce(shifted)
-    return mask.astype(bool) & ~eroded[1:-1, 1:-1]
-
-
-def reference_boundary_iou(pred, gt, num_classes, ratio=0.02):
-    height, width = gt.shape
-    d = max(1, round(ratio * math.sqrt(height**2 + width**2)))  # as the reference: int(round())
-    valid = gt != 255
-    inter, union = [], []
-    for c in range(num_classes):
-        g = reference_boundary(gt == c, d) & valid
-        p = reference_boundary(pred == c, d) & valid
-        inter.append(int((g & p).sum()))
-        union.append(int((g | p).sum()))
-    return np.array(inter), np.array(union)
+from tests.helpers.scoring import boundary_iou_by_hand
 
 
 def blobs(rng, shape, num_classes, count=12):
@@ -103,7 +78,7 @@ def test_random_masks_match_the_iterated_erosions(monkeypatch, native, shape, nu
         gt[: shape[0] // 4, : shape[1] // 3] = 255  # and an ignored region touching the border
         pred[gt == 255] = rng.integers(0, 256, int((gt == 255).sum()))  # junk where ignored
         inter, union = boundary_iou(pred, gt, num_classes, dilation_ratio=ratio)
-        ref_inter, ref_union = reference_boundary_iou(pred, gt, num_classes, ratio)
+        ref_inter, ref_union = boundary_iou_by_hand(pred, gt, num_classes, ratio)
         np.testing.assert_array_equal(inter, ref_inter)
         np.testing.assert_array_equal(union, ref_union)
 
@@ -121,7 +96,7 @@ def test_hand_drawn_masks_with_border_cases():
     pred[0, :] = 0  # a wrong first row
     for ratio in (0.02, 0.1, 0.3):
         inter, union = boundary_iou(pred, gt, 5, dilation_ratio=ratio)
-        ref_inter, ref_union = reference_boundary_iou(pred, gt, 5, ratio)
+        ref_inter, ref_union = boundary_iou_by_hand(pred, gt, 5, ratio)
         np.testing.assert_array_equal(inter, ref_inter)
         np.testing.assert_array_equal(union, ref_union)
         assert union[4] == 0  # class 4 is nowhere: left out of a group's mean
