@@ -40,21 +40,8 @@ def _run(argv) -> int:
 
 def test_folder_with_recursive_pattern(collection, tmp_path, capsys):
     out, plot = tmp_path / "r.json", tmp_path / "p.png"
-    assert (
-        _run(
-            [
-                "--data",
-                str(collection),
-                "--pattern",
-                "left_rgb/**/*.png",
-                "--output",
-                str(out),
-                "--plot",
-                str(plot),
-            ]
-        )
-        == 0
-    )
+    argv = ["--data", str(collection), "--pattern", "left_rgb/**/*.png", "--output", str(out)]
+    assert _run([*argv, "--plot", str(plot)]) == 0
     data = json.loads(out.read_text())
     assert list(data)[:5] == ["metric", "num_images", "use_blur", "blur_ksize", "results"]
     assert (data["metric"], data["num_images"], data["use_blur"], data["blur_ksize"]) == (
@@ -150,41 +137,12 @@ def test_shards_merge_to_the_full_run(collection, tmp_path, capsys):
 @pytest.mark.filterwarnings("ignore::claravid.dsp.profile.DegenerateProfileWarning")  # one image
 def test_merge_refuses_mismatches(collection, tmp_path, capsys):
     p0, p0b, g1 = (tmp_path / n for n in ("p0.json", "p0b.json", "g1.json"))
-    assert (
-        _run(
-            [
-                "--data",
-                str(collection),
-                "--pattern",
-                "**/*.png",
-                "--shard",
-                "0/2",
-                "--output",
-                str(p0),
-            ]
-        )
-        == 0
-    )
+    pngs = ["--data", str(collection), "--pattern", "**/*.png"]
+    assert _run([*pngs, "--shard", "0/2", "--output", str(p0)]) == 0
     p0b.write_text(p0.read_text())
     assert main(["--merge", str(p0), str(p0b)]) == 2
     assert "given more than once" in capsys.readouterr().err
-    assert (
-        _run(
-            [
-                "--data",
-                str(collection),
-                "--pattern",
-                "**/*.png",
-                "--shard",
-                "1/2",
-                "--metric",
-                "pixent",
-                "--output",
-                str(g1),
-            ]
-        )
-        == 0
-    )
+    assert _run([*pngs, "--shard", "1/2", "--metric", "pixent", "--output", str(g1)]) == 0
     assert main(["--merge", str(p0), str(g1)]) == 2
     assert "same settings" in capsys.readouterr().err
 
