@@ -64,16 +64,16 @@ import torch
 from claravid import models
 from claravid.data.index import list_frames
 from claravid.dsp import compute_complexities, compute_measures
-from claravid.eval.inference.boundary import boundary_iou
-from claravid.eval.inference.calibration import calibration_bins, calibration_sums
 from claravid.eval.inference.collect import CollectSettings, collect
-from claravid.eval.inference.cross_view import cross_view
-from claravid.eval.inference.data import open_data
-from claravid.eval.inference.pairs import pass_pairs, read_geometry, read_pair
 from claravid.eval.inference.quality_plan import plan_quality
 from claravid.eval.inference.run_model import evaluate_model
 from claravid.eval.inference.sources import load_source
 from claravid.eval.inference.windows import WindowConfig
+from claravid.eval.inputs.datasets import open_data
+from claravid.eval.inputs.pairs import pass_pairs, read_geometry, read_pair
+from claravid.eval.measures.boundary import boundary_iou
+from claravid.eval.measures.calibration_sums import calibration_bins, calibration_sums
+from claravid.eval.measures.cross_view import cross_view
 from claravid.io.layout import CLASSES, UNLABELED_ID
 from claravid.io.modalities import read_semantic
 from claravid.synth import synthesize

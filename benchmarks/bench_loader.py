@@ -212,7 +212,7 @@ def training_samples(args, root, cache, train, transforms, decode) -> None:
 
 def evaluation_samples(root, cache, rgb, decode) -> None:
     """4. What an evaluation sample costs: claravid-eval's and the documented dataset's."""
-    from claravid.eval.inference.data import open_data
+    from claravid.eval.inputs.datasets import open_data
 
     os.environ["CLARAVID_CACHE"] = str(cache.parent / "eval-cache")
     data = open_data(root, split="all", palette="uavid")

@@ -58,7 +58,7 @@ import numpy as np
 import torch
 
 from claravid.models import OnnxSegmenter, backbone_spec, build_model, export_onnx
-from claravid.models.export import ExportSettings
+from claravid.models.export.onnx import ExportSettings
 from claravid.models.grid import natural_size
 
 BACKBONE_TFLOP_630 = 1.63  # ViT-L/14, 2026 tokens, forward
@@ -118,8 +118,8 @@ def _calibration_folder(folder: Path, size: tuple[int, int], count: int) -> Path
     """``count`` smooth random photos (PNG) for ``--calibration`` (no dataset at hand)."""
     import cv2
 
-    from claravid.models.export import smooth_images
-    from claravid.models.onnx_metadata import normalisation_from_config
+    from claravid.models.export.metadata import normalisation_from_config
+    from claravid.models.export.onnx import smooth_images
 
     norm = normalisation_from_config(None)
     mean = np.asarray(norm["mean"], np.float32).reshape(3, 1, 1)
@@ -137,7 +137,7 @@ def _export_like_users(
 ) -> dict[str, Path]:
     """The files ``claravid-export --checkpoint CKPT --size WxH [flags]`` writes, one per
     precision, written by the console script's own function (export time printed)."""
-    from claravid.eval.export_cli import main as claravid_export
+    from claravid.eval.cli.export import main as claravid_export
 
     h, w = size
     out = {}
@@ -162,7 +162,7 @@ def _export_like_users(
 
 def _runners(files: dict[str, Path], threads: int) -> dict[str, Any]:
     """Each file loaded as ``claravid-eval --onnx FILE`` loads it on a CPU."""
-    from claravid.models.onnx_runtime import OnnxSegmenter, resolve_providers
+    from claravid.models.export.runtime import OnnxSegmenter, resolve_providers
 
     return {n: OnnxSegmenter(p, providers=resolve_providers("cpu"), threads=threads)
             for n, p in files.items()}  # fmt: skip
@@ -190,8 +190,8 @@ def bench_precisions(
     runs them: speed ratio against fp32 and argmax agreement with PyTorch; then what stays
     float in the int8 file and where ONNX Runtime spends its time."""
     from claravid.models.checkpoint import save_checkpoint
-    from claravid.models.export import smooth_images
-    from claravid.models.onnx_metadata import normalisation_from_config
+    from claravid.models.export.metadata import normalisation_from_config
+    from claravid.models.export.onnx import smooth_images
 
     threads = torch.get_num_threads()
     print(
@@ -229,9 +229,9 @@ def bench_precisions(
 
 def bench_demo(checkpoint: Path, data: Path, frames: int) -> None:
     """Argmax agreement of the fp16 / int8 exports of a trained checkpoint on val frames."""
-    from claravid.eval.inference.data import open_data
     from claravid.eval.inference.sources import load_source, resolve_settings
     from claravid.eval.inference.windows import predict_labels
+    from claravid.eval.inputs.datasets import open_data
 
     source = load_source(checkpoint)
     settings = resolve_settings(source)

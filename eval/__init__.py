@@ -1,20 +1,23 @@
 """Evaluation: mIoU per complexity bin from any model, with intervals, tiles and comparisons.
 
-Three layers, imports pointing one way (inference → analysis ← report):
+Rooms, imports pointing one way (inputs, measures → inference → analysis ← report):
 
-- :mod:`claravid.eval.inference` (torch): the data an evaluation reads, model and label-map
-  sources, sliding windows, the per-image sums (the confusion of an image and of its tiles,
-  Boundary IoU, calibration bins) and the per-pair cross-view sums, and the per-image
-  collection with its background complexity job;
+- :mod:`claravid.eval.inputs`: what an evaluation reads (the images and labels of ClaraVid,
+  UAVid or a folder, saved label maps, per-image metric CSVs, frame pairs and their geometry);
+- :mod:`claravid.eval.measures`: the per-image sums (the confusion of an image and of its tiles,
+  Boundary IoU, calibration bins) and the per-pair cross-view sums;
+- :mod:`claravid.eval.inference` (torch): model and label-map sources, sliding windows, running
+  the model, and the per-image collection with its background complexity job;
 - :mod:`claravid.eval.analysis` (numpy only, no torch, no files): the per-image table and its
   merging, metrics, bins, units, the cluster bootstrap, mIoU per bin, tiles' bins, paired
   comparisons and any per-image metric;
 - :mod:`claravid.eval.report`: the report's JSON and its folder (``report.json``,
   ``confusions.npz``, ``report.md``, plots) and the comparison folder.
 
-The console scripts sit beside them: ``claravid-eval`` (:mod:`claravid.eval.cli`),
-``claravid-predict`` (:mod:`claravid.eval.predict`), ``claravid-export``
-(:mod:`claravid.eval.export_cli`).
+The console scripts live in :mod:`claravid.eval.cli`: ``claravid-eval``
+(:mod:`claravid.eval.cli.evaluate`),
+``claravid-predict`` (:mod:`claravid.eval.cli.predict`), ``claravid-export``
+(:mod:`claravid.eval.cli.export`).
 
 The core that training validates through::
 
@@ -128,13 +131,8 @@ if TYPE_CHECKING:
     from claravid.eval.analysis.quality_table import PairTable, QualityTable
     from claravid.eval.analysis.stats import correlation
     from claravid.eval.analysis.table import EvalResult, merge_results
-    from claravid.eval.inference.boundary import boundary_iou
-    from claravid.eval.inference.calibration import calibration_bins
     from claravid.eval.inference.collect import CollectSettings, collect
-    from claravid.eval.inference.confusion import confusion_matrix
-    from claravid.eval.inference.cross_view import CrossViewSums, cross_view
-    from claravid.eval.inference.data import open_data
-    from claravid.eval.inference.image_measures import ImageMeasures
+    from claravid.eval.inference.image_sums import ImageMeasures
     from claravid.eval.inference.run_model import ImageScore, evaluate_model, sample_key
     from claravid.eval.inference.sources import load_source
     from claravid.eval.inference.windows import (
@@ -143,6 +141,11 @@ if TYPE_CHECKING:
         sliding_window_logits,
         window_starts,
     )
+    from claravid.eval.inputs.datasets import open_data
+    from claravid.eval.measures.boundary import boundary_iou
+    from claravid.eval.measures.calibration_sums import calibration_bins
+    from claravid.eval.measures.confusion import confusion_matrix
+    from claravid.eval.measures.cross_view import CrossViewSums, cross_view
     from claravid.eval.report.build import build_report
     from claravid.eval.report.compare import compare_reports
     from claravid.eval.report.files import load_result
@@ -182,11 +185,11 @@ else:
             "predict_labels": "claravid.eval.inference.windows",
             "sliding_window_logits": "claravid.eval.inference.windows",
             "window_starts": "claravid.eval.inference.windows",
-            "confusion_matrix": "claravid.eval.inference.confusion",
+            "confusion_matrix": "claravid.eval.measures.confusion",
             "ImageScore": "claravid.eval.inference.run_model",
             "evaluate_model": "claravid.eval.inference.run_model",
             "sample_key": "claravid.eval.inference.run_model",
-            "open_data": "claravid.eval.inference.data",
+            "open_data": "claravid.eval.inputs.datasets",
             "load_source": "claravid.eval.inference.sources",
             "collect": "claravid.eval.inference.collect",
             "CollectSettings": "claravid.eval.inference.collect",
@@ -202,10 +205,10 @@ else:
             "calibration_errors": "claravid.eval.analysis.calibration",
             "QualityTable": "claravid.eval.analysis.quality_table",
             "PairTable": "claravid.eval.analysis.quality_table",
-            "boundary_iou": "claravid.eval.inference.boundary",
-            "calibration_bins": "claravid.eval.inference.calibration",
-            "cross_view": "claravid.eval.inference.cross_view",
-            "CrossViewSums": "claravid.eval.inference.cross_view",
-            "ImageMeasures": "claravid.eval.inference.image_measures",
+            "boundary_iou": "claravid.eval.measures.boundary",
+            "calibration_bins": "claravid.eval.measures.calibration_sums",
+            "cross_view": "claravid.eval.measures.cross_view",
+            "CrossViewSums": "claravid.eval.measures.cross_view",
+            "ImageMeasures": "claravid.eval.inference.image_sums",
         },
     )

@@ -11,7 +11,8 @@
 :func:`evaluate` checks the output folders, loads the model, resolves the data (the call's
 choice, then what the model recorded, then the defaults), runs the model or reads the label
 maps, builds the report and writes its folder; :func:`score_metrics` does the same for any
-per-image metric of a CSV. Neither prints: the command line (:mod:`claravid.eval.cli`) prints
+per-image metric of a CSV. Neither prints: the command line (:mod:`claravid.eval.cli.evaluate`)
+prints
 what they return. Merging and comparing saved reports is :mod:`claravid.eval.reports`.
 """
 
@@ -130,9 +131,9 @@ def evaluate(
     """
     from claravid.eval.inference.collect import CollectSettings, collect
     from claravid.eval.inference.hardest import hardest_items
-    from claravid.eval.inference.label_maps import MARKER, write_marker
-    from claravid.eval.inference.pass_frames import pairs_unavailable
     from claravid.eval.inference.quality_plan import plan_quality
+    from claravid.eval.inputs.label_maps import MARKER, write_marker
+    from claravid.eval.inputs.pass_frames import pairs_unavailable
     from claravid.eval.report.build import build_report
     from claravid.eval.report.folder import write_outputs
     from claravid.infra import distributed
@@ -248,8 +249,8 @@ def _model_and_source(
 
 def _open(data: DataChoice, model: Any, run: Any, predictions: Any) -> Any:
     """Open the data: the call's choice, then the model's (or label maps') record."""
-    from claravid.eval.inference.data import open_data
-    from claravid.eval.inference.label_maps import predictions_defaults
+    from claravid.eval.inputs.datasets import open_data
+    from claravid.eval.inputs.label_maps import predictions_defaults
 
     if model is not None:
         defaults = model.defaults
@@ -317,8 +318,8 @@ def score_metrics(
     from claravid.eval.analysis.metric_bins import metric_report
     from claravid.eval.analysis.units import group_indices
     from claravid.eval.inference.complexity_job import ComplexityJob
-    from claravid.eval.inference.data import open_data
-    from claravid.eval.inference.metric_csv import match_images, read_metrics_csv
+    from claravid.eval.inputs.datasets import open_data
+    from claravid.eval.inputs.metric_csv import match_images, read_metrics_csv
     from claravid.eval.report.folder import write_metric_outputs
 
     check_type(data, DataChoice, "data", "DataChoice(root='/data/uavid', dataset='uavid')")

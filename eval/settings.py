@@ -28,13 +28,13 @@ import numpy as np
 from claravid.dsp.tiles import MIN_TILE_SIZE
 from claravid.eval.analysis.bins import parse_edges
 from claravid.eval.analysis.bootstrap import Bootstrap
-from claravid.eval.analysis.measures import parse_measures
+from claravid.eval.analysis.complexity_measures import parse_measures
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.units import CLUSTER_UNITS, DATASETS, GROUP_BY, check_unit
 from claravid.infra.cli import UsageError, selection_names
 from claravid.infra.precision import PRECISIONS
-from claravid.models.backbones import NAMED_STATISTICS
-from claravid.models.onnx_runtime import PROVIDERS
+from claravid.models.backbones.specs import NAMED_STATISTICS
+from claravid.models.export.runtime import PROVIDERS
 
 #: ClaraVid selection settings a checkpoint records and ``DataChoice.selection`` replaces.
 SELECTION = ("missions", "altitude", "direction")

@@ -13,7 +13,7 @@ Public API::
     OnnxSegmenter(path)                      # onnxruntime runner
 
 Names are imported on first use (PEP 562): a module that needs only the ONNX Runtime side
-(``claravid.models.onnx_runtime``, ``claravid.models.onnx_metadata``) does not load torch.
+(``claravid.models.export.runtime``, ``claravid.models.export.metadata``) does not load torch.
 """
 
 from __future__ import annotations
@@ -57,61 +57,71 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
-    from claravid.models.backbones import (
+    from claravid.models.backbones.build import build_backbone
+    from claravid.models.backbones.dinov2 import DinoVisionTransformer
+    from claravid.models.backbones.dinov3 import DinoV3VisionTransformer
+    from claravid.models.backbones.memory import NotEnoughMemoryError
+    from claravid.models.backbones.specs import (
         BACKBONE_NAMES,
         BACKBONES,
         BackboneSpec,
         backbone_config,
         backbone_spec,
     )
-    from claravid.models.build import build_backbone
     from claravid.models.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-    from claravid.models.dinov3 import DinoV3VisionTransformer
-    from claravid.models.dpt import DPTHead
-    from claravid.models.export import ExportCheckError, ExportSettings, Provenance, export_onnx
-    from claravid.models.heads import HEAD_NAMES, HEADS, HeadSpec, head_spec
+    from claravid.models.export.onnx import (
+        ExportCheckError,
+        ExportSettings,
+        Provenance,
+        export_onnx,
+    )
+    from claravid.models.export.runtime import OnnxSegmenter
+    from claravid.models.heads.dpt import DPTHead
+    from claravid.models.heads.linear import LinearHead
+    from claravid.models.heads.specs import HEAD_NAMES, HEADS, HeadSpec, head_spec
+    from claravid.models.heads.upernet import UperNetHead
     from claravid.models.inputs import InputRangeWarning
-    from claravid.models.linear_head import LinearHead
-    from claravid.models.memory import NotEnoughMemoryError
-    from claravid.models.onnx_runtime import OnnxSegmenter
     from claravid.models.segmenter import Segmenter, build_model
-    from claravid.models.upernet import UperNetHead
-    from claravid.models.vit import DinoVisionTransformer
-    from claravid.models.weights import WeightsError, hf_to_official, official_to_hf, official_url
+    from claravid.models.weights.loader import (
+        WeightsError,
+        hf_to_official,
+        official_to_hf,
+        official_url,
+    )
 else:
     __getattr__, __dir__ = lazy_exports(
         __name__,
         {
-            "BACKBONES": "claravid.models.backbones",
-            "BACKBONE_NAMES": "claravid.models.backbones",
-            "BackboneSpec": "claravid.models.backbones",
-            "backbone_config": "claravid.models.backbones",
-            "backbone_spec": "claravid.models.backbones",
-            "build_backbone": "claravid.models.build",
+            "BACKBONES": "claravid.models.backbones.specs",
+            "BACKBONE_NAMES": "claravid.models.backbones.specs",
+            "BackboneSpec": "claravid.models.backbones.specs",
+            "backbone_config": "claravid.models.backbones.specs",
+            "backbone_spec": "claravid.models.backbones.specs",
+            "build_backbone": "claravid.models.backbones.build",
             "CheckpointError": "claravid.models.checkpoint",
             "load_checkpoint": "claravid.models.checkpoint",
             "save_checkpoint": "claravid.models.checkpoint",
-            "DinoV3VisionTransformer": "claravid.models.dinov3",
-            "DPTHead": "claravid.models.dpt",
-            "HEAD_NAMES": "claravid.models.heads",
-            "HEADS": "claravid.models.heads",
-            "HeadSpec": "claravid.models.heads",
-            "head_spec": "claravid.models.heads",
-            "LinearHead": "claravid.models.linear_head",
+            "DinoV3VisionTransformer": "claravid.models.backbones.dinov3",
+            "DPTHead": "claravid.models.heads.dpt",
+            "HEAD_NAMES": "claravid.models.heads.specs",
+            "HEADS": "claravid.models.heads.specs",
+            "HeadSpec": "claravid.models.heads.specs",
+            "head_spec": "claravid.models.heads.specs",
+            "LinearHead": "claravid.models.heads.linear",
             "InputRangeWarning": "claravid.models.inputs",
-            "UperNetHead": "claravid.models.upernet",
-            "ExportCheckError": "claravid.models.export",
-            "export_onnx": "claravid.models.export",
-            "ExportSettings": "claravid.models.export",
-            "Provenance": "claravid.models.export",
-            "NotEnoughMemoryError": "claravid.models.memory",
-            "OnnxSegmenter": "claravid.models.onnx_runtime",
+            "UperNetHead": "claravid.models.heads.upernet",
+            "ExportCheckError": "claravid.models.export.onnx",
+            "export_onnx": "claravid.models.export.onnx",
+            "ExportSettings": "claravid.models.export.onnx",
+            "Provenance": "claravid.models.export.onnx",
+            "NotEnoughMemoryError": "claravid.models.backbones.memory",
+            "OnnxSegmenter": "claravid.models.export.runtime",
             "Segmenter": "claravid.models.segmenter",
             "build_model": "claravid.models.segmenter",
-            "DinoVisionTransformer": "claravid.models.vit",
-            "WeightsError": "claravid.models.weights",
-            "hf_to_official": "claravid.models.weights",
-            "official_to_hf": "claravid.models.weights",
-            "official_url": "claravid.models.weights",
+            "DinoVisionTransformer": "claravid.models.backbones.dinov2",
+            "WeightsError": "claravid.models.weights.loader",
+            "hf_to_official": "claravid.models.weights.loader",
+            "official_to_hf": "claravid.models.weights.loader",
+            "official_url": "claravid.models.weights.loader",
         },
     )

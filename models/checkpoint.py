@@ -23,9 +23,9 @@ from typing import Any
 import torch
 
 from claravid.infra.files import atomic_save
-from claravid.models.onnx_metadata import config_get
+from claravid.models.export.metadata import config_get
 from claravid.models.segmenter import Segmenter, build_model
-from claravid.models.torchfile import read_tensor_file
+from claravid.models.weights.torchfile import read_tensor_file
 
 FORMAT = "claravid-model"
 VERSION = 1

@@ -2,7 +2,8 @@
 
 The input is a batch of normalised float images ``[B, 3, H, W]`` (``(x / 255 - mean) / std``
 with the backbone's own mean and std, which depend on its weights: see
-`claravid.models.backbones`), with H and W multiples of the patch size (`claravid.models.grid`).
+`claravid.models.backbones.specs`), with H and W multiples of the patch size
+(`claravid.models.grid`).
 The PyTorch segmenter also takes uint8 pixels and normalises them itself. Wrong input otherwise
 fails deep inside torch ("Sizes of tensors must match...") or onnxruntime; these checks say what
 was expected and how to fix it.

@@ -1,5 +1,5 @@
 """The segmenter: a DINOv2 or DINOv3 backbone, frozen by default, feeding a trainable head
-(DPT, linear or UperNet: `claravid.models.heads`)."""
+(DPT, linear or UperNet: `claravid.models.heads.specs`)."""
 
 from __future__ import annotations
 
@@ -13,26 +13,26 @@ from typing import Any
 import torch
 from torch import nn
 
-from claravid.models.backbones import DEFAULT_BACKBONE, DPTDefaults, backbone_spec
-from claravid.models.build import Backbone, build_backbone
-from claravid.models.dpt import DPTHead
-from claravid.models.heads import (
+from claravid.models.backbones.build import Backbone, build_backbone
+from claravid.models.backbones.specs import DEFAULT_BACKBONE, DPTDefaults, backbone_spec
+from claravid.models.backbones.trunk import block_indices
+from claravid.models.heads.dpt import DPTHead
+from claravid.models.heads.linear import LinearHead
+from claravid.models.heads.specs import (
     DEFAULT_HEAD,
     UPERNET_CHANNELS,
     HeadSpec,
     check_head_settings,
     default_layers,
 )
+from claravid.models.heads.upernet import UperNetHead
 from claravid.models.inputs import (
     InputRangeWarning,
     check_image_batch,
     check_value_range,
     input_stats,
 )
-from claravid.models.linear_head import LinearHead
-from claravid.models.tracing import is_exporting
-from claravid.models.trunk import block_indices
-from claravid.models.upernet import UperNetHead
+from claravid.models.layers.tracing import is_exporting
 
 Head = DPTHead | LinearHead | UperNetHead
 
@@ -244,7 +244,8 @@ def build_model(
         num_classes: Number of logits channels K.
         weights: Backbone weights: ``None`` (random), a ``.pth``/``.safetensors`` path or
             ``"official"`` (DINOv2 only; see `build_backbone`).
-        head: ``"dpt"`` (the default), ``"linear"`` or ``"upernet"`` (`claravid.models.heads`).
+        head: ``"dpt"`` (the default), ``"linear"`` or ``"upernet"``
+        (`claravid.models.heads.specs`).
         layers: Tapped block indices. DPT and UperNet: four (default per size, e.g. 4, 11, 17,
             23 for ViT-L); linear: one or more, concatenated (default: the last block).
         features: DPT: fusion width (default per size); UperNet: its width (default 512).

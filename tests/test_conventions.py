@@ -12,8 +12,8 @@ import pytest
 from claravid import synth
 from claravid.data import cache_cli
 from claravid.dsp import cli as dsp
-from claravid.eval import cli as evaluate
-from claravid.eval import export_cli, predict
+from claravid.eval.cli import evaluate, predict
+from claravid.eval.cli import export as export_cli
 from claravid.infra.cli import SHARED_HELP
 from claravid.synth import demo
 from claravid.train import cli as train

@@ -18,7 +18,7 @@ import pytest
 import torch
 
 from claravid.data.segmentation import ClaraVidSegmentation
-from claravid.eval.cli import main as eval_main
+from claravid.eval.cli.evaluate import main as eval_main
 from claravid.models.checkpoint import read_checkpoint
 from claravid.train import load_config, train
 from claravid.train.logs import read_metrics

@@ -25,7 +25,7 @@ def readme_snippet() -> str:
 @pytest.mark.slow
 def test_readme_snippet_runs(tmp_path, monkeypatch):
     from claravid.models import build_backbone
-    from claravid.models.weights import official_checkpoint_path
+    from claravid.models.weights.loader import official_checkpoint_path
 
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))  # this test's own hub cache
     data = tmp_path / "claravid"

@@ -76,8 +76,8 @@ def test_wheel_installed_outside_checkout_loads_palettes_and_a_sample(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     top_level = {name.split("/")[0] for name in names if not name.startswith("claravid_toolkit-")}
     assert top_level == {"claravid"}, sorted(top_level)
-    assert "claravid/models/vit.py" in names and "claravid/train/loop.py" in names
-    assert "claravid/eval/cli.py" in names
+    assert "claravid/models/backbones/dinov2.py" in names and "claravid/train/loop.py" in names
+    assert "claravid/eval/cli/evaluate.py" in names
     assert "claravid/configs/palettes/uavid.yaml" in names
     assert {"claravid/py.typed", "claravid/dsp/_deldensity.pyi"} <= set(names)  # typed
     assert "claravid/configs/augment.yaml" in names

@@ -10,7 +10,7 @@ checkout, ``claravid.configs`` in a wheel). An unknown key is an error that name
 valid keys; a value of the wrong type or out of range is an error naming the key.
 
 What the config leaves to the model is filled in from the backbone's description
-(`claravid.models.backbones`) when it is resolved (:func:`resolve_backbone`), so the resolved
+(`claravid.models.backbones.specs`) when it is resolved (:func:`resolve_backbone`), so the resolved
 config that every checkpoint keeps records the real numbers: ``data.augment.mean/std`` (the
 statistics of the backbone's pre-training: ImageNet's, or SAT-493M's for a ``_sat`` backbone)
 and ``val.window`` (the model's natural size: 630 for patches of 14, 640 for 16). Crops and
@@ -448,7 +448,7 @@ def check_config(cfg: DictConfig) -> None:
 
 def _check_head(m: DictConfig) -> None:
     """``model.head`` is a head, and the head settings given are that head's."""
-    from claravid.models.heads import HEAD_NAMES, SETTING_DEFAULTS, check_head_settings
+    from claravid.models.heads.specs import HEAD_NAMES, SETTING_DEFAULTS, check_head_settings
 
     _require(m.head in HEAD_NAMES, "model.head", m.head, f"one of {', '.join(HEAD_NAMES)}")
     settings = {key: m[key] for key in SETTING_DEFAULTS}
@@ -475,7 +475,7 @@ def resolve_backbone(cfg: DictConfig) -> None:
         ConfigError: an unknown backbone, a size off the patch grid (naming the two nearest
             sizes on it), weights that cannot be had.
     """
-    from claravid.models.backbones import BACKBONE_NAMES, BACKBONES
+    from claravid.models.backbones.specs import BACKBONE_NAMES, BACKBONES
 
     m, a, v = cfg.model, cfg.data.augment, cfg.val
     spec = BACKBONES.get(m.backbone)
@@ -508,7 +508,7 @@ def _check_weights(cfg: DictConfig, spec: Any) -> None:
     missing = OmegaConf.is_missing(m, "weights")
     if spec.weights.url is not None or not (missing or m.weights == "official"):
         return
-    from claravid.models.backbones import DINOV3_REQUEST_URL
+    from claravid.models.backbones.specs import DINOV3_REQUEST_URL
 
     # A shipped config's `weights: ???` leaves the default ("official") in place when merged.
     timm = next((h for h in spec.weights.hub if h.startswith("timm/")), None)
@@ -537,7 +537,7 @@ def check_weights_file(cfg: DictConfig) -> None:
     path = _weights_path(cfg.model)
     if path is None or os.path.isfile(path):
         return
-    from claravid.models.backbones import BACKBONES
+    from claravid.models.backbones.specs import BACKBONES
 
     spec = BACKBONES.get(cfg.model.backbone)
     what = "a folder, not a file" if os.path.isdir(path) else "no such file"
@@ -552,7 +552,7 @@ def statistics_warning(cfg: DictConfig) -> str | None:
     """What to warn about when ``data.augment.mean/std`` differ from the statistics the
     backbone was pre-trained with (only a config that names other ones can: null takes the
     backbone's); None when they agree."""
-    from claravid.models.backbones import BACKBONES, IMAGENET_MEAN
+    from claravid.models.backbones.specs import BACKBONES, IMAGENET_MEAN
 
     spec = BACKBONES.get(cfg.model.backbone)
     a = cfg.data.augment

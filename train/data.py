@@ -20,7 +20,7 @@ from claravid.data.splits import SPLITS
 from claravid.data.targets import UAVidSegmentation
 from claravid.data.transforms import AugmentConfig, train_transforms
 from claravid.io import jpeg_region
-from claravid.models.heads import head_spec
+from claravid.models.heads.specs import head_spec
 from claravid.train.config import to_plain
 from claravid.train.sampler import StepSampler
 

@@ -147,7 +147,7 @@ def add_window_flags(parser: Any) -> None:
 
 def add_statistics_flag(parser: Any, names: Iterable[str]) -> None:
     """``--statistics NAME``: the input statistics of a model file that records none, one of
-    ``names`` (``claravid.models.backbones.NAMED_STATISTICS``; unset: None)."""
+    ``names`` (``claravid.models.backbones.specs.NAMED_STATISTICS``; unset: None)."""
     choices = tuple(names)
     _add(parser, "--statistics", choices=choices, metavar="{" + ",".join(choices) + "}")
 

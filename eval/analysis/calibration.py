@@ -1,7 +1,7 @@
 """Calibration errors and the reliability diagram from summed per-bin calibration sums.
 
 Each image stores, per confidence bin, its pixel count ``n_b``, the sum of its confidences and
-its correct pixels (:mod:`claravid.eval.inference.calibration`); a group's sums are the sums of
+its correct pixels (:mod:`claravid.eval.measures.calibration_sums`); a group's sums are the sums of
 its images'. Then, as ``torchmetrics``' ``MulticlassCalibrationError``:
 
 - ECE = Σ_b (n_b / N) · |acc_b − conf_b| = Σ_b |correct_b − conf_sum_b| / N (``norm="l1"``);

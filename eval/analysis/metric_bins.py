@@ -23,7 +23,7 @@ from claravid.eval.analysis.bootstrap import (
     count_clusters,
     mean_interval,
 )
-from claravid.eval.analysis.measures import PRIMARY_MEASURE
+from claravid.eval.analysis.complexity_measures import PRIMARY_MEASURE
 from claravid.eval.analysis.metrics import finite_or_none
 from claravid.eval.analysis.stats import correlation, group_profile, order_warnings
 

@@ -30,7 +30,7 @@ from claravid.eval.analysis.bootstrap import (
     correlation_interval,
     count_clusters,
 )
-from claravid.eval.analysis.measures import PRIMARY_MEASURE
+from claravid.eval.analysis.complexity_measures import PRIMARY_MEASURE
 from claravid.eval.analysis.metrics import (
     CONVENTION,
     IGNORE_INDEX,

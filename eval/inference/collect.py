@@ -8,7 +8,8 @@ everything in dataset order, so the table is the same as one process's). With cr
 each rank takes a contiguous run of images instead, so consecutive frames of a pass meet on one
 rank; a pair whose next frame another rank evaluates is still measured by its own frame's rank
 (:mod:`claravid.eval.inference.pair_stream`): counted once. The report folder is then
-:func:`claravid.eval.report.folder.write_outputs`; the command line (:mod:`claravid.eval.cli`)
+:func:`claravid.eval.report.folder.write_outputs`; the command line
+(:mod:`claravid.eval.cli.evaluate`)
 is a thin layer over both.
 """
 
@@ -32,25 +33,25 @@ from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.tile_bins import TileTable
 from claravid.eval.inference.background import Background
 from claravid.eval.inference.complexity_job import ComplexityJob
-from claravid.eval.inference.data import EvalData
 from claravid.eval.inference.hardest import Hardest
-from claravid.eval.inference.label_maps import (
-    check_missing,
-    label_map_confusions,
-    write_marker,
-)
-from claravid.eval.inference.label_maps import write_prediction as save_label_map
 from claravid.eval.inference.pair_stream import PairKeeper, PairStream
-from claravid.eval.inference.pass_frames import (
-    PairResult,
-    PassFrames,
-    pairs_unavailable,
-)
 from claravid.eval.inference.quality_collect import label_map_measure, pair_item, quality_table
 from claravid.eval.inference.quality_plan import QualityPlan, plan_quality
 from claravid.eval.inference.run_model import ImageScore, evaluate_model
 from claravid.eval.inference.sources import ModelSource
 from claravid.eval.inference.windows import WindowConfig, predict_labels
+from claravid.eval.inputs.datasets import EvalData
+from claravid.eval.inputs.label_maps import (
+    check_missing,
+    label_map_confusions,
+    write_marker,
+)
+from claravid.eval.inputs.label_maps import write_prediction as save_label_map
+from claravid.eval.inputs.pass_frames import (
+    PairResult,
+    PassFrames,
+    pairs_unavailable,
+)
 from claravid.infra import distributed
 from claravid.infra.cli import USER_ERRORS, UsageError
 from claravid.io.jpeg_region import image_size
@@ -149,7 +150,7 @@ def collect(
     returns the full, gathered table.
 
     Args:
-        data: the images (:func:`claravid.eval.inference.data.open_data`).
+        data: the images (:func:`claravid.eval.inputs.datasets.open_data`).
         model: a loaded model (exclusive with ``predictions``).
         predictions: the folder of saved label maps.
         settings: windows, measures, tiles, workers, device... (default

@@ -20,8 +20,8 @@ import torch
 
 from claravid.eval.analysis.metrics import IGNORE_INDEX, mean_iou
 from claravid.eval.analysis.table import EvalResult
-from claravid.eval.inference.data import EvalData
-from claravid.eval.inference.label_maps import prediction_file, read_prediction
+from claravid.eval.inputs.datasets import EvalData
+from claravid.eval.inputs.label_maps import prediction_file, read_prediction
 
 THUMB = 512  # longest side of a hardest-image panel
 

@@ -5,7 +5,7 @@ frame of its pass when that frame is evaluated by the same run (a rank's contigu
 and is measured as soon as its prediction arrives; otherwise (the last frame of the shard or of
 a block of the split) the next frame is predicted here, once, so the pair is still counted by
 t's run. :class:`PairKeeper` keeps small copies of the k pairs of lowest consistency (their
-kept and disagreeing pixels, :func:`claravid.eval.inference.pair_marks.pair_marks`), whose
+kept and disagreeing pixels, :func:`claravid.eval.measures.pair_marks.pair_marks`), whose
 images are read after the run for ``hardest.png``.
 """
 
@@ -22,8 +22,8 @@ import numpy as np
 from claravid.eval.analysis.quality_table import PAIR_OK
 from claravid.eval.inference.background import Background
 from claravid.eval.inference.hardest import thumbnail
-from claravid.eval.inference.pair_marks import pair_marks
-from claravid.eval.inference.pass_frames import PairResult, PassFrames, measure_pair
+from claravid.eval.inputs.pass_frames import PairResult, PassFrames, measure_pair
+from claravid.eval.measures.pair_marks import pair_marks
 
 
 def pair_consistency(result: PairResult) -> float:

@@ -16,13 +16,13 @@ from claravid.eval.analysis.quality_table import (
     PairTable,
     QualityTable,
 )
-from claravid.eval.inference.data import EvalData
 from claravid.eval.inference.hardest import thumbnail
-from claravid.eval.inference.image_measures import image_measures
-from claravid.eval.inference.label_maps import prediction_file, read_prediction
+from claravid.eval.inference.image_sums import image_measures
 from claravid.eval.inference.pair_stream import PairKeeper
-from claravid.eval.inference.pass_frames import PairResult, PassFrames, measure_pair
 from claravid.eval.inference.quality_plan import QualityPlan
+from claravid.eval.inputs.datasets import EvalData
+from claravid.eval.inputs.label_maps import prediction_file, read_prediction
+from claravid.eval.inputs.pass_frames import PairResult, PassFrames, measure_pair
 
 
 def pair_item(frames: PassFrames, item: dict[str, Any]) -> dict[str, Any]:

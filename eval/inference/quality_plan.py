@@ -23,8 +23,8 @@ from claravid.eval.analysis.quality_table import (
     QUALITY,
     UNAVAILABLE,
 )
-from claravid.eval.inference.cross_view import MIN_KEPT, TOLERANCE
-from claravid.eval.inference.image_measures import CALIBRATION_BINS, DILATION_RATIO, ImageMeasures
+from claravid.eval.inference.image_sums import CALIBRATION_BINS, DILATION_RATIO, ImageMeasures
+from claravid.eval.measures.cross_view import MIN_KEPT, TOLERANCE
 from claravid.infra.cli import UsageError
 
 #: How the pairs' consistency is computed (what a report records).

@@ -18,14 +18,14 @@ from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm.auto import tqdm
 
 from claravid.eval.inference.background import Background
-from claravid.eval.inference.confusion import image_confusion
-from claravid.eval.inference.image_measures import (
+from claravid.eval.inference.image_sums import (
     ImageMeasures,
     image_measures,
     predict_with_confidence,
 )
-from claravid.eval.inference.label_maps import image_key
 from claravid.eval.inference.windows import Model, WindowConfig
+from claravid.eval.inputs.label_maps import image_key
+from claravid.eval.measures.confusion import image_confusion
 
 
 @dataclass
@@ -45,7 +45,7 @@ class ImageScore:
 
 def sample_key(sample: dict[str, Any]) -> str:
     """The name a sample's prediction is saved under: its ``key``, else
-    :func:`claravid.eval.inference.label_maps.image_key` of its path (the stem)."""
+    :func:`claravid.eval.inputs.label_maps.image_key` of its path (the stem)."""
     key = sample.get("key")
     return str(key) if key else image_key(str(sample["path"]))
 
@@ -82,7 +82,7 @@ def evaluate_model(
         on_score: called with each sample, its predicted ids [H,W] and its `ImageScore` (to
             save the prediction, keep the hardest images', or pair it with the next frame).
         measures: also each image's Boundary IoU and calibration sums
-            (:class:`~claravid.eval.inference.image_measures.ImageMeasures`).
+            (:class:`~claravid.eval.inference.image_sums.ImageMeasures`).
         background: where those run, beside the next image's prediction (default: at once).
 
     Returns:

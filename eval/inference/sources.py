@@ -23,14 +23,14 @@ import torch
 
 from claravid.eval.inference.windows import Model, WindowConfig, model_statistics
 from claravid.infra.cli import UsageError
-from claravid.models.backbones import NAMED_STATISTICS
-from claravid.models.grid import PAPER_WINDOW, natural_size
-from claravid.models.onnx_metadata import (
+from claravid.models.backbones.specs import NAMED_STATISTICS
+from claravid.models.export.metadata import (
     backbone_statistics,
     config_get,
     normalisation_from_config,
     window_from_config,
 )
+from claravid.models.grid import PAPER_WINDOW, natural_size
 
 DEFAULT_SCALE = 1.0
 DEFAULT_BATCH = 4
@@ -325,7 +325,7 @@ def load_source(
         return ModelSource(
             model, "checkpoint", str(checkpoint), model.num_classes, model.patch_size, defaults
         )
-    from claravid.models.onnx_runtime import OnnxSegmenter, resolve_providers
+    from claravid.models.export.runtime import OnnxSegmenter, resolve_providers
 
     device = torch.device(device)
     if provider is None and device.type != "cuda":

@@ -5,7 +5,7 @@ fixed ``--edges``; the table and the plot show the synthetic-to-real gap per com
 Reports binned differently (other edges, quantile bins of different data) or on different
 palettes are still shown, with a warning: their rows do not cover the same images. The gaps
 themselves (paired or unpaired, with intervals and p-values) are
-:func:`claravid.eval.analysis.compare.gap_analysis`; this module reads the reports and writes
+:func:`claravid.eval.analysis.gaps.gap_analysis`; this module reads the reports and writes
 ``compare.md``, ``compare.png`` and ``compare.json``.
 """
 
@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from claravid.eval.analysis.bootstrap import Bootstrap
-from claravid.eval.analysis.compare import cluster_unit, comparison_warnings, gap_analysis
+from claravid.eval.analysis.gaps import cluster_unit, comparison_warnings, gap_analysis
 from claravid.eval.report.files import CONFUSIONS, load_result, read_report, write_json
 from claravid.eval.report.markdown import compare_markdown
 from claravid.eval.report.plots import plot_compare

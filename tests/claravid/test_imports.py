@@ -160,7 +160,7 @@ def resolves(name: str) -> bool:
 
 
 def test_every_name_the_docs_show_imports():
-    from claravid.models.onnx_metadata import metadata_props
+    from claravid.models.export.metadata import metadata_props
 
     # The readable ONNX metadata keys are spelled like module paths; they are not imports.
     document = {"patch_size": 14, "num_classes": 2, "model_args": {}, "precision": "fp32"}

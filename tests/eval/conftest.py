@@ -14,7 +14,7 @@ def label_map_reports(claravid_root, tmp_path_factory):
     import shutil
 
     from claravid.data.segmentation import ClaraVidSegmentation
-    from claravid.eval.cli import main
+    from claravid.eval.cli.evaluate import main
 
     tmp = tmp_path_factory.mktemp("label_map_reports")
     ds = ClaraVidSegmentation(claravid_root, split="all", palette="uavid")

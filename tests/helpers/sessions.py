@@ -124,7 +124,7 @@ class _Exports(Mapping):
 
     def __getitem__(self, name):
         if name not in self._files:
-            from claravid.eval.export_cli import main as export_main
+            from claravid.eval.cli.export import main as export_main
 
             path = self._folder / f"{name}.onnx"
             text = io.StringIO()

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from claravid.models import CheckpointError, build_model, load_checkpoint, save_checkpoint
-from tests.models.reference import random_official_state
+from tests.models.backbones.reference import random_official_state
 from tests.tiny import VIT
 from tests.tiny import VIT_56 as TINY
 from tests.tiny import WIDE_HEAD as HEAD

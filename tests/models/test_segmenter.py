@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from claravid.models import DPTHead, build_model
-from tests.models.reference import random_official_state, reference_layers
+from tests.models.backbones.reference import random_official_state, reference_layers
 from tests.tiny import VIT
 from tests.tiny import VIT_56 as TINY
 from tests.tiny import WIDE_HEAD as HEAD

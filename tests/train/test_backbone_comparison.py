@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from claravid.eval.cli import main as eval_main
+from claravid.eval.cli.evaluate import main as eval_main
 from claravid.models.checkpoint import read_checkpoint
 
 

@@ -118,7 +118,7 @@ def test_every_key_eval_reads_from_a_checkpoint_exists_in_the_schema():
     """eval reads a checkpoint's training config by key paths (it cannot import this schema):
     each path must name a key of the schema, so a rename here fails this test."""
     from claravid.eval.inference.sources import SPLIT_FIELDS, TRAINING_KEYS
-    from claravid.models.onnx_metadata import CONFIG_KEYS
+    from claravid.models.export.metadata import CONFIG_KEYS
 
     keys = set(valid_keys())
     prefixes = {k.rsplit(".", i)[0] for k in keys for i in range(k.count(".") + 1)}

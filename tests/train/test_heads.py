@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import claravid.train.loop as loop
-from claravid.eval.cli import main as eval_main
+from claravid.eval.cli.evaluate import main as eval_main
 from claravid.models.checkpoint import read_checkpoint
 from claravid.train import TrainingDiverged, load_config, train
 from claravid.train.cli import main as train_main

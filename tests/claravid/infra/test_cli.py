@@ -70,7 +70,7 @@ def test_one_conventions_module_shared_by_models():
     probe."""
     import importlib.util
 
-    import claravid.eval.export_cli as e
+    import claravid.eval.cli.export as e
     import claravid.models.checkpoint as c
     from claravid.infra import cli, files
 

@@ -7,9 +7,11 @@ from pathlib import Path
 import pytest
 
 EVAL = Path(__file__).resolve().parents[3] / "eval"
-LAYERS = ("inference", "analysis", "report")
-# Which layer may import which (the console scripts beside them may import all three).
-ALLOWED = {"inference": {"inference", "analysis"}, "analysis": {"analysis"},
+LAYERS = ("inputs", "measures", "inference", "analysis", "report")
+# Which room may import which (the console scripts in cli/ may import all of them). analysis/ is
+# numpy only and imports no other room; inputs/ scores saved label maps with measures/' sums.
+ALLOWED = {"inputs": {"inputs", "measures", "analysis"}, "measures": {"measures", "analysis"},
+           "inference": {"inference", "inputs", "measures", "analysis"}, "analysis": {"analysis"},
            "report": {"report", "analysis"}}  # fmt: skip
 
 
