@@ -239,8 +239,9 @@ def _model_and_source(
     source = model.describe()
     source["window"] = {"size": list(window.size), "stride": list(window.stride),
                         "scale": window.scale}  # fmt: skip
-    if model.kind == "onnx":  # runs as exported: the file's metadata, None when foreign
-        source["precision"] = getattr(model.model, "precision", None)
+    if model.kind == "onnx":  # runs as exported: the file's number format, None when foreign
+        source["dtype"] = getattr(model.model, "dtype", None)
+        source["precision"] = None  # no autocast: ONNX Runtime runs the file's own types
     else:
         source["precision"] = precision_name(autocast_dtype(window.precision, info.device))
     source["settings"] = run.describe()
