@@ -25,7 +25,7 @@ MODULES = {
     "claravid-demo": (demo, []),
     "claravid-dsp": (dsp, []),
     "claravid-export": (export_cli, ["--checkpoint", "m.pt"]),
-    "claravid-eval": (evaluate, []),
+    "claravid-eval": (evaluate, ["--checkpoint", "m.pt", "-o", "r"]),
     "claravid-predict": (predict, ["a.jpg"]),
     "claravid-train": (train, ["--config", "demo"]),
 }
