@@ -65,7 +65,6 @@ from claravid.infra.lazy import lazy_exports
 
 __all__ = [
     "CONVENTION",
-    "IGNORE_INDEX",
     "Bin",
     "Bootstrap",
     "CollectSettings",
@@ -121,7 +120,6 @@ if TYPE_CHECKING:
     from claravid.eval.analysis.calibration import calibration_errors
     from claravid.eval.analysis.metrics import (
         CONVENTION,
-        IGNORE_INDEX,
         confusion_scores,
         iou_per_class,
         mean_iou,
@@ -159,7 +157,6 @@ else:
         {
             # analysis (numpy)
             "CONVENTION": "claravid.eval.analysis.metrics",
-            "IGNORE_INDEX": "claravid.eval.analysis.metrics",
             "iou_per_class": "claravid.eval.analysis.metrics",
             "mean_iou": "claravid.eval.analysis.metrics",
             "pixel_accuracy": "claravid.eval.analysis.metrics",

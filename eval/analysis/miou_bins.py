@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from claravid.data.ignore import IGNORE_INDEX
 from claravid.eval.analysis.bins import Bin, choose_bins
 from claravid.eval.analysis.bootstrap import (
     Bootstrap,
@@ -33,7 +34,6 @@ from claravid.eval.analysis.bootstrap import (
 from claravid.eval.analysis.complexity_measures import PRIMARY_MEASURE
 from claravid.eval.analysis.metrics import (
     CONVENTION,
-    IGNORE_INDEX,
     confusion_scores,
     finite_or_none,
     mean_iou,

@@ -48,15 +48,17 @@ def _layer(name: str) -> str:
 
 
 #: What the numpy-only analysis layer may load of the toolkit (these packages, and modules with
-#: these prefixes): the profile fit and the measures' names of claravid.dsp, not its image code or
-#: the file readers; the ClaraVid facts (the ignore id) of claravid.io, not its readers; the
-#: user-error class of claravid.infra.cli (with the precision names its flags take); the packages'
-#: lazy names from claravid.infra.lazy; the memory a bootstrap may take from claravid.infra.memory
-#: (the kernel's MemAvailable, standard library only).
+#: these prefixes): the ignore index of claravid.data, not its readers; the profile fit and the
+#: measures' names of claravid.dsp, not its image code or the file readers; the ClaraVid facts
+#: (the unlabeled id) of claravid.io, not its readers; the user-error class of claravid.infra.cli
+#: (with the precision names its flags take); the packages' lazy names from claravid.infra.lazy;
+#: the memory a bootstrap may take from claravid.infra.memory (the kernel's MemAvailable,
+#: standard library only).
 ANALYSIS_MAY_LOAD = (
-    ["claravid", "claravid.dsp", "claravid.eval", "claravid.infra", "claravid.io"],
-    ["claravid.eval.analysis", "claravid.dsp.measures", "claravid.dsp.profile",
-     "claravid.infra.cli", "claravid.infra.lazy", "claravid.infra.memory",
+    ["claravid", "claravid.data", "claravid.dsp", "claravid.eval", "claravid.infra",
+     "claravid.io"],
+    ["claravid.eval.analysis", "claravid.data.ignore", "claravid.dsp.measures",
+     "claravid.dsp.profile", "claravid.infra.cli", "claravid.infra.lazy", "claravid.infra.memory",
      "claravid.infra.precision", "claravid.io.layout"],
 )  # fmt: skip
 
