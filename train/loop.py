@@ -46,7 +46,7 @@ from claravid.data.masks import check_palette_fit
 from claravid.data.palettes import load_palette
 from claravid.data.samples import normalise
 from claravid.data.targets import UAVidSegmentation
-from claravid.eval import WindowConfig
+from claravid.eval.inference.windows import WindowConfig
 from claravid.infra.cli import check_device
 from claravid.infra.distributed import DistInfo, barrier, init_distributed
 from claravid.infra.precision import autocast_dtype, precision_name

@@ -7,6 +7,7 @@ from safetensors.torch import save_file
 
 from claravid.models import WeightsError, build_backbone, build_model, official_url
 from claravid.models.backbones.memory import NotEnoughMemoryError
+from tests.helpers.weights import dinov2_to_hugging_face
 from tests.models.backbones.reference import random_official_state
 from tests.models.weights.official_v3 import random_official_v3_state, to_hugging_face
 from tests.tiny import TINY_V3
@@ -83,11 +84,9 @@ def test_hugging_face_missing_and_unexpected_keys(tmp_path):
 
 @pytest.mark.parametrize("hugging_face", [False, True])
 def test_a_dinov2_file_into_a_dinov3_backbone(tmp_path, hugging_face):
-    from claravid.models import official_to_hf
-
     state = random_official_state(build_backbone("dinov2_vits14_reg", **TINY_V2))
     if hugging_face:
-        state = official_to_hf(state)
+        state = dinov2_to_hugging_face(state)
     path = _save(state, tmp_path / ("model.safetensors" if hugging_face else "v2.pth"))
     with pytest.raises(WeightsError, match=r"holds DINOv2 weights .* is a DINOv3 backbone"):
         build_backbone("dinov3_vits16", weights=path, **TINY_V3)
