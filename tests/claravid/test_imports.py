@@ -40,10 +40,11 @@ for args in json.loads(sys.argv[1]):
 
 
 def _layer(name: str) -> str:
-    """``import claravid.eval`` (its names are lazy) and every module of one of its layers."""
+    """``import claravid.eval`` (its names are lazy) and every module of one of its layers (and
+    of its subpackages)."""
     folder = Path(__file__).resolve().parents[2] / "eval" / name
-    modules = [f"claravid.eval.{name}" + ("" if f.stem == "__init__" else f".{f.stem}")
-               for f in sorted(folder.glob("*.py"))]  # fmt: skip
+    modules = [".".join(["claravid.eval", name, *f.relative_to(folder).with_suffix("").parts])
+               .removesuffix(".__init__") for f in sorted(folder.rglob("*.py"))]  # fmt: skip
     return "\n".join(f"import {m}" for m in ["claravid.eval", *modules])
 
 
