@@ -55,11 +55,21 @@ def bin_table(report: dict[str, Any]) -> str:
 def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
     """``report.md``: source, conventions, bins, groups, per-class IoU, correlations, the
     measures beyond mIoU, the hardest images, plots."""
-    # The measures' sections format with this module's helpers: imported here, not at the top.
+    lines = ["# Evaluation report", "", *_header(report), *_bin_sections(report)]
+    lines += tile_section(report.get("tiles"))
+    lines += quality_sections(report)
+    lines += _hardest_section(report)
+    if plots:
+        lines += ["## Plots", ""]
+        lines += [f"![{name}]({file})" for name, file in plots.items()] + [""]
+    return "\n".join(lines)
 
+
+def _header(report: dict[str, Any]) -> list[str]:
+    """What was evaluated, how it was binned and the conventions, as the report's first lines."""
     source, classes = report["source"], report["classes"]
     binning = source.get("binning", {})
-    lines = ["# Evaluation report", ""]
+    lines: list[str] = []
     what = source.get("kind", "?")
     origin = (
         source.get("path") or source.get("predictions") or ", ".join(source.get("merged_from", []))
@@ -100,7 +110,14 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
               "(delentropy, path) like numpy.array_split; fixed edges are [e_i, e_i+1), the last "
               "closed. Correlations: Pearson and Spearman between per-image complexity and "
               "per-image mIoU.", ""]  # fmt: skip
+    return lines
 
+
+def _bin_sections(report: dict[str, Any]) -> list[str]:
+    """mIoU per bin, per group, IoU per class and the correlations."""
+    source, classes = report["source"], report["classes"]
+    binning = source.get("binning", {})
+    lines: list[str] = []
     lines += ["## mIoU per complexity bin", ""]
     rows = [[r["name"], bin_range(r), str(r["num_images"]), *_scores(r)] for r in report["bins"]]
     overall = report["overall"]
@@ -130,10 +147,12 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
              with_ci(c["spearman"], c.get("spearman_ci")), str(c["n"])]
             for m, c in report["correlation"].items()]  # fmt: skip
     lines += md_table(["measure", "Pearson r", "Spearman ρ", "n"], rows)
+    return lines
 
-    lines += tile_section(report.get("tiles"))
-    lines += quality_sections(report)
 
+def _hardest_section(report: dict[str, Any]) -> list[str]:
+    """The images of lowest mIoU (at most `HARDEST_TABLE`)."""
+    lines: list[str] = []
     hardest = sorted(
         (r for r in report["images"] if r["miou"] is not None), key=lambda r: r["miou"]
     )[:HARDEST_TABLE]
@@ -142,11 +161,7 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         rows = [[f"`{r['path']}`", number(r.get("delent")), number(r["miou"]),
                  number(r["pixel_acc"])] for r in hardest]  # fmt: skip
         lines += md_table(["image", "delentropy", "mIoU", "pixel acc"], rows)
-
-    if plots:
-        lines += ["## Plots", ""]
-        lines += [f"![{name}]({file})" for name, file in plots.items()] + [""]
-    return "\n".join(lines)
+    return lines
 
 
 def tile_section(tiles: dict[str, Any] | None) -> list[str]:
