@@ -28,7 +28,8 @@ import torch
 import torch.nn.functional as F
 
 from claravid.eval.inference.windows import natural_size
-from claravid.models import HEAD_NAMES, backbone_spec, build_model
+from claravid.models import backbone_spec, build_model
+from claravid.models.heads.specs import HEAD_NAMES
 
 NUM_CLASSES = 19  # the claravid palette, as the configs train it
 

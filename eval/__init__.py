@@ -19,9 +19,12 @@ The console scripts live in :mod:`claravid.eval.cli`: ``claravid-eval``
 ``claravid-predict`` (:mod:`claravid.eval.cli.predict`), ``claravid-export``
 (:mod:`claravid.eval.cli.export`).
 
-The core that training validates through::
+Training validates through the same windows and sums, from their rooms
+(:func:`claravid.eval.inference.run_model.evaluate_model` scores a model image by image,
+:func:`stratify` bins the scores)::
 
-    from claravid.eval import WindowConfig, evaluate_model, stratify
+    from claravid.eval import WindowConfig, stratify
+    from claravid.eval.inference.run_model import evaluate_model
 
     scores = evaluate_model(model, val_dataset, num_classes=8, config=WindowConfig(scale=0.5))
     report = stratify([s.path for s in scores], np.stack([s.confusion for s in scores]),
@@ -46,15 +49,18 @@ and step by step::
 
 Beyond mIoU, each measure is a sum per image (or per pair), like a confusion matrix::
 
-    from claravid.eval import boundary_iou, calibration_bins, cross_view
+    from claravid.eval import boundary_iou, calibration_bins, calibration_errors, cross_view
 
     inter, union = boundary_iou(pred, gt, num_classes=8)            # int64 [K] each
     count, conf_sum, correct = calibration_bins(probs, gt)          # 15 bins
+    ece, mce = calibration_errors(count, conf_sum, correct)         # of summed bins
     sums = cross_view(depth_t, depth_s, c2w_t, c2w_s, K, pred_t, pred_s, gt_t, gt_s,
                       dynamic_t, dynamic_s, num_classes=8)          # a CrossViewSums
 
-Every name below is imported on first use, so ``import claravid.eval`` (and the analysis and
-report layers) never loads torch unless a torch-side name is asked for.
+The names below are the ones a user calls, one per concept; everything else (the other
+scores, bins, tables and sources) is reachable from its room. Each is imported on first use, so
+``import claravid.eval`` (and the analysis and report layers) never loads torch unless a
+torch-side name is asked for.
 """
 
 from __future__ import annotations
@@ -64,136 +70,69 @@ from typing import TYPE_CHECKING
 from claravid.infra.lazy import lazy_exports
 
 __all__ = [
-    "CONVENTION",
-    "IGNORE_INDEX",
-    "Bin",
     "Bootstrap",
     "CollectSettings",
-    "CrossViewSums",
     "DataChoice",
     "EvalResult",
-    "Evaluation",
-    "ImageMeasures",
-    "ImageScore",
     "InferenceSettings",
-    "PairTable",
-    "QualityTable",
     "ReportSettings",
     "WindowConfig",
-    "bin_mious",
-    "bin_names",
     "boundary_iou",
     "build_report",
     "calibration_bins",
     "calibration_errors",
     "collect",
     "compare",
-    "compare_reports",
     "confusion_matrix",
-    "confusion_scores",
-    "correlation",
     "cross_view",
     "evaluate",
-    "evaluate_model",
-    "fixed_bins",
-    "iou_per_class",
     "load_result",
     "load_source",
     "mean_iou",
     "merge",
-    "merge_results",
     "open_data",
-    "parse_edges",
-    "pixel_accuracy",
-    "predict_labels",
-    "quantile_bins",
-    "sample_key",
     "score_metrics",
-    "sliding_window_logits",
     "stratify",
-    "window_starts",
     "write_outputs",
 ]
 
 if TYPE_CHECKING:
-    from claravid.eval.analysis.bins import Bin, bin_names, fixed_bins, parse_edges, quantile_bins
     from claravid.eval.analysis.bootstrap import Bootstrap
     from claravid.eval.analysis.calibration import calibration_errors
-    from claravid.eval.analysis.metrics import (
-        CONVENTION,
-        IGNORE_INDEX,
-        confusion_scores,
-        iou_per_class,
-        mean_iou,
-        pixel_accuracy,
-    )
-    from claravid.eval.analysis.miou_bins import bin_mious, stratify
-    from claravid.eval.analysis.quality_table import PairTable, QualityTable
-    from claravid.eval.analysis.stats import correlation
-    from claravid.eval.analysis.table import EvalResult, merge_results
+    from claravid.eval.analysis.metrics import mean_iou
+    from claravid.eval.analysis.miou_bins import stratify
+    from claravid.eval.analysis.table import EvalResult
     from claravid.eval.inference.collect import CollectSettings, collect
-    from claravid.eval.inference.image_sums import ImageMeasures
-    from claravid.eval.inference.run_model import ImageScore, evaluate_model, sample_key
     from claravid.eval.inference.sources import load_source
-    from claravid.eval.inference.windows import (
-        WindowConfig,
-        predict_labels,
-        sliding_window_logits,
-        window_starts,
-    )
+    from claravid.eval.inference.windows import WindowConfig
     from claravid.eval.inputs.datasets import open_data
     from claravid.eval.measures.boundary import boundary_iou
     from claravid.eval.measures.calibration_sums import calibration_bins
     from claravid.eval.measures.confusion import confusion_matrix
-    from claravid.eval.measures.cross_view import CrossViewSums, cross_view
+    from claravid.eval.measures.cross_view import cross_view
     from claravid.eval.report.build import build_report
-    from claravid.eval.report.compare import compare_reports
     from claravid.eval.report.files import load_result
     from claravid.eval.report.folder import write_outputs
     from claravid.eval.reports import compare, merge
     from claravid.eval.run import evaluate, score_metrics
-    from claravid.eval.settings import DataChoice, Evaluation, InferenceSettings, ReportSettings
+    from claravid.eval.settings import DataChoice, InferenceSettings, ReportSettings
 else:
     __getattr__, __dir__ = lazy_exports(
         __name__,
         {
-            # analysis (numpy)
-            "CONVENTION": "claravid.eval.analysis.metrics",
-            "IGNORE_INDEX": "claravid.eval.analysis.metrics",
-            "iou_per_class": "claravid.eval.analysis.metrics",
             "mean_iou": "claravid.eval.analysis.metrics",
-            "pixel_accuracy": "claravid.eval.analysis.metrics",
-            "confusion_scores": "claravid.eval.analysis.metrics",
-            "Bin": "claravid.eval.analysis.bins",
-            "bin_names": "claravid.eval.analysis.bins",
-            "fixed_bins": "claravid.eval.analysis.bins",
-            "parse_edges": "claravid.eval.analysis.bins",
-            "quantile_bins": "claravid.eval.analysis.bins",
             "Bootstrap": "claravid.eval.analysis.bootstrap",
-            "correlation": "claravid.eval.analysis.stats",
             "stratify": "claravid.eval.analysis.miou_bins",
-            "bin_mious": "claravid.eval.analysis.miou_bins",
             "EvalResult": "claravid.eval.analysis.table",
-            "merge_results": "claravid.eval.analysis.table",
-            # report (numpy, files, matplotlib)
             "build_report": "claravid.eval.report.build",
             "load_result": "claravid.eval.report.files",
             "write_outputs": "claravid.eval.report.folder",
-            "compare_reports": "claravid.eval.report.compare",
-            # inference (torch)
             "WindowConfig": "claravid.eval.inference.windows",
-            "predict_labels": "claravid.eval.inference.windows",
-            "sliding_window_logits": "claravid.eval.inference.windows",
-            "window_starts": "claravid.eval.inference.windows",
             "confusion_matrix": "claravid.eval.measures.confusion",
-            "ImageScore": "claravid.eval.inference.run_model",
-            "evaluate_model": "claravid.eval.inference.run_model",
-            "sample_key": "claravid.eval.inference.run_model",
             "open_data": "claravid.eval.inputs.datasets",
             "load_source": "claravid.eval.inference.sources",
             "collect": "claravid.eval.inference.collect",
             "CollectSettings": "claravid.eval.inference.collect",
-            # runs: what each claravid-eval mode does, in one call
             "evaluate": "claravid.eval.run",
             "score_metrics": "claravid.eval.run",
             "merge": "claravid.eval.reports",
@@ -201,14 +140,9 @@ else:
             "DataChoice": "claravid.eval.settings",
             "InferenceSettings": "claravid.eval.settings",
             "ReportSettings": "claravid.eval.settings",
-            "Evaluation": "claravid.eval.settings",
             "calibration_errors": "claravid.eval.analysis.calibration",
-            "QualityTable": "claravid.eval.analysis.quality_table",
-            "PairTable": "claravid.eval.analysis.quality_table",
             "boundary_iou": "claravid.eval.measures.boundary",
             "calibration_bins": "claravid.eval.measures.calibration_sums",
             "cross_view": "claravid.eval.measures.cross_view",
-            "CrossViewSums": "claravid.eval.measures.cross_view",
-            "ImageMeasures": "claravid.eval.inference.image_sums",
         },
     )

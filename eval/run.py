@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,6 +38,12 @@ from claravid.eval.settings import (
 )
 from claravid.infra.cli import UsageError
 from claravid.infra.files import check_output_dir
+
+if TYPE_CHECKING:  # types only: the call imports torch's side when it runs
+    from claravid.eval.analysis.bootstrap import Bootstrap
+    from claravid.eval.inference.collect import Collected
+    from claravid.eval.inference.quality_plan import QualityPlan
+    from claravid.eval.inputs.datasets import EvalData
 
 
 def resolve_data(
@@ -130,52 +136,20 @@ def evaluate(
             palette, missing data...), before the inference starts where it can be seen then.
     """
     from claravid.eval.inference.collect import CollectSettings, collect
-    from claravid.eval.inference.hardest import hardest_items
-    from claravid.eval.inference.quality_plan import plan_quality
-    from claravid.eval.inputs.label_maps import MARKER, write_marker
-    from claravid.eval.inputs.pass_frames import pairs_unavailable
-    from claravid.eval.report.build import build_report
-    from claravid.eval.report.folder import write_outputs
     from claravid.infra import distributed
     from claravid.infra.cli import check_device
 
-    if sum(x is not None for x in (checkpoint, onnx, predictions)) != 1:
-        raise UsageError("give exactly one of --checkpoint, --onnx and --predictions")
-    # A root given as data= is the usual slip: the message shows the call that was meant.
-    meant = f"DataChoice(root={str(data)!r})" if isinstance(data, (str, Path)) else None
-    check_type(data, DataChoice, "data", meant or "DataChoice(root='/data/claravid')")
-    check_type(inference, InferenceSettings, "inference", "InferenceSettings(scale=0.5)")
-    check_type(report, ReportSettings, "report", "ReportSettings(bins=5)")
-    data, inference, report = (
-        data or DataChoice(),
-        inference or InferenceSettings(),
-        report or ReportSettings(),
-    )
+    data, inference, report = _checked_arguments(checkpoint, onnx, predictions, data, inference,
+                                                 report)  # fmt: skip
     output = Path(output)
     check_device(inference.device)  # one line, not CUDA's traceback
     info = distributed.init_distributed(inference.device)
-    check_output_dir(output, marker=REPORT, overwrite=overwrite)
-    check_report_kind(output, scores=False, overwrite=overwrite)
-    if save_predictions is not None:
-        if predictions is not None:
-            raise UsageError("--save-predictions needs a model (--checkpoint or --onnx)")
-        check_output_dir(save_predictions, marker=MARKER, overwrite=overwrite,
-                         what="--save-predictions")  # fmt: skip
+    _check_outputs(output, predictions, save_predictions, overwrite)
     # Every rank has checked the untouched folders; only now may any rank write to them.
     distributed.barrier()
     model, run, source = _model_and_source(checkpoint, onnx, predictions, data, inference, info)
     opened = _open(data, model, run, predictions)
-    # Refused now (calibration of label maps, consistency of data without depth), not after.
-    asked = {"boundary_iou": report.boundary, "calibration": report.calibration,
-             "consistency": report.consistency}  # fmt: skip
-    plan = plan_quality(asked, has_scores=model is not None,
-                        pairs_reason=pairs_unavailable(opened))  # fmt: skip
-    if report.group_by is not None:
-        opened.groups(report.group_by)  # fails now, not after the inference
-    report.check_bins(len(opened))
-    intervals = report.intervals(opened.attributes, default_cluster(opened.name, opened.attributes))
-    # Refused now, not after the inference: the images' clusters are known before it runs.
-    intervals.check_memory(unit_labels(opened.paths, opened.attributes, intervals.cluster))
+    plan, intervals = _plan_before_inference(opened, report, has_scores=model is not None)
     source.update(opened.describe)
     source["measures"] = list(report.measures)
     if report.tiles is not None:
@@ -198,20 +172,100 @@ def evaluate(
         distributed.barrier()  # rank 0 writes the report meanwhile
         return Evaluation(output, None, skipped=collected.skipped)
     try:
-        result = collected.result
-        report.check_bins(len(result.paths))
-        numbers = build_report(result, bins=report.bins, edges=report.edges,
-                               group_by=report.group_by, bootstrap=intervals)  # fmt: skip
-        warn_outside_edges(numbers, result.complexity["delent"], len(result.paths))
-        dirs = [Path(d) for d in (predictions, save_predictions) if d is not None]
-        items = hardest_items(result, opened, report.hardest, collected.hardest, dirs)
-        items += collected.pairs  # the pairs of lowest consistency, below the hardest images
-        write_outputs(output, numbers, result, items, opened.palette.colors)
-        if save_predictions is not None:
-            write_marker(save_predictions, opened.palette, source)
+        numbers = _write_report(output, collected, opened, report, intervals, source,
+                                predictions, save_predictions)  # fmt: skip
     finally:
         distributed.barrier()  # the other ranks wait for the report, even when it failed
-    return Evaluation(output, numbers, result, collected.skipped)
+    return Evaluation(output, numbers, collected.result, collected.skipped)
+
+
+def _checked_arguments(
+    checkpoint: str | Path | None,
+    onnx: str | Path | None,
+    predictions: str | Path | None,
+    data: DataChoice | None,
+    inference: InferenceSettings | None,
+    report: ReportSettings | None,
+) -> tuple[DataChoice, InferenceSettings, ReportSettings]:
+    """One source, and settings of their types (each defaulted)."""
+    if sum(x is not None for x in (checkpoint, onnx, predictions)) != 1:
+        raise UsageError("give exactly one of --checkpoint, --onnx and --predictions")
+    # A root given as data= is the usual slip: the message shows the call that was meant.
+    meant = f"DataChoice(root={str(data)!r})" if isinstance(data, (str, Path)) else None
+    check_type(data, DataChoice, "data", meant or "DataChoice(root='/data/claravid')")
+    check_type(inference, InferenceSettings, "inference", "InferenceSettings(scale=0.5)")
+    check_type(report, ReportSettings, "report", "ReportSettings(bins=5)")
+    return data or DataChoice(), inference or InferenceSettings(), report or ReportSettings()
+
+
+def _check_outputs(
+    output: Path,
+    predictions: str | Path | None,
+    save_predictions: str | Path | None,
+    overwrite: bool,
+) -> None:
+    """The report folder and the label maps' folder are this tool's (or may be overwritten)."""
+    from claravid.eval.inputs.label_maps import MARKER
+
+    check_output_dir(output, marker=REPORT, overwrite=overwrite)
+    check_report_kind(output, scores=False, overwrite=overwrite)
+    if save_predictions is not None:
+        if predictions is not None:
+            raise UsageError("--save-predictions needs a model (--checkpoint or --onnx)")
+        check_output_dir(save_predictions, marker=MARKER, overwrite=overwrite,
+                         what="--save-predictions")  # fmt: skip
+
+
+def _plan_before_inference(
+    opened: EvalData, report: ReportSettings, *, has_scores: bool
+) -> tuple[QualityPlan, Bootstrap]:
+    """(the measures beyond mIoU to compute, the interval settings): what would fail after the
+    inference (a measure the source or data cannot give, groups, bins, the bootstrap's memory)
+    is refused now."""
+    from claravid.eval.inference.quality_plan import plan_quality
+    from claravid.eval.inputs.pass_frames import pairs_unavailable
+
+    # Refused now (calibration of label maps, consistency of data without depth), not after.
+    asked = {"boundary_iou": report.boundary, "calibration": report.calibration,
+             "consistency": report.consistency}  # fmt: skip
+    plan = plan_quality(asked, has_scores=has_scores, pairs_reason=pairs_unavailable(opened))
+    if report.group_by is not None:
+        opened.groups(report.group_by)  # fails now, not after the inference
+    report.check_bins(len(opened))
+    intervals = report.intervals(opened.attributes, default_cluster(opened.name, opened.attributes))
+    # Refused now, not after the inference: the images' clusters are known before it runs.
+    intervals.check_memory(unit_labels(opened.paths, opened.attributes, intervals.cluster))
+    return plan, intervals
+
+
+def _write_report(
+    output: Path,
+    collected: Collected,
+    opened: EvalData,
+    report: ReportSettings,
+    intervals: Bootstrap,
+    source: dict[str, Any],
+    predictions: str | Path | None,
+    save_predictions: str | Path | None,
+) -> dict[str, Any]:
+    """Build the report from the collected table and write its folder (rank 0): its numbers."""
+    from claravid.eval.inference.hardest import hardest_items
+    from claravid.eval.inputs.label_maps import write_marker
+    from claravid.eval.report.build import build_report
+    from claravid.eval.report.folder import write_outputs
+
+    result = collected.result
+    report.check_bins(len(result.paths))
+    numbers = build_report(result, bins=report.bins, edges=report.edges,
+                           group_by=report.group_by, bootstrap=intervals)  # fmt: skip
+    warn_outside_edges(numbers, result.complexity["delent"], len(result.paths))
+    dirs = [Path(d) for d in (predictions, save_predictions) if d is not None]
+    items = hardest_items(result, opened, report.hardest, collected.hardest, dirs)
+    items += collected.pairs  # the pairs of lowest consistency, below the hardest images
+    write_outputs(output, numbers, result, items, opened.palette.colors)
+    if save_predictions is not None:
+        write_marker(save_predictions, opened.palette, source)
+    return numbers
 
 
 def _model_and_source(

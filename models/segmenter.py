@@ -18,6 +18,7 @@ from claravid.models.backbones.specs import DEFAULT_BACKBONE, DPTDefaults, backb
 from claravid.models.backbones.trunk import block_indices
 from claravid.models.heads.dpt import DPTHead
 from claravid.models.heads.linear import LinearHead
+from claravid.models.heads.protocol import Head
 from claravid.models.heads.specs import (
     DEFAULT_HEAD,
     UPERNET_CHANNELS,
@@ -33,8 +34,6 @@ from claravid.models.inputs import (
     input_stats,
 )
 from claravid.models.layers.tracing import is_exporting
-
-Head = DPTHead | LinearHead | UperNetHead
 
 #: Backbone parts that serve pre-training only, so no segmentation loss ever reaches them: the
 #: masked-image-modelling token (both families) and DINOv3's norm of the local crops' class
@@ -55,14 +54,20 @@ class Segmenter(nn.Module):
 
     Args:
         backbone: A backbone from `build_backbone` (frozen here).
-        head: The head: any module that maps the tapped blocks' (patch tokens, CLS) pairs, the
-            patch grid and the output size to logits (`DPTHead`, `LinearHead`, `UperNetHead`).
+        head: The head: any ``nn.Module`` satisfying `claravid.models.heads.protocol.Head`
+            (the tapped blocks' (patch tokens, CLS) pairs, the patch grid and the output size
+            to logits), e.g. `DPTHead`, `LinearHead`, `UperNetHead`.
         layers: Backbone block indices fed to the head, fine to coarse (four for DPT and
             UperNet, one or more for the linear head).
     """
 
     def __init__(self, backbone: Backbone, head: Head, layers: Sequence[int]) -> None:
         super().__init__()
+        if not isinstance(head, nn.Module) or not isinstance(head, Head):
+            raise TypeError(
+                f"head must be an nn.Module with num_classes and forward(feats, grid_h, grid_w, "
+                f"out_size) (the Head protocol), got {type(head).__name__}"
+            )
         if not layers:
             raise ValueError("layers needs at least one block index")
         bad = [i for i in layers if not 0 <= i < backbone.n_blocks]

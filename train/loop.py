@@ -41,11 +41,12 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from claravid import models
+from claravid.data.ignore import IGNORE_INDEX
 from claravid.data.masks import check_palette_fit
 from claravid.data.palettes import load_palette
 from claravid.data.samples import normalise
 from claravid.data.targets import UAVidSegmentation
-from claravid.eval import IGNORE_INDEX, WindowConfig
+from claravid.eval.inference.windows import WindowConfig
 from claravid.infra.cli import check_device
 from claravid.infra.distributed import DistInfo, barrier, init_distributed
 from claravid.infra.precision import autocast_dtype, precision_name

@@ -19,7 +19,7 @@ import torch
 from torch.utils.data import Sampler
 
 from claravid.dsp import compute_complexities
-from claravid.eval import quantile_bins
+from claravid.eval.analysis.bins import quantile_bins
 from claravid.infra.distributed import gather_in_order, shard_indices
 
 
@@ -121,7 +121,8 @@ def sharded_delentropy(paths: list[str]) -> np.ndarray:
 
 
 def complexity_groups(paths: list[str], bins: int) -> list[list[int]]:
-    """Image indices of each of ``bins`` delentropy quantile bins (as `eval.quantile_bins`)."""
+    """Image indices of each of ``bins`` delentropy quantile bins (as
+    `claravid.eval.analysis.bins.quantile_bins`)."""
     values = sharded_delentropy(paths)
     bad = [p for p, v in zip(paths, values, strict=True) if not math.isfinite(v)]
     if bad:

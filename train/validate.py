@@ -16,14 +16,11 @@ import numpy as np
 import torch
 from torch import nn
 
-from claravid.eval import (
-    ImageMeasures,
-    QualityTable,
-    WindowConfig,
-    bin_mious,
-    evaluate_model,
-    stratify,
-)
+from claravid.eval.analysis.miou_bins import bin_mious, stratify
+from claravid.eval.analysis.quality_table import QualityTable
+from claravid.eval.inference.image_sums import ImageMeasures
+from claravid.eval.inference.run_model import evaluate_model
+from claravid.eval.inference.windows import WindowConfig
 from claravid.infra.distributed import gather_in_order, shard_indices
 from claravid.train.data import SegmentationSplit, image_paths
 from claravid.train.sampler import sharded_delentropy

@@ -26,6 +26,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from claravid.data.ignore import IGNORE_INDEX
 from claravid.infra.resources import shipped_file, shipped_names
 from claravid.io.labels import DYNAMIC_OFFSET
 from claravid.io.layout import CLASSES, UNLABELED_ID
@@ -55,7 +56,7 @@ class Palette:
     names: tuple[str, ...]
     colors: np.ndarray
     lut: np.ndarray
-    ignore_index: int = UNLABELED_ID
+    ignore_index: int = IGNORE_INDEX
     uses_dynamic: bool = False
 
     @property
@@ -117,7 +118,7 @@ def _parse_classes(entries: Any, source: str) -> tuple[list[str], np.ndarray]:
         class_id, name, color = entry["id"], entry["name"], entry["color"]
         if not isinstance(name, str) or not name.strip():
             raise _fail(source, f"class entry {number} has name {name!r}; give a non-empty name")
-        if not _is_int(class_id) or not 0 <= class_id < UNLABELED_ID:
+        if not _is_int(class_id) or not 0 <= class_id < IGNORE_INDEX:
             raise _fail(source, f"class {name!r} has id {class_id!r}; use an integer 0..254")
         if class_id in by_id:
             raise _fail(source, f"duplicate id {class_id} ({by_id[class_id][0]!r} and {name!r})")
@@ -162,7 +163,7 @@ def _parse_mapping(
         if not isinstance(dst, str):
             raise _fail(source, f"'{section}' entry {src!r}: {dst!r} is not a palette class name")
         if dst == IGNORE:
-            resolved[src] = UNLABELED_ID
+            resolved[src] = IGNORE_INDEX
         elif dst in train_id:
             resolved[src] = train_id[dst]
         else:
@@ -188,13 +189,13 @@ def palette_from_dict(config: dict[str, Any], source: str = "<dict>") -> Palette
         raise _fail(source, f"unknown key(s) {sorted(unknown_keys)}")
     if "name" in config and (not isinstance(config["name"], str) or not config["name"].strip()):
         raise _fail(source, f"'name' is {config['name']!r}; give the palette a non-empty name")
-    if config.get("ignore_index", UNLABELED_ID) != UNLABELED_ID:
-        raise _fail(source, f"ignore_index must be {UNLABELED_ID}")
+    if config.get("ignore_index", IGNORE_INDEX) != IGNORE_INDEX:
+        raise _fail(source, f"ignore_index must be {IGNORE_INDEX}")
     names, colors = _parse_classes(config.get("classes"), source)
     static = _parse_mapping(config.get("mapping"), names, source, "mapping", require_all=True)
     dynamic = _parse_mapping(config.get("dynamic"), names, source, "dynamic", require_all=False)
 
-    lut = np.full(256, UNLABELED_ID, dtype=np.uint8)
+    lut = np.full(256, IGNORE_INDEX, dtype=np.uint8)
     for cls in CLASSES:
         if cls.id == UNLABELED_ID:
             continue

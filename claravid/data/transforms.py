@@ -39,8 +39,8 @@ import numpy as np
 import torch
 from omegaconf import Container, OmegaConf
 
+from claravid.data.ignore import IGNORE_INDEX
 from claravid.io.headers import MAX_PIXELS
-from claravid.io.layout import UNLABELED_ID
 from claravid.io.yamlfile import YamlFileError, load_yaml
 
 #: The largest crop side: no JPEG frame is larger (libjpeg's JPEG_MAX_DIMENSION).
@@ -182,7 +182,7 @@ class CropWindow(NamedTuple):
 def _train_ops(cfg: AugmentConfig) -> list[A.BasicTransform]:
     """The augmentations after the crop (the crop itself is `SegmentationTransform`'s)."""
     # Masks are filled with the one ignore id (every palette's, the loss's and the metrics').
-    fill = {"border_mode": cv2.BORDER_CONSTANT, "fill": 0, "fill_mask": UNLABELED_ID}
+    fill = {"border_mode": cv2.BORDER_CONSTANT, "fill": 0, "fill_mask": IGNORE_INDEX}
     nearest = {"mask_interpolation": cv2.INTER_NEAREST}
     ops: list[A.BasicTransform] = []
     if cfg.color_jitter_p > 0:
@@ -292,7 +292,7 @@ class SegmentationTransform:
             )
             if mask is not None:
                 mask = cv2.copyMakeBorder(
-                    np.ascontiguousarray(mask), *pad, cv2.BORDER_CONSTANT, value=UNLABELED_ID
+                    np.ascontiguousarray(mask), *pad, cv2.BORDER_CONSTANT, value=IGNORE_INDEX
                 )
         return image, mask, window
 

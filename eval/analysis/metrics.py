@@ -19,12 +19,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from claravid.io.layout import UNLABELED_ID
-
-#: The train id no measure counts and the loss ignores: ClaraVid's unlabeled id, which every
-#: palette maps ignored classes to and the training crops are padded with.
-IGNORE_INDEX: int = UNLABELED_ID
-
 CONVENTION = (
     "Confusion over pixels whose ground truth is not the ignore index (255); IoU = TP/(TP+FP+FN) "
     "from the group's summed confusion; classes with union 0 are left out of the mean (NaN-mean); "

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from claravid.data.ignore import IGNORE_INDEX
 from claravid.eval.analysis.bins import Bin, choose_bins
 from claravid.eval.analysis.bootstrap import (
     Bootstrap,
@@ -33,7 +34,6 @@ from claravid.eval.analysis.bootstrap import (
 from claravid.eval.analysis.complexity_measures import PRIMARY_MEASURE
 from claravid.eval.analysis.metrics import (
     CONVENTION,
-    IGNORE_INDEX,
     confusion_scores,
     finite_or_none,
     mean_iou,
@@ -97,19 +97,8 @@ def stratify(
         "convention", "binning", "quality"}``, and ``"uncertainty"`` with ``bootstrap``.
     """
     confusions = np.asarray(confusions, dtype=np.int64)
+    measures = _checked_inputs(paths, confusions, classes, complexity, clusters, bootstrap)
     n = len(paths)
-    if confusions.shape[0] != n or confusions.shape[1:] != (len(classes), len(classes)):
-        raise ValueError(
-            f"confusions {confusions.shape} do not match {n} images and {len(classes)} classes"
-        )
-    if n == 0:
-        raise ValueError("no image to report on")
-    if bootstrap is not None:  # refused before anything is computed or allocated
-        bootstrap.check_memory(list(paths) if clusters is None else clusters)
-    measures = {k: np.asarray(v, dtype=np.float64) for k, v in (complexity or {}).items()}
-    for name, column in measures.items():
-        if len(column) != n:
-            raise ValueError(f"{len(column)} {name} values for {n} images")
     measure = PRIMARY_MEASURE if PRIMARY_MEASURE in measures else next(iter(measures), None)
     values = measures.get(measure) if measure else None
 
@@ -140,19 +129,7 @@ def stratify(
         report["groups"].append(row)
 
     per_image_miou = np.array([mean_iou(c) for c in confusions])
-    own = image_values(quality)
-    for name, values in own.items():
-        if len(values) != n:
-            raise ValueError(f"{len(values)} {name} values for {n} images")
-    images = []
-    for i, path in enumerate(paths):
-        row = {"path": path}
-        row.update({m: finite_or_none(float(v[i])) for m, v in measures.items()})
-        row["miou"] = finite_or_none(per_image_miou[i])
-        row["pixel_acc"] = finite_or_none(pixel_accuracy(confusions[i]))
-        row.update({name: finite_or_none(float(v[i])) for name, v in own.items()})
-        images.append(row)
-    report["images"] = images
+    report["images"] = _image_rows(paths, confusions, measures, per_image_miou, quality)
     report["correlation"] = {m: correlation(v, per_image_miou) for m, v in measures.items()}
     if bootstrap is not None:
         add_intervals(report, confusions, bin_list, groups or {}, measures, per_image_miou,
@@ -160,6 +137,55 @@ def stratify(
     add_quality(report, quality, classes, bin_list, groups or {},
                 list(paths) if clusters is None else clusters, bootstrap)  # fmt: skip
     return report
+
+
+def _checked_inputs(
+    paths: Sequence[str],
+    confusions: np.ndarray,
+    classes: Sequence[str],
+    complexity: Mapping[str, ArrayLike] | None,
+    clusters: Sequence[str] | None,
+    bootstrap: Bootstrap | None,
+) -> dict[str, np.ndarray]:
+    """The complexity values as float64 columns, after checking that the confusions, the paths
+    and every column describe the same images and that the bootstrap fits in memory."""
+    n = len(paths)
+    if confusions.shape[0] != n or confusions.shape[1:] != (len(classes), len(classes)):
+        raise ValueError(
+            f"confusions {confusions.shape} do not match {n} images and {len(classes)} classes"
+        )
+    if n == 0:
+        raise ValueError("no image to report on")
+    if bootstrap is not None:  # refused before anything is computed or allocated
+        bootstrap.check_memory(list(paths) if clusters is None else clusters)
+    measures = {k: np.asarray(v, dtype=np.float64) for k, v in (complexity or {}).items()}
+    for name, column in measures.items():
+        if len(column) != n:
+            raise ValueError(f"{len(column)} {name} values for {n} images")
+    return measures
+
+
+def _image_rows(
+    paths: Sequence[str],
+    confusions: np.ndarray,
+    measures: Mapping[str, np.ndarray],
+    per_image_miou: np.ndarray,
+    quality: QualityTable | None,
+) -> list[dict[str, Any]]:
+    """One row per image: its path, complexities, mIoU, pixel accuracy and measures' values."""
+    own = image_values(quality)
+    for name, values in own.items():
+        if len(values) != len(paths):
+            raise ValueError(f"{len(values)} {name} values for {len(paths)} images")
+    images = []
+    for i, path in enumerate(paths):
+        row: dict[str, Any] = {"path": path}
+        row.update({m: finite_or_none(float(v[i])) for m, v in measures.items()})
+        row["miou"] = finite_or_none(per_image_miou[i])
+        row["pixel_acc"] = finite_or_none(pixel_accuracy(confusions[i]))
+        row.update({name: finite_or_none(float(v[i])) for name, v in own.items()})
+        images.append(row)
+    return images
 
 
 def add_quality(

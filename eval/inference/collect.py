@@ -158,11 +158,8 @@ def collect(
         source: the report's ``source`` entries.
     """
     s = settings or CollectSettings()
-    measures, workers, tile_size, hardest = s.measures, s.workers, s.tile_size, s.hardest
-    save_predictions = s.save_predictions
     if (model is None) == (predictions is None):
         raise ValueError("give exactly one of a model and a predictions folder")
-    k = data.palette.num_classes
     plan = s.quality or plan_quality({}, has_scores=model is not None,
                                      pairs_reason=pairs_unavailable(data))  # fmt: skip
     skipped: list[int] = []
@@ -173,96 +170,75 @@ def collect(
     shard = contiguous_shard if plan.on(CONSISTENCY) else distributed.shard_indices
     mine = [present[i] for i in shard(len(present))]
     frames = PassFrames(data) if plan.on(CONSISTENCY) else None
-    pair_keeper = PairKeeper(hardest if frames is not None else 0)
-    extras: list[tuple[Any, Any]] = []
-    pairs: dict[str, PairResult] = {}
-    if tile_size is not None and mine:  # before any work: a grid too fine for the first image
-        check_tile_size(tile_size)
+    work = _Work(
+        data, mine, s, plan, frames,
+        keeper=Hardest(s.hardest if model is not None and s.save_predictions is None else 0),
+        pair_keeper=PairKeeper(s.hardest if frames is not None else 0),
+    )  # fmt: skip
+    if s.tile_size is not None and mine:  # before any work: a grid too fine for the first image
+        check_tile_size(s.tile_size)
         width, height = image_size(data.paths[mine[0]])
-        check_tile_count((height, width), tile_size, str(data.paths[mine[0]]))
-    keeper = Hardest(hardest if model is not None and save_predictions is None else 0)
-    error: BaseException | None = None
-    confusions: list[np.ndarray] = []
-    tile_confs: list[np.ndarray | None] = []
-    tile_values: list[np.ndarray | None] = []
-    values: dict[str, list[float]] = {}
-    if save_predictions is not None and distributed.current().is_main:
+        check_tile_count((height, width), s.tile_size, str(data.paths[mine[0]]))
+    if s.save_predictions is not None and distributed.current().is_main:
         # The marker first: an interrupted run's partial label maps are still this tool's, so
         # the same command can be run again without --overwrite.
-        write_marker(save_predictions, data.palette, source or {}, complete=False)
+        write_marker(s.save_predictions, data.palette, source or {}, complete=False)
+    scored = _measure(work, model, predictions)
+    return _gather(work, scored, present, skipped, source)
+
+
+@dataclass
+class _Work:
+    """One rank's share of a collection and what keeps its hardest images and pairs."""
+
+    data: EvalData
+    mine: list[int]
+    settings: CollectSettings
+    plan: QualityPlan
+    frames: PassFrames | None
+    keeper: Hardest
+    pair_keeper: PairKeeper
+
+
+@dataclass
+class _Scored:
+    """What one rank measured of its images, in its order: confusions, tiles' confusions, the
+    (boundary, calibration) sums, the pairs by key, and the complexities and tiles' values."""
+
+    confusions: list[np.ndarray] = field(default_factory=list)
+    tile_confs: list[np.ndarray | None] = field(default_factory=list)
+    extras: list[tuple[Any, Any]] = field(default_factory=list)
+    pairs: dict[str, PairResult] = field(default_factory=dict)
+    values: dict[str, list[float]] = field(default_factory=dict)
+    tile_values: list[np.ndarray | None] = field(default_factory=list)
+
+
+def _measure(work: _Work, model: ModelSource | None, predictions: str | Path | None) -> _Scored:
+    """Score this rank's images while their complexity is measured; raise on every rank when
+    any rank failed."""
+    s, data = work.settings, work.data
+    scored = _Scored()
+    error: BaseException | None = None
     job: ComplexityJob | None = None
     try:
         # Complexity starts first and runs while the model (or the PNG reader) works: in
         # worker processes beside a model (a long run), in threads beside the PNG reader.
         job = ComplexityJob(
-            [data.paths[i] for i in mine],
-            measures,
-            workers=workers if model is not None else 0,
-            threads=max(1, workers),
-            tile_size=tile_size,
+            [data.paths[i] for i in work.mine],
+            s.measures,
+            workers=s.workers if model is not None else 0,
+            threads=max(1, s.workers),
+            tile_size=s.tile_size,
         )
         if model is not None:
-            # The image's measures and its pair run in threads beside the next prediction.
-            with Background(max(1, workers)) as background:
-                stream = None
-                if frames is not None:
-                    window = (s.window or WindowConfig()).for_model(model.model)
-
-                    def predict_other(key: str) -> np.ndarray:
-                        image = frames.image(key).to(s.device)
-                        return (
-                            predict_labels(model.model, image, window)
-                            .to("cpu", torch.uint8)
-                            .numpy()
-                        )
-
-                    stream = PairStream(frames, [data.keys[i] for i in mine], k, predict_other,
-                                        pair_keeper, mine, background)  # fmt: skip
-
-                def on_score(sample: dict[str, Any], pred: torch.Tensor, score: ImageScore) -> None:
-                    keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
-                    if save_predictions is None and stream is None:
-                        return
-                    ids = pred.to("cpu", torch.uint8).numpy()
-                    if save_predictions is not None:
-                        save_label_map(save_predictions, score.key, ids)
-                    if stream is not None:
-                        stream.add(score.key, ids, np.asarray(sample["mask"], dtype=np.uint8))
-
-                scores = evaluate_model(
-                    model.model,
-                    data.dataset,
-                    k,
-                    s.window,
-                    device=s.device,
-                    indices=mine,
-                    num_workers=workers,
-                    tile_size=tile_size,
-                    progress=s.progress,
-                    on_score=on_score,
-                    measures=plan.image_measures(),
-                    background=background,
-                )
-                confusions = [s.confusion for s in scores]
-                tile_confs = [s.tiles for s in scores]
-                extras = [(s.boundary, s.calibration) for s in scores]
-                if stream is not None:
-                    pairs = stream.finish()
+            scored = _score_model(work, model)
         else:
-            assert predictions is not None  # one of model and predictions, checked above
-            threads = max(1, workers)
-            measure = label_map_measure(data, predictions, plan, frames, pair_keeper)
-            scored = label_map_confusions(data, predictions, mine, threads=threads,
-                                          tile_size=tile_size, progress=s.progress,
-                                          measure=measure)  # fmt: skip
-            confusions, tile_confs = [c for c, _, _ in scored], [t for _, t, _ in scored]
-            extras = [(None if e is None else e[0], None) for _, _, e in scored]
-            pairs = {data.keys[i]: e[1] for i, (_, _, e) in zip(mine, scored, strict=True)
-                     if e is not None and e[1] is not None}  # fmt: skip
-        values = job.result()
-        tile_values = job.tiles()
-        if tile_size is not None:
-            _check_tile_grids(data, mine, tile_values, tile_confs)
+            assert predictions is not None  # one of model and predictions, checked by collect
+            scored = _score_label_maps(work, predictions)
+        scored.values = job.result()
+        scored.tile_values = job.tiles()
+        if s.tile_size is not None:
+            _check_tile_grids(data, work.mine, scored.tile_values, scored.tile_confs)
     except BaseException as exc:
         if job is not None:
             job.stop()  # join the threads before the error ends the process
@@ -270,16 +246,96 @@ def collect(
             raise
         error = _from_worker(exc)
     _raise_any(error)
+    return scored
 
+
+def _score_model(work: _Work, model: ModelSource) -> _Scored:
+    """Run the model over this rank's images: confusions, the measures beyond mIoU, the saved
+    label maps and the pairs (each image's measures and pair in threads beside the next
+    prediction)."""
+    s, data, frames = work.settings, work.data, work.frames
+    k = data.palette.num_classes
+    with Background(max(1, s.workers)) as background:
+        stream = None
+        if frames is not None:
+            window = (s.window or WindowConfig()).for_model(model.model)
+
+            def predict_other(key: str) -> np.ndarray:
+                image = frames.image(key).to(s.device)
+                return predict_labels(model.model, image, window).to("cpu", torch.uint8).numpy()
+
+            stream = PairStream(frames, [data.keys[i] for i in work.mine], k, predict_other,
+                                work.pair_keeper, work.mine, background)  # fmt: skip
+
+        def on_score(sample: dict[str, Any], pred: torch.Tensor, score: ImageScore) -> None:
+            work.keeper.offer(int(sample["index"]), mean_iou(score.confusion), pred)
+            if s.save_predictions is None and stream is None:
+                return
+            ids = pred.to("cpu", torch.uint8).numpy()
+            if s.save_predictions is not None:
+                save_label_map(s.save_predictions, score.key, ids)
+            if stream is not None:
+                stream.add(score.key, ids, np.asarray(sample["mask"], dtype=np.uint8))
+
+        scores = evaluate_model(
+            model.model,
+            data.dataset,
+            k,
+            s.window,
+            device=s.device,
+            indices=work.mine,
+            num_workers=s.workers,
+            tile_size=s.tile_size,
+            progress=s.progress,
+            on_score=on_score,
+            measures=work.plan.image_measures(),
+            background=background,
+        )
+        return _Scored(
+            confusions=[score.confusion for score in scores],
+            tile_confs=[score.tiles for score in scores],
+            extras=[(score.boundary, score.calibration) for score in scores],
+            pairs={} if stream is None else stream.finish(),
+        )
+
+
+def _score_label_maps(work: _Work, predictions: str | Path) -> _Scored:
+    """Read this rank's saved label maps: confusions, boundary sums and pairs."""
+    s, data, mine = work.settings, work.data, work.mine
+    measure = label_map_measure(data, predictions, work.plan, work.frames, work.pair_keeper)
+    scored = label_map_confusions(data, predictions, mine, threads=max(1, s.workers),
+                                  tile_size=s.tile_size, progress=s.progress,
+                                  measure=measure)  # fmt: skip
+    pairs = {data.keys[i]: e[1] for i, (_, _, e) in zip(mine, scored, strict=True)
+             if e is not None and e[1] is not None}  # fmt: skip
+    return _Scored(
+        confusions=[c for c, _, _ in scored],
+        tile_confs=[t for _, t, _ in scored],
+        extras=[(None if e is None else e[0], None) for _, _, e in scored],
+        pairs=pairs,
+    )
+
+
+def _gather(
+    work: _Work,
+    scored: _Scored,
+    present: list[int],
+    skipped: list[int],
+    source: dict[str, Any] | None,
+) -> Collected:
+    """Every rank's rows, hardest images and pairs, in dataset order: the table."""
+    s, data, mine = work.settings, work.data, work.mine
+    k, tile_size, hardest = data.palette.num_classes, s.tile_size, s.hardest
     rows = [
-        (confusions[j], {m: values[m][j] for m in values},
-         (tile_values[j], tile_confs[j]) if tile_size is not None else None,
-         extras[j], pairs.get(data.keys[mine[j]]))
+        (scored.confusions[j], {m: scored.values[m][j] for m in scored.values},
+         (scored.tile_values[j], scored.tile_confs[j]) if tile_size is not None else None,
+         scored.extras[j], scored.pairs.get(data.keys[mine[j]]))
         for j in range(len(mine))
     ]  # fmt: skip
     rows = distributed.gather_in_order(rows, mine)
-    kept = distributed.gather_in_order([keeper.heap], [distributed.current().rank])
-    kept_pairs = distributed.gather_in_order([pair_keeper.heap], [distributed.current().rank])
+    rank = distributed.current().rank
+    kept = distributed.gather_in_order([work.keeper.heap], [rank])
+    kept_pairs = distributed.gather_in_order([work.pair_keeper.heap], [rank])
     order = sorted(present)
     # Entries are (-mIoU, -index, prediction): the hardest are the largest.
     entries = [e for part in kept for e in part]
@@ -288,7 +344,7 @@ def collect(
         paths=[data.paths[i] for i in order],
         keys=[data.keys[i] for i in order],
         confusions=np.stack([r[0] for r in rows]).astype(np.int64),
-        complexity={m: np.asarray([r[1][m] for r in rows], dtype=np.float64) for m in measures},
+        complexity={m: np.asarray([r[1][m] for r in rows], dtype=np.float64) for m in s.measures},
         attributes={a: [v[i] for i in order] for a, v in data.attributes.items()},
         classes=list(data.palette.names),
         palette=data.palette.name,
@@ -296,15 +352,15 @@ def collect(
         tiles=None
         if tile_size is None
         else TileTable.from_images(tile_size, [_tiles(r[2]) for r in rows], k),
-        quality=quality_table(plan, rows, k),
+        quality=quality_table(work.plan, rows, k),
     )
     # Table rows are positions in `present`; hardest predictions are keyed by those too.
     position = {index: pos for pos, index in enumerate(order)}
     worst = heapq.nlargest(max(0, hardest), [e for part in kept_pairs for e in part],
                            key=lambda e: e[:2])  # fmt: skip
     sheet = []
-    if frames is not None and distributed.current().is_main:
-        sheet = [pair_item(frames, item) for _, _, item in worst]
+    if work.frames is not None and distributed.current().is_main:
+        sheet = [pair_item(work.frames, item) for _, _, item in worst]
     return Collected(
         result,
         [data.paths[i] for i in skipped],

@@ -18,7 +18,8 @@ import cv2
 import numpy as np
 import torch
 
-from claravid.eval.analysis.metrics import IGNORE_INDEX, mean_iou
+from claravid.data.ignore import IGNORE_INDEX
+from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.inputs.datasets import EvalData
 from claravid.eval.inputs.label_maps import prediction_file, read_prediction

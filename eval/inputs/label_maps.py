@@ -13,7 +13,7 @@ import json
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -24,9 +24,6 @@ from claravid.eval.measures.confusion import image_confusion
 from claravid.infra.cli import UsageError
 from claravid.infra.files import atomic_save, atomic_write_text
 from claravid.io import modalities
-
-if TYPE_CHECKING:  # eval.data names images by image_key: no import at run time
-    from claravid.eval.inputs.datasets import EvalData
 
 SHOW_MISSING = 5
 #: What a folder of label maps written by claravid-eval/claravid-predict holds besides them: its
@@ -188,6 +185,21 @@ def find_missing(directory: str | Path, keys: Sequence[str], indices: Iterable[i
     return [i for i in indices if not prediction_file(directory, keys[i]).is_file()]
 
 
+class LabeledImages(Protocol):
+    """What scoring saved label maps reads of the evaluated images (an
+    :class:`~claravid.eval.inputs.datasets.EvalData`, which names its images by
+    :func:`image_key`): their keys, palette and labels."""
+
+    keys: list[str]
+    palette: Palette
+
+    def __len__(self) -> int: ...
+
+    def read_mask(self, index: int) -> np.ndarray:
+        """The train ids (uint8 H×W) of image ``index``."""
+        ...
+
+
 def missing_message(directory: str | Path, keys: Sequence[str], missing: Sequence[int]) -> str:
     """``N prediction(s) missing in DIR, e.g. a.png, b.png``: what the error and warning say."""
     shown = ", ".join(str(prediction_file(directory, keys[i])) for i in missing[:SHOW_MISSING])
@@ -196,7 +208,7 @@ def missing_message(directory: str | Path, keys: Sequence[str], missing: Sequenc
 
 
 def check_missing(
-    directory: str | Path, data: EvalData, allow_missing: bool
+    directory: str | Path, data: LabeledImages, allow_missing: bool
 ) -> tuple[list[int], list[int]]:
     """Split the data's indices into (present, missing) predictions.
 
@@ -223,7 +235,7 @@ Measure = Callable[[int, np.ndarray, np.ndarray], Any]
 
 
 def _score_one(
-    data: EvalData, directory: Path, index: int, tile_size: int | None, measure: Measure | None
+    data: LabeledImages, directory: Path, index: int, tile_size: int | None, measure: Measure | None
 ) -> tuple[np.ndarray, np.ndarray | None, Any]:
     mask = data.read_mask(index)
     k = data.palette.num_classes
@@ -233,7 +245,7 @@ def _score_one(
 
 
 def label_map_confusions(
-    data: EvalData,
+    data: LabeledImages,
     directory: str | Path,
     indices: Sequence[int],
     *,

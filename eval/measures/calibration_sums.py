@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from claravid.eval.analysis.metrics import IGNORE_INDEX
+from claravid.data.ignore import IGNORE_INDEX
 from claravid.eval.measures.label_ids import as_numpy, check_ids, label_image
 
 try:  # the optional C pass (built at install when a compiler is there)

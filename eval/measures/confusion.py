@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 import torch
 
+from claravid.data.ignore import IGNORE_INDEX
 from claravid.dsp.tiles import tile_grid
-from claravid.eval.analysis.metrics import IGNORE_INDEX
 
 
 def confusion_matrix(

@@ -15,7 +15,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from claravid.eval.analysis.metrics import IGNORE_INDEX
+from claravid.data.ignore import IGNORE_INDEX
 
 
 def as_numpy(array: Any) -> np.ndarray:

@@ -6,19 +6,14 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from claravid.eval.report.cells import bin_range, md_table, number, with_ci
+from claravid.eval.report.quality_text import (
+    missing_everywhere,
+    quality_gap_lines,
+    quality_sections,
+)
+
 HARDEST_TABLE = 10
-
-
-def number(value: float | None, digits: int = 3) -> str:
-    """``0.357``; ``–`` for a missing value."""
-    return "–" if value is None else f"{value:.{digits}f}"
-
-
-def with_ci(value: float | None, ci: Sequence[float] | None, digits: int = 3) -> str:
-    """``0.357 [0.331, 0.384]``; the value alone when there is no interval."""
-    if value is None or not ci:
-        return number(value, digits)
-    return f"{value:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
 
 
 def uncertainty_line(unc: dict[str, Any] | None) -> str | None:
@@ -31,17 +26,6 @@ def uncertainty_line(unc: dict[str, Any] | None) -> str | None:
         f"- intervals: {unc['level']:.0%} {unc['method']}, {unc['resamples']} resamples of "
         f"{unc['num_clusters']} {unc['cluster']} clusters, seed {unc['seed']}"
     )
-
-
-def bin_range(row: dict[str, Any]) -> str:
-    """A bin's delentropy range, ``[3.10, 4.20]``."""
-    return f"[{number(row.get('lo'), 2)}, {number(row.get('hi'), 2)}]"
-
-
-def md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    """A Markdown table's lines, then a blank line."""
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    return [*lines, *("| " + " | ".join(row) + " |" for row in rows), ""]
 
 
 def bin_table(report: dict[str, Any]) -> str:
@@ -71,12 +55,21 @@ def bin_table(report: dict[str, Any]) -> str:
 def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
     """``report.md``: source, conventions, bins, groups, per-class IoU, correlations, the
     measures beyond mIoU, the hardest images, plots."""
-    # The measures' sections format with this module's helpers: imported here, not at the top.
-    from claravid.eval.report.quality_text import quality_sections
+    lines = ["# Evaluation report", "", *_header(report), *_bin_sections(report)]
+    lines += tile_section(report.get("tiles"))
+    lines += quality_sections(report)
+    lines += _hardest_section(report)
+    if plots:
+        lines += ["## Plots", ""]
+        lines += [f"![{name}]({file})" for name, file in plots.items()] + [""]
+    return "\n".join(lines)
 
+
+def _header(report: dict[str, Any]) -> list[str]:
+    """What was evaluated, how it was binned and the conventions, as the report's first lines."""
     source, classes = report["source"], report["classes"]
     binning = source.get("binning", {})
-    lines = ["# Evaluation report", ""]
+    lines: list[str] = []
     what = source.get("kind", "?")
     origin = (
         source.get("path") or source.get("predictions") or ", ".join(source.get("merged_from", []))
@@ -117,7 +110,14 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
               "(delentropy, path) like numpy.array_split; fixed edges are [e_i, e_i+1), the last "
               "closed. Correlations: Pearson and Spearman between per-image complexity and "
               "per-image mIoU.", ""]  # fmt: skip
+    return lines
 
+
+def _bin_sections(report: dict[str, Any]) -> list[str]:
+    """mIoU per bin, per group, IoU per class and the correlations."""
+    source, classes = report["source"], report["classes"]
+    binning = source.get("binning", {})
+    lines: list[str] = []
     lines += ["## mIoU per complexity bin", ""]
     rows = [[r["name"], bin_range(r), str(r["num_images"]), *_scores(r)] for r in report["bins"]]
     overall = report["overall"]
@@ -147,10 +147,12 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
              with_ci(c["spearman"], c.get("spearman_ci")), str(c["n"])]
             for m, c in report["correlation"].items()]  # fmt: skip
     lines += md_table(["measure", "Pearson r", "Spearman ρ", "n"], rows)
+    return lines
 
-    lines += tile_section(report.get("tiles"))
-    lines += quality_sections(report)
 
+def _hardest_section(report: dict[str, Any]) -> list[str]:
+    """The images of lowest mIoU (at most `HARDEST_TABLE`)."""
+    lines: list[str] = []
     hardest = sorted(
         (r for r in report["images"] if r["miou"] is not None), key=lambda r: r["miou"]
     )[:HARDEST_TABLE]
@@ -159,11 +161,7 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         rows = [[f"`{r['path']}`", number(r.get("delent")), number(r["miou"]),
                  number(r["pixel_acc"])] for r in hardest]  # fmt: skip
         lines += md_table(["image", "delentropy", "mIoU", "pixel acc"], rows)
-
-    if plots:
-        lines += ["## Plots", ""]
-        lines += [f"![{name}]({file})" for name, file in plots.items()] + [""]
-    return "\n".join(lines)
+    return lines
 
 
 def tile_section(tiles: dict[str, Any] | None) -> list[str]:
@@ -252,7 +250,6 @@ def compare_markdown(
     lines += md_table(header, [*rows, overall])
     if analysis is not None:
         return "\n".join(lines + _gap_tables(analysis))
-    from claravid.eval.report.quality_text import missing_everywhere
 
     lacking = missing_everywhere(reports, names)
     lines += [f"- {line}" for line in lacking] + ([""] if lacking else [])
@@ -305,7 +302,6 @@ def _gap_cell(row: dict[str, Any], resamples: int) -> list[str]:
 def _gap_tables(analysis: dict[str, Any]) -> list[str]:
     """One table per compared report: gap B − A overall and per bin, interval, p-value; then
     the gaps of the measures beyond mIoU."""
-    from claravid.eval.report.quality_text import quality_gap_lines
 
     unc = analysis["uncertainty"]
     lines = [uncertainty_line(unc) or "", ""]

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from claravid.eval.report.markdown import bin_range, md_table, number, with_ci
+from claravid.eval.report.cells import bin_range, md_table, number, with_ci
 
 TITLES = {
     "boundary_iou": "Boundary IoU",

@@ -15,6 +15,7 @@ float16 (half the file); others stay float32, cast where they meet float16 data.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 #: Ops kept in float32.
@@ -35,15 +36,38 @@ def convert_to_fp16(src: str, dst: str, keep_ops: frozenset[str] = KEEP_FP32) ->
         Counts: ``{"fp16_nodes", "fp32_nodes", "casts"}``.
     """
     import onnx
-    from onnx import TensorProto, helper, numpy_helper
 
     model = onnx.shape_inference.infer_shapes(onnx.load(src))  # every value's element type
     graph = model.graph
-    FLOAT, HALF = TensorProto.FLOAT, TensorProto.FLOAT16
+    types = _element_types(graph)
+    # Nodes are named by their index: protobuf's Python wrappers are not stable objects.
+    nodes = list(graph.node)
+    converted, half = _half_nodes(graph, nodes, types, keep_ops)
+    consumers: dict[str, list[tuple[int, int]]] = {}
+    for k, node in enumerate(nodes):
+        for i, name in enumerate(node.input):
+            consumers.setdefault(name, []).append((k, i))
+
+    def wants_half(k: int, index: int) -> bool:
+        return k in converted and index not in FIXED_INPUTS.get(nodes[k].op_type, set())
+
+    half |= _store_half(graph, nodes, types, consumers, wants_half)
+    casts = _insert_casts(graph, nodes, types, converted, half)
+    onnx.checker.check_model(model)
+    onnx.save(model, dst)
+    return {
+        "fp16_nodes": len(converted),
+        "fp32_nodes": len(nodes) - len(converted),
+        "casts": casts,
+    }
+
+
+def _element_types(graph: Any) -> dict[str, int]:
+    """The element type of every typed value: inputs, outputs, inferred values, weights and
+    constants."""
     types: dict[str, int] = {}
     for v in [*graph.input, *graph.output, *graph.value_info]:
         types[v.name] = v.type.tensor_type.elem_type
-    inits = {t.name: t for t in graph.initializer}
     for t in graph.initializer:
         types[t.name] = t.data_type
     for node in graph.node:
@@ -51,16 +75,23 @@ def convert_to_fp16(src: str, dst: str, keep_ops: frozenset[str] = KEEP_FP32) ->
             for a in node.attribute:
                 if a.name == "value":
                     types[node.output[0]] = a.t.data_type
+    return types
 
+
+def _half_nodes(
+    graph: Any, nodes: list[Any], types: dict[str, int], keep_ops: frozenset[str]
+) -> tuple[set[int], set[str]]:
+    """(the nodes that compute in float16, the values they make): every node one of whose float
+    inputs derives from the image, except the kept ops and the final resize."""
+    from onnx import TensorProto
+
+    FLOAT, HALF = TensorProto.FLOAT, TensorProto.FLOAT16
     # The final resize (the one that makes the graph output) also stays float32.
-    # Nodes are named by their index: protobuf's Python wrappers are not stable objects.
-    nodes = list(graph.node)
     outputs = {o.name for o in graph.output}
     keep_nodes = {k for k, n in enumerate(nodes) if n.op_type in keep_ops}
     keep_nodes |= {
         k for k, n in enumerate(nodes) if n.op_type == "Resize" and outputs & set(n.output)
     }
-
     active = {i.name for i in graph.input if types.get(i.name) == FLOAT}
     half: set[str] = set()  # values that are float16 after conversion
     converted: set[int] = set()  # nodes computing in float16
@@ -77,16 +108,23 @@ def convert_to_fp16(src: str, dst: str, keep_ops: frozenset[str] = KEEP_FP32) ->
             continue
         converted.add(k)
         half.update(floats_out)
+    return converted, half
 
-    consumers: dict[str, list[tuple[int, int]]] = {}
-    for k, node in enumerate(nodes):
-        for i, name in enumerate(node.input):
-            consumers.setdefault(name, []).append((k, i))
 
-    def wants_half(k: int, index: int) -> bool:
-        return k in converted and index not in FIXED_INPUTS.get(nodes[k].op_type, set())
+def _store_half(
+    graph: Any,
+    nodes: list[Any],
+    types: dict[str, int],
+    consumers: dict[str, list[tuple[int, int]]],
+    wants_half: Callable[[int, int], bool],
+) -> set[str]:
+    """Weights and constants read only where float16 is wanted, stored in float16 (in place):
+    their names."""
+    from onnx import TensorProto, numpy_helper
 
-    # Weights and constants read only where float16 is wanted: store them in float16.
+    FLOAT = TensorProto.FLOAT
+    inits = {t.name: t for t in graph.initializer}
+    half: set[str] = set()
     for name, uses in consumers.items():
         if types.get(name) != FLOAT or not uses or not all(wants_half(n, i) for n, i in uses):
             continue
@@ -104,7 +142,17 @@ def convert_to_fp16(src: str, dst: str, keep_ops: frozenset[str] = KEEP_FP32) ->
                     array = numpy_helper.to_array(a.t).astype("float16")
                     a.t.CopyFrom(numpy_helper.from_array(array, a.t.name))
             half.add(node.output[0])
+    return half
 
+
+def _insert_casts(
+    graph: Any, nodes: list[Any], types: dict[str, int], converted: set[int], half: set[str]
+) -> int:
+    """Rewrite the graph (in place) with a Cast wherever float16 and float32 meet, the graph's
+    outputs kept float32; the number of casts between nodes."""
+    from onnx import TensorProto, helper
+
+    FLOAT, HALF = TensorProto.FLOAT, TensorProto.FLOAT16
     casts: dict[tuple[str, int], str] = {}
     new_nodes: list[Any] = []
 
@@ -145,10 +193,4 @@ def convert_to_fp16(src: str, dst: str, keep_ops: frozenset[str] = KEEP_FP32) ->
                 node.input[:] = [inner if i == out.name else i for i in node.input]
             graph.node.append(helper.make_node("Cast", [inner], [out.name], to=FLOAT))
     del graph.value_info[:]  # stale types; onnxruntime infers its own
-    onnx.checker.check_model(model)
-    onnx.save(model, dst)
-    return {
-        "fp16_nodes": len(converted),
-        "fp32_nodes": len(nodes) - len(converted),
-        "casts": len(casts),
-    }
+    return len(casts)

@@ -53,6 +53,40 @@ def rope_periods(head_dim: int, base: float = 100.0, dtype: str = "fp32") -> tor
     return (base**exponents).to(ROPE_DTYPES[dtype]).float()
 
 
+#: How far stored periods may lie from the formula: one bfloat16 step (8 significant bits), so
+#: the released files (periods rounded to bfloat16) and state dicts saved in float16 or bfloat16
+#: pass, while periods of another base (or of minimum/maximum periods) do not.
+PERIODS_RTOL = 2.0**-7
+
+
+def check_periods(periods: torch.Tensor, head_dim: int, base: float) -> None:
+    """Refuse stored periods (``rope_embed.periods`` of a file) of another base than ``base``.
+
+    Values within a bfloat16 rounding (`PERIODS_RTOL`) of ``base ** (2k / (d/2))`` pass: the
+    loaded values are then the ones the model uses, as in the official code. Periods of another
+    shape pass too (a strict load reports the shape).
+
+    Raises:
+        ValueError: the periods differ; the message gives the first ones, the expected ones and
+            the base they fit.
+    """
+    expected = rope_periods(head_dim, base)
+    if periods.shape != expected.shape:
+        return
+    got = periods.float()
+    if bool(((got - expected).abs() <= PERIODS_RTOL * expected).all()):
+        return
+    fit = ""
+    if len(got) > 1 and bool(got[-1] > 0):
+        # periods[k] = base ** (4k / d): the last one tells the base.
+        fit = f" (they fit base {float(got[-1]) ** (head_dim / (4 * (len(got) - 1))):.4g})"
+    raise ValueError(
+        f"rope_embed.periods {got[:4].tolist()}... differ from base {base:g} "
+        f"** (2k / {head_dim // 2}) = {expected[:4].tolist()}... by more than bfloat16 "
+        f"rounding{fit}"
+    )
+
+
 def patch_coordinates(grid_h: Any, grid_w: Any, device: torch.device | None = None) -> torch.Tensor:
     """[grid_h * grid_w, 2] float32 (y, x) patch centres in (-1, 1), rows first (row-major).
 

@@ -30,8 +30,6 @@ from claravid.models.weights.formats import (
     Split,
     State,
     WeightsFamily,
-    from_official,
-    to_official,
 )
 
 _LAYER = "encoder.layer.{n}"
@@ -137,17 +135,3 @@ DINOV2 = WeightsFamily(
         "layer_norm_eps": lambda a: 1e-6,
     },
 )
-
-
-def hf_to_official(state: State) -> State:
-    """Rename a Hugging Face DINOv2 state dict to official keys (q/k/v concatenated).
-
-    Keys that match no rule are kept unchanged, so the strict load reports them.
-    """
-    return to_official(dict(state), HUGGING_FACE)
-
-
-def official_to_hf(state: State) -> State:
-    """Inverse of `hf_to_official`: official keys -> Hugging Face ``Dinov2Model`` keys."""
-    gated = any(".mlp.w12." in k for k in state)
-    return from_official(dict(state), HUGGING_FACE, "swiglu" if gated else "mlp")

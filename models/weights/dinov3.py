@@ -1,5 +1,6 @@
 """DINOv3 weights as data: the Hugging Face and timm names of the official tensors, and the checks
-only DINOv3 files need (RoPE periods, the key-bias mask).
+only DINOv3 files need (the key-bias mask; the RoPE periods through
+`claravid.models.layers.rope.check_periods`).
 
 Official ``.pth`` files carry our names. The other formats, declared below for
 `claravid.models.weights.formats`:
@@ -29,7 +30,7 @@ import torch
 from torch import nn
 
 from claravid.models.layers.blocks import swiglu_hidden
-from claravid.models.layers.rope import rope_periods
+from claravid.models.layers.rope import check_periods as rope_check_periods
 from claravid.models.weights.formats import KeyFormat, Rename, Split, WeightsError, WeightsFamily
 
 _BLOCK_NORMS = tuple(
@@ -96,39 +97,21 @@ TIMM = KeyFormat(
     gated=lambda state: any(".mlp.fc1_g." in k for k in state),
 )
 
-#: How far stored periods may lie from the formula: one bfloat16 step (8 significant bits), so
-#: the released files (periods rounded to bfloat16) and state dicts saved in float16 or bfloat16
-#: pass, while periods of another base (or of minimum/maximum periods) do not.
-PERIODS_RTOL = 2.0**-7
-
 
 def check_periods(state: dict[str, torch.Tensor], model: nn.Module, source: str) -> None:
-    """Refuse ``rope_embed.periods`` of another RoPE base than the model's.
-
-    Values within a bfloat16 rounding (`PERIODS_RTOL`) of ``base ** (2k / (d/2))`` pass: the
-    loaded values are then the ones the model uses, as in the official code.
-    """
+    """Refuse ``rope_embed.periods`` of another RoPE base than the model's
+    (`claravid.models.layers.rope.check_periods`)."""
     periods = state.get("rope_embed.periods")
     rope = getattr(model, "rope_embed", None)
     if periods is None or rope is None:
         return
-    expected = rope_periods(rope.head_dim, rope.base)
-    if periods.shape != expected.shape:
-        return  # the strict load reports the shape
-    got = periods.float()
-    if bool(((got - expected).abs() <= PERIODS_RTOL * expected).all()):
-        return
-    fit = ""
-    if len(got) > 1 and bool(got[-1] > 0):
-        # periods[k] = base ** (4k / d): the last one tells the base.
-        base = float(got[-1]) ** (rope.head_dim / (4 * (len(got) - 1)))
-        fit = f" (they fit base {base:.4g})"
-    raise WeightsError(
-        f"{source}: rope_embed.periods {got[:4].tolist()}... differ from base {rope.base:g} "
-        f"** (2k / {rope.head_dim // 2}) = {expected[:4].tolist()}... by more than bfloat16 "
-        f"rounding{fit}: the file was trained with other RoPE settings than the official "
-        "DINOv3 models; pass an official DINOv3 file"
-    )
+    try:
+        rope_check_periods(periods, rope.head_dim, rope.base)
+    except ValueError as error:
+        raise WeightsError(
+            f"{source}: {error}: the file was trained with other RoPE settings than the "
+            "official DINOv3 models; pass an official DINOv3 file"
+        ) from None
 
 
 def check_bias_masks(state: dict[str, torch.Tensor], source: str) -> None:

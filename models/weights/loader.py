@@ -24,7 +24,6 @@ import torch
 from torch import nn
 
 from claravid.models.backbones.specs import BackboneSpec
-from claravid.models.weights.dinov2 import hf_to_official, official_to_hf  # noqa: F401
 from claravid.models.weights.formats import (
     State,
     WeightsError,

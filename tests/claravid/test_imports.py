@@ -1,7 +1,10 @@
 """Imports stay light: the data layer needs no torch until a Dataset is used, the models need no
 data layer (no OpenCV, no albumentations), and the evaluation's analysis and report layers need no
-torch (so --merge and --compare never pay for it)."""
+torch (so --merge and --compare never pay for it); and no module imports itself back through
+others."""
 
+import ast
+import itertools
 import json
 import re
 import subprocess
@@ -37,23 +40,26 @@ for args in json.loads(sys.argv[1]):
 
 
 def _layer(name: str) -> str:
-    """``import claravid.eval`` (its names are lazy) and every module of one of its layers."""
+    """``import claravid.eval`` (its names are lazy) and every module of one of its layers (and
+    of its subpackages)."""
     folder = Path(__file__).resolve().parents[2] / "eval" / name
-    modules = [f"claravid.eval.{name}" + ("" if f.stem == "__init__" else f".{f.stem}")
-               for f in sorted(folder.glob("*.py"))]  # fmt: skip
+    modules = [".".join(["claravid.eval", name, *f.relative_to(folder).with_suffix("").parts])
+               .removesuffix(".__init__") for f in sorted(folder.rglob("*.py"))]  # fmt: skip
     return "\n".join(f"import {m}" for m in ["claravid.eval", *modules])
 
 
 #: What the numpy-only analysis layer may load of the toolkit (these packages, and modules with
-#: these prefixes): the profile fit and the measures' names of claravid.dsp, not its image code or
-#: the file readers; the ClaraVid facts (the ignore id) of claravid.io, not its readers; the
-#: user-error class of claravid.infra.cli (with the precision names its flags take); the packages'
-#: lazy names from claravid.infra.lazy; the memory a bootstrap may take from claravid.infra.memory
-#: (the kernel's MemAvailable, standard library only).
+#: these prefixes): the ignore index of claravid.data, not its readers; the profile fit and the
+#: measures' names of claravid.dsp, not its image code or the file readers; the ClaraVid facts
+#: (the unlabeled id) of claravid.io, not its readers; the user-error class of claravid.infra.cli
+#: (with the precision names its flags take); the packages' lazy names from claravid.infra.lazy;
+#: the memory a bootstrap may take from claravid.infra.memory (the kernel's MemAvailable,
+#: standard library only).
 ANALYSIS_MAY_LOAD = (
-    ["claravid", "claravid.dsp", "claravid.eval", "claravid.infra", "claravid.io"],
-    ["claravid.eval.analysis", "claravid.dsp.measures", "claravid.dsp.profile",
-     "claravid.infra.cli", "claravid.infra.lazy", "claravid.infra.memory",
+    ["claravid", "claravid.data", "claravid.dsp", "claravid.eval", "claravid.infra",
+     "claravid.io"],
+    ["claravid.eval.analysis", "claravid.data.ignore", "claravid.dsp.measures",
+     "claravid.dsp.profile", "claravid.infra.cli", "claravid.infra.lazy", "claravid.infra.memory",
      "claravid.infra.precision", "claravid.io.layout"],
 )  # fmt: skip
 
@@ -170,3 +176,120 @@ def test_every_name_the_docs_show_imports():
     assert {"claravid.transforms.train_transforms", "claravid.dsp.image_complexity"} <= names
     assert len(names) >= 25
     assert [name for name in sorted(names) if not resolves(name)] == []
+
+
+#: Where each import root of the package lives in the checkout.
+ROOMS = {"claravid": "claravid", "claravid.eval": "eval", "claravid.models": "models",
+         "claravid.train": "train"}  # fmt: skip
+
+
+def _module_files(root: Path, rooms: dict[str, str]) -> dict[str, Path]:
+    """Every module of the package (``.py``, and ``.pyi`` stubs of compiled ones), by name."""
+    files: dict[str, Path] = {}
+    for package, folder in rooms.items():
+        for file in sorted((root / folder).rglob("*.py*")):
+            if file.suffix not in (".py", ".pyi"):
+                continue
+            parts = file.relative_to(root / folder).with_suffix("").parts
+            name = ".".join([package, *(parts[:-1] if parts[-1] == "__init__" else parts)])
+            files.setdefault(name, file)
+    return files
+
+
+def _imports(tree: ast.AST) -> list[tuple[str, str | None, int]]:
+    """(module, imported name or None, line) of every absolute import anywhere in a tree:
+    at module level, inside functions and under ``if TYPE_CHECKING:``."""
+    found: list[tuple[str, str | None, int]] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(alias.name, None, node.lineno) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            found += [(node.module, alias.name, node.lineno) for alias in node.names]
+    return found
+
+
+def import_graph(root: Path, rooms: dict[str, str]) -> dict[str, dict[str, int]]:
+    """{module: {module it imports: line}} over the package's own modules.
+
+    ``from package import name`` points at the module ``name`` is, or else at the module the
+    package's ``__init__`` takes ``name`` from (its lazy table mirrors those imports), or else
+    at the package.
+    """
+    files = _module_files(root, rooms)
+    trees = {name: ast.parse(file.read_text(encoding="utf-8")) for name, file in files.items()}
+    exported = {
+        name: {item: module for module, item, _ in _imports(tree) if item and module in files}
+        for name, tree in trees.items()
+        if files[name].name == "__init__.py"
+    }
+    graph: dict[str, dict[str, int]] = {}
+    for name, tree in trees.items():
+        edges = graph.setdefault(name, {})
+        for module, item, line in _imports(tree):
+            if item and f"{module}.{item}" in files:
+                module = f"{module}.{item}"
+            elif item and item in exported.get(module, {}):
+                module = exported[module][item]
+            if module in files and module != name:
+                edges.setdefault(module, line)
+    return graph
+
+
+def import_cycles(graph: dict[str, dict[str, int]]) -> list[list[str]]:
+    """One cycle (``[a, b, ..., a]``) through each strongly connected group of modules."""
+    cycles = []
+    done: set[str] = set()
+    for start in sorted(graph):
+        # Depth-first from start, over modules not yet in a reported group: a path back to start
+        # is a cycle.
+        stack, seen = [(start, [start])], {start}
+        while stack:
+            node, path = stack.pop()
+            for nxt in sorted(graph[node], reverse=True):
+                if nxt == start:
+                    cycles.append([*path, start])
+                    done.update(path)
+                    stack = []
+                    break
+                if nxt not in seen and nxt not in done:
+                    seen.add(nxt)
+                    stack.append((nxt, [*path, nxt]))
+    return cycles
+
+
+def _spell(cycle: list[str], graph: dict[str, dict[str, int]]) -> str:
+    steps = [f"{a} (line {graph[a][b]})" for a, b in itertools.pairwise(cycle)]
+    return " -> ".join([*steps, cycle[-1]])
+
+
+def test_no_module_imports_itself_back():
+    """No import cycle between the package's modules, counting the imports inside functions and
+    the type checker's: a cycle hidden by a deferred import is still two modules that cannot be
+    read (or moved) one without the other."""
+    graph = import_graph(Path(__file__).resolve().parents[2], ROOMS)
+    assert len(graph) > 150 and sum(map(len, graph.values())) > 400  # the walk found the code
+    assert [_spell(c, graph) for c in import_cycles(graph)] == []
+
+
+def test_the_cycle_check_sees_deferred_typed_and_re_exported_imports(tmp_path):
+    """A planted tree: a -> b inside a function, b -> c under TYPE_CHECKING, c -> a through the
+    package's lazy name; d imports a one way only."""
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from pkg.a import A\n"
+    )
+    (pkg / "a.py").write_text("A = 1\n\ndef f():\n    from pkg import b\n")
+    (pkg / "b.py").write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from pkg.c import C\n"
+    )
+    (pkg / "c.py").write_text("from pkg import A\nC = A\n")
+    (pkg / "d.py").write_text("import pkg.a\n")
+    graph = import_graph(tmp_path, {"pkg": "pkg"})
+    assert graph["pkg.c"] == {"pkg.a": 1}  # the lazy name, not the package
+    assert import_cycles(graph) == [["pkg.a", "pkg.b", "pkg.c", "pkg.a"]]
+    assert _spell(import_cycles(graph)[0], graph) == (
+        "pkg.a (line 4) -> pkg.b (line 3) -> pkg.c (line 1) -> pkg.a"
+    )
+    (pkg / "c.py").write_text("C = 1\n")
+    assert import_cycles(import_graph(tmp_path, {"pkg": "pkg"})) == []

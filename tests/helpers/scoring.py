@@ -14,7 +14,7 @@ def _val_predictions(checkpoint, cfg) -> Iterator[tuple[int, np.ndarray, np.ndar
     predicted with the run's validation windows (``claravid.eval``'s public
     ``predict_labels``)."""
     from claravid import models
-    from claravid.eval import WindowConfig, predict_labels
+    from claravid.eval.inference.windows import WindowConfig, predict_labels
     from claravid.train.data import build_val_dataset
 
     model = models.load_checkpoint(checkpoint).eval()

@@ -20,7 +20,16 @@ import claravid.models
 from claravid import ClaraVidSegmentation, DatasetNotFoundError, Palette, load_palette
 from claravid.dsp import Profile, delentropy, fit_profile
 from claravid.eval import WindowConfig, mean_iou
-from claravid.models import OnnxSegmenter, Segmenter, build_model, load_checkpoint
+from claravid.models import (
+    DPTHead,
+    LinearHead,
+    OnnxSegmenter,
+    Segmenter,
+    UperNetHead,
+    build_model,
+    load_checkpoint,
+)
+from claravid.models.heads.protocol import Head
 from claravid.train import load_config
 
 
@@ -40,6 +49,11 @@ def the_names_keep_their_types(gray: np.ndarray, confusion: np.ndarray) -> None:
     assert_type(load_config("demo"), DictConfig)
 
 
+def the_heads_are_heads() -> list[Head]:
+    # Structural: mypy checks each head's forward and num_classes against the protocol.
+    return [DPTHead(32, 8), LinearHead(32, 8), UperNetHead(32, 8)]
+
+
 def a_misspelt_name_is_an_error() -> None:
     # Were a module-level __getattr__ visible to the checker, these would be Any and each
     # ignore unused, which `warn_unused_ignores` reports.
@@ -47,3 +61,7 @@ def a_misspelt_name_is_an_error() -> None:
     claravid.dsp.delentropi  # type: ignore[attr-defined]  # noqa: B018
     claravid.eval.WindowConfg  # type: ignore[attr-defined]  # noqa: B018
     claravid.models.build_modle  # type: ignore[attr-defined]  # noqa: B018
+    # Names that left the public API (one name per concept) are errors too, not Any.
+    claravid.eval.evaluate_model  # type: ignore[attr-defined]  # noqa: B018
+    claravid.eval.merge_results  # type: ignore[attr-defined]  # noqa: B018
+    claravid.models.official_to_hf  # type: ignore[attr-defined]  # noqa: B018

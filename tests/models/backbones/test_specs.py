@@ -4,7 +4,8 @@ that the built modules expose one interface whatever the family."""
 import pytest
 import torch
 
-from claravid.models import BACKBONE_NAMES, BACKBONES, backbone_spec, build_backbone, build_model
+from claravid.models import BACKBONES, backbone_spec, build_backbone, build_model
+from claravid.models.backbones.specs import BACKBONE_NAMES
 
 # The published DINOv3 architectures (facebookresearch/dinov3, hub/backbones.py) and the DPT
 # taps of the issue: name -> (dim, depth, heads, ffn, SwiGLU hidden or MLP hidden, qkv bias,

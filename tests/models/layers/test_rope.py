@@ -5,7 +5,12 @@ import math
 import pytest
 import torch
 
-from claravid.models.layers.rope import RopePositionEmbedding, rope_apply, rotate_half
+from claravid.models.layers.rope import (
+    RopePositionEmbedding,
+    check_periods,
+    rope_apply,
+    rotate_half,
+)
 
 
 def _angles_by_hand(rows: int, cols: int, head_dim: int) -> list[list[float]]:
@@ -89,3 +94,19 @@ def test_frozen_grid_gives_the_same_values_and_other_grids_still_work():
 def test_head_width_must_split_in_four():
     with pytest.raises(ValueError, match="divisible by 4"):
         RopePositionEmbedding(10)
+
+
+def test_stored_periods_of_the_model_s_base_pass_within_a_bfloat16_step():
+    # d = 16, base 100: 100 ** (k / 4) = 1, 3.1623, 10, 31.623; bfloat16 keeps 8 significant
+    # bits, so 3.1623 is stored as 3.15625 (0.2 % off) and 31.623 as 31.625.
+    check_periods(torch.tensor([1.0, 3.15625, 10.0, 31.625], dtype=torch.bfloat16), 16, 100.0)
+    check_periods(torch.tensor([1.0, 3.1623, 10.0]), 16, 100.0)  # another shape: the load's
+
+
+def test_stored_periods_of_another_base_are_refused_naming_the_base_they_fit():
+    # base 10000: 10000 ** (k / 4) = 1, 10, 100, 1000; the last gives 1000 ** (16 / 12) = 1e4.
+    with pytest.raises(ValueError, match=r"differ from base 100 .* \(they fit base 1e\+04\)"):
+        check_periods(torch.tensor([1.0, 10.0, 100.0, 1000.0]), 16, 100.0)
+    # One period 1 % off is more than a bfloat16 step.
+    with pytest.raises(ValueError, match=r"rope_embed.periods \[1.0, 3.19"):
+        check_periods(torch.tensor([1.0, 3.194, 10.0, 31.623]), 16, 100.0)

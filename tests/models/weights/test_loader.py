@@ -6,15 +6,10 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
-from claravid.models import (
-    WeightsError,
-    build_backbone,
-    hf_to_official,
-    official_to_hf,
-    official_url,
-)
+from claravid.models import WeightsError, build_backbone, official_url
 from claravid.models.weights.loader import official_checkpoint_path
 from tests.helpers.files import unreadable_files
+from tests.helpers.weights import dinov2_from_hugging_face, dinov2_to_hugging_face
 from tests.models.backbones.reference import random_official_state
 from tests.tiny import VIT_2 as TINY
 
@@ -34,7 +29,7 @@ def test_official_pth_loads_exactly(tmp_path):
 
 def test_hf_names_and_qkv_split():
     state = _official_state("dinov2_vitg14")
-    hf = official_to_hf(state)
+    hf = dinov2_to_hugging_face(state)
     d = 32
     assert hf["embeddings.position_embeddings"].shape == (1, 5, d)
     assert "embeddings.register_tokens" not in hf  # giant without registers
@@ -55,7 +50,7 @@ def test_hf_names_and_qkv_split():
 @pytest.mark.parametrize("name", ["dinov2_vits14", "dinov2_vits14_reg", "dinov2_vitg14"])
 def test_hf_round_trip(name):
     state = _official_state(name)
-    back = hf_to_official(official_to_hf(state))
+    back = dinov2_from_hugging_face(dinov2_to_hugging_face(state))
     assert set(back) == set(state)
     for key in state:
         assert torch.equal(back[key], state[key]), key
@@ -65,7 +60,7 @@ def test_hf_safetensors_gives_same_outputs_as_pth(tmp_path):
     state = _official_state()
     torch.save(state, tmp_path / "w.pth")
     # Hugging Face classification models prefix the backbone with "dinov2."
-    hf = {f"dinov2.{k}": v.contiguous() for k, v in official_to_hf(state).items()}
+    hf = {f"dinov2.{k}": v.contiguous() for k, v in dinov2_to_hugging_face(state).items()}
     hf["classifier.weight"] = torch.zeros(3, 64)
     save_file(hf, str(tmp_path / "model.safetensors"))
     a = build_backbone("dinov2_vits14_reg", weights=tmp_path / "w.pth", **TINY)
@@ -98,14 +93,14 @@ def test_registers_mismatch_names_register_tokens(tmp_path):
 
 
 def test_incomplete_hf_qkv(tmp_path):
-    hf = official_to_hf(_official_state())
+    hf = dinov2_to_hugging_face(_official_state())
     del hf["encoder.layer.0.attention.attention.value.bias"]
     with pytest.raises(
         WeightsError,
         match=r"has part of blocks.0.attn.qkv.bias but lacks "
         r"encoder.layer.0.attention.attention.value.bias: the file is incomplete",
     ):
-        hf_to_official(hf)
+        dinov2_from_hugging_face(hf)
 
 
 def test_missing_and_unreadable_files(tmp_path):
@@ -222,7 +217,7 @@ HF_KEYS = {
 @pytest.mark.parametrize("name", sorted(HF_KEYS))
 def test_converter_writes_the_real_hugging_face_key_names(name):
     state = _official_state(name)
-    hf = official_to_hf(state)
+    hf = dinov2_to_hugging_face(state)
     assert (
         len(HF_KEYS[name]) == len(set(HF_KEYS[name])) == len(state) + 2 * 4
     )  # per layer qkv.{weight,bias} -> q, k, v
@@ -284,7 +279,7 @@ def test_hugging_face_dinov2_keeps_the_official_resize_not_transformers(tmp_path
     transformers.Dinov2Config(
         hidden_size=32, num_hidden_layers=2, num_attention_heads=2, image_size=28, patch_size=14
     ).save_pretrained(folder)
-    save_file({k: v.contiguous() for k, v in official_to_hf(state).items()},
+    save_file({k: v.contiguous() for k, v in dinov2_to_hugging_face(state).items()},
               str(folder / "model.safetensors"))  # fmt: skip
     theirs = transformers.Dinov2Model.from_pretrained(folder).eval()
     ours = build_backbone("dinov2_vits14", weights=folder, **TINY)

@@ -9,10 +9,10 @@ features, and the tests check that they do, so that a model recomputing the peri
 
 import pytest
 import torch
-from safetensors.torch import save_file
 
 from claravid.models import WeightsError, build_backbone
-from tests.models.weights.official_v3 import official_periods, released_v3_state, to_hugging_face
+from tests.helpers.weights import released_state, saved
+from tests.models.weights.official_v3 import official_periods, to_hugging_face
 from tests.tiny import TINY_V3
 
 transformers = pytest.importorskip("transformers")
@@ -24,19 +24,6 @@ HF_ARGS = {
 }
 # 640x480 (a 30x40 grid, the shape of a 4:3 photo), and odd grids: 13x9 and 3x5.
 SIZES = [(480, 640), (208, 144), (48, 80)]
-
-
-def _save(state, path):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if path.suffix == ".safetensors":
-        save_file({k: v.contiguous() for k, v in state.items()}, str(path))
-    else:
-        torch.save(state, path)
-    return path
-
-
-def _released(name, **extra):
-    return released_v3_state(build_backbone(name, **{**TINY_V3, **extra}), name, seed=5)
 
 
 def _transformers(name, state):
@@ -68,9 +55,9 @@ def test_released_periods_of_a_head_of_64():
 
 @pytest.mark.parametrize("name", sorted(HF_ARGS))
 def test_a_released_file_gives_the_official_features(tmp_path, name):
-    state = _released(name)
+    state = released_state(name, seed=5)
     assert state["rope_embed.periods"].dtype == torch.bfloat16  # as the official model saves it
-    model = build_backbone(name, weights=_save(state, tmp_path / "w.pth"), **TINY_V3)
+    model = build_backbone(name, weights=saved(state, tmp_path / "w.pth"), **TINY_V3)
     theirs = _transformers(name, state)
     own_rope = theirs.rope_embeddings.inv_freq.clone()
     loaded_rope = 1 / state["rope_embed.periods"].float()
@@ -95,10 +82,10 @@ def test_a_released_file_gives_the_official_features(tmp_path, name):
 def test_a_file_without_periods_gets_the_released_ones(tmp_path, name):
     """The official file and the Hugging Face file of one checkpoint give the same features:
     bfloat16 periods for the distilled ViT-L, float32 ones for 7B."""
-    state = _released(name)
+    state = released_state(name, seed=5)
     # Files named after the backbone: nothing else tells 7B's web file from its SAT one.
-    official = build_backbone(name, weights=_save(state, tmp_path / f"{name}.pth"), **TINY_V3)
-    hf_path = _save(to_hugging_face(state, "model."), tmp_path / name / "model.safetensors")
+    official = build_backbone(name, weights=saved(state, tmp_path / f"{name}.pth"), **TINY_V3)
+    hf_path = saved(to_hugging_face(state, "model."), tmp_path / name / "model.safetensors")
     hf = build_backbone(name, weights=hf_path, **TINY_V3)
     assert torch.equal(hf.rope_embed.periods, state["rope_embed.periods"].float())
     x = torch.randn(1, 3, 208, 144, generator=torch.Generator().manual_seed(0))
@@ -111,15 +98,15 @@ def test_a_file_without_periods_gets_the_released_ones(tmp_path, name):
 
 def test_released_qkv_bias_is_zero_for_b_l_and_h_plus():
     for name in ("dinov3_vitb16", "dinov3_vitl16", "dinov3_vith16plus"):
-        assert not _released(name)["blocks.0.attn.qkv.bias"].any(), name
-    assert _released("dinov3_vits16")["blocks.0.attn.qkv.bias"].any()
+        assert not released_state(name, seed=5)["blocks.0.attn.qkv.bias"].any(), name
+    assert released_state("dinov3_vits16", seed=5)["blocks.0.attn.qkv.bias"].any()
 
 
 def test_periods_of_another_base_are_refused(tmp_path):
-    state = _released("dinov3_vits16")
+    state = released_state("dinov3_vits16", seed=5)
     state["rope_embed.periods"] = official_periods(4, torch.float32, base=10000.0)
     with pytest.raises(WeightsError) as err:
-        build_backbone("dinov3_vits16", weights=_save(state, tmp_path / "w.pth"), **TINY_V3)
+        build_backbone("dinov3_vits16", weights=saved(state, tmp_path / "w.pth"), **TINY_V3)
     message = str(err.value)
     assert "\n" not in message
     assert "rope_embed.periods [1.0, 10.0, 100.0, 1000.0]... differ from base 100" in message
@@ -127,14 +114,14 @@ def test_periods_of_another_base_are_refused(tmp_path):
     # Base 102: the periods move by up to 1.5 %, more than a bfloat16 rounding (0.8 %).
     state["rope_embed.periods"] = official_periods(4, torch.float32, base=102.0)
     with pytest.raises(WeightsError, match="fit base 102"):
-        build_backbone("dinov3_vits16", weights=_save(state, tmp_path / "b.pth"), **TINY_V3)
+        build_backbone("dinov3_vits16", weights=saved(state, tmp_path / "b.pth"), **TINY_V3)
 
 
 @pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16])
 def test_a_state_dict_saved_in_half_precision_loads(tmp_path, dtype):
     """``model.half().state_dict()`` rounds the periods too: that is not another RoPE."""
-    state = {k: v.to(dtype) for k, v in _released("dinov3_vit7b16").items()}
-    path = _save(state, tmp_path / "dinov3_vit7b16.pth")
+    state = {k: v.to(dtype) for k, v in released_state("dinov3_vit7b16", seed=5).items()}
+    path = saved(state, tmp_path / "dinov3_vit7b16.pth")
     model = build_backbone("dinov3_vit7b16", weights=path, **TINY_V3)
     assert torch.equal(model.rope_embed.periods, state["rope_embed.periods"].float())
     assert model.rope_embed.periods.dtype == torch.float32

@@ -6,10 +6,10 @@ import sys
 
 import pytest
 import torch
-from safetensors.torch import save_file
 
 from claravid.models import WeightsError, build_backbone, build_model, save_checkpoint
-from tests.models.weights.official_v3 import released_v3_state, to_hugging_face, to_timm
+from tests.helpers.weights import released_state, saved
+from tests.models.weights.official_v3 import to_hugging_face, to_timm
 from tests.tiny import TINY_V3
 
 transformers = pytest.importorskip("transformers")
@@ -18,22 +18,9 @@ X = torch.randn(1, 3, 48, 80, generator=torch.Generator().manual_seed(0))
 SAT = "dinov3_vitl16_sat"
 
 
-def _save(state, path):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if path.suffix == ".safetensors":
-        save_file({k: v.contiguous() for k, v in state.items()}, str(path))
-    else:
-        torch.save(state, path)
-    return path
-
-
 def _features(model):
     with torch.no_grad():
         return model.get_intermediate_layers(X, 3)
-
-
-def _released(name=SAT, seed=3, **extra):
-    return released_v3_state(build_backbone(name, **{**TINY_V3, **extra}), name, seed)
 
 
 def _cached_repo(cache, repo_id, files):
@@ -45,7 +32,7 @@ def _cached_repo(cache, repo_id, files):
     (repo / "refs" / "main").write_text("0123abcd")
     for name, content in files.items():
         if isinstance(content, dict) and all(torch.is_tensor(v) for v in content.values()):
-            _save(content, snapshot / name)
+            saved(content, snapshot / name)
         else:
             (snapshot / name).write_text(json.dumps(content))
     return snapshot
@@ -72,7 +59,7 @@ TIMM_SAT = "timm/vit_large_patch16_dinov3.sat493m"
 
 def test_a_hub_id_reads_the_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path / "hub"))
-    state = _released()
+    state = released_state(SAT, seed=3)
     timm_config = {
         "architecture": "vit_large_patch16_dinov3",
         "pretrained_cfg": {"tag": "sat493m", "mean": [0.43, 0.411, 0.296]},
@@ -86,7 +73,7 @@ def test_a_hub_id_reads_the_cache(tmp_path, monkeypatch):
             "config.json": timm_config,
         },
     )
-    official = build_backbone(SAT, weights=_save(state, tmp_path / "o.pth"), **TINY_V3)
+    official = build_backbone(SAT, weights=saved(state, tmp_path / "o.pth"), **TINY_V3)
     model = build_backbone(SAT, weights=TIMM_SAT, **TINY_V3)
     torch.testing.assert_close(_features(model), _features(official), atol=0, rtol=0)
     with pytest.raises(WeightsError) as err:
@@ -114,13 +101,13 @@ def test_a_hub_id_offline_and_not_cached_says_what_to_download(tmp_path, monkeyp
 
 def test_a_hugging_face_snapshot_folder_tells_sat_from_web(tmp_path):
     """The HF files drop local_cls_norm: the snapshot's repository folder names the weights."""
-    state = _released()
+    state = released_state(SAT, seed=3)
     snapshot = _cached_repo(
         tmp_path / "hub",
         "facebook/dinov3-vitl16-pretrain-sat493m",
         {"model.safetensors": to_hugging_face(state, "model.")},
     )
-    official = build_backbone(SAT, weights=_save(state, tmp_path / "o.pth"), **TINY_V3)
+    official = build_backbone(SAT, weights=saved(state, tmp_path / "o.pth"), **TINY_V3)
     for given in (snapshot, snapshot / "model.safetensors"):
         model = build_backbone(SAT, weights=given, **TINY_V3)
         torch.testing.assert_close(_features(model), _features(official), atol=0, rtol=0)
@@ -132,8 +119,8 @@ def test_a_hugging_face_snapshot_folder_tells_sat_from_web(tmp_path):
 
 def test_a_save_pretrained_folder_and_its_shards(tmp_path):
     name = "dinov3_vitl16"
-    state = _released(name)
-    official = build_backbone(name, weights=_save(state, tmp_path / "o.pth"), **TINY_V3)
+    state = released_state(name, seed=3)
+    official = build_backbone(name, weights=saved(state, tmp_path / "o.pth"), **TINY_V3)
     folder = _transformers_folder(state, tmp_path / "dinov3-vitl16-pretrain-lvd1689m")
     model = build_backbone(name, weights=folder, **TINY_V3)
     torch.testing.assert_close(_features(model), _features(official), atol=0, rtol=0)
@@ -162,7 +149,7 @@ def test_a_save_pretrained_folder_and_its_shards(tmp_path):
 )
 def test_a_config_json_of_another_architecture_is_refused(tmp_path, key, value, says):
     name = "dinov3_vitl16"
-    folder = _transformers_folder(_released(name), tmp_path / "lvd1689m")
+    folder = _transformers_folder(released_state(name, seed=3), tmp_path / "lvd1689m")
     config = json.loads((folder / "config.json").read_text())
     config[key] = value
     (folder / "config.json").write_text(json.dumps(config))
@@ -171,9 +158,9 @@ def test_a_config_json_of_another_architecture_is_refused(tmp_path, key, value, 
 
 
 def test_folders_without_one_weights_file(tmp_path):
-    state = _released("dinov3_vits16")
-    _save(state, tmp_path / "two" / "a.pth")
-    _save(state, tmp_path / "two" / "b.safetensors")
+    state = released_state("dinov3_vits16", seed=3)
+    saved(state, tmp_path / "two" / "a.pth")
+    saved(state, tmp_path / "two" / "b.safetensors")
     with pytest.raises(WeightsError, match=r"holds 2 weights files \(a.pth, b.safetensors\): pass"):
         build_backbone("dinov3_vits16", weights=tmp_path / "two", **TINY_V3)
     (tmp_path / "none").mkdir()
@@ -193,15 +180,15 @@ def test_missing_paths_suggest_what_exists(tmp_path):
 
 def test_wrapper_prefixes_are_removed(tmp_path):
     name = "dinov3_vits16"
-    state = _released(name)
-    want = _features(build_backbone(name, weights=_save(state, tmp_path / "o.pth"), **TINY_V3))
+    state = released_state(name, seed=3)
+    want = _features(build_backbone(name, weights=saved(state, tmp_path / "o.pth"), **TINY_V3))
     ddp = {f"module.{k}": v for k, v in state.items()}  # saved from DistributedDataParallel
     segmentation = {  # a segmentation model's file: the backbone beside a head
         **{f"backbone.{k}": v for k, v in state.items()},
         "decode_head.conv_seg.weight": torch.zeros(3, 8, 1, 1),
     }
     for i, wrapped in enumerate((ddp, {"state_dict": segmentation})):
-        model = build_backbone(name, weights=_save(wrapped, tmp_path / f"{i}.pth"), **TINY_V3)
+        model = build_backbone(name, weights=saved(wrapped, tmp_path / f"{i}.pth"), **TINY_V3)
         torch.testing.assert_close(_features(model), want, atol=0, rtol=0)
 
 
@@ -218,17 +205,17 @@ def test_a_claravid_checkpoint_is_not_backbone_weights(tmp_path):
 
 @pytest.mark.parametrize("key", ["blocks.1.attn.qkv.bias_mask", "blocks.0.mlp.fc1.weight"])
 def test_nan_in_a_file_is_refused(tmp_path, key):
-    state = _released("dinov3_vits16")
+    state = released_state("dinov3_vits16", seed=3)
     state[key] = state[key].clone()
     state[key][5] = float("nan")
     with pytest.raises(
         WeightsError, match=rf"NaN or infinite values in {key}: the file is damaged"
     ):
-        build_backbone("dinov3_vits16", weights=_save(state, tmp_path / "w.pth"), **TINY_V3)
+        build_backbone("dinov3_vits16", weights=saved(state, tmp_path / "w.pth"), **TINY_V3)
 
 
 def test_a_bias_mask_other_than_one_zero_one_is_refused(tmp_path):
-    state = _released("dinov3_vits16")
+    state = released_state("dinov3_vits16", seed=3)
     state["blocks.2.attn.qkv.bias_mask"] = torch.ones_like(state["blocks.2.attn.qkv.bias_mask"])
     with pytest.raises(WeightsError, match=r"blocks.2.attn.qkv.bias_mask is not 1 for the query"):
-        build_backbone("dinov3_vits16", weights=_save(state, tmp_path / "w.pth"), **TINY_V3)
+        build_backbone("dinov3_vits16", weights=saved(state, tmp_path / "w.pth"), **TINY_V3)
