@@ -40,6 +40,8 @@ CLASS_WEIGHTS = ("none", "inverse", "median_frequency", "log_inverse")
 SCHEDULES = ("poly", "cosine")
 DATASETS = ("claravid", "uavid")
 SAMPLERS = ("uniform", "complexity_balanced")
+#: What ``data.budget_by`` accepts (`claravid.train.budget`): ``auto`` is the dataset's unit.
+BUDGET_UNITS = ("auto", "sequence", "block", "pass", "mission", "folder")
 
 
 class ConfigError(ValueError):
@@ -83,6 +85,11 @@ class DataConfig:
     class_weights: str = "none"  # none | inverse | median_frequency | log_inverse
     sampler: str = "uniform"  # uniform | complexity_balanced (equal draws per delentropy bin)
     sampler_bins: int = 3  # delentropy quantile bins of complexity_balanced
+    # Label budget (docs/training.md): the share of the training split's labelled images kept,
+    # drawn as whole units (auto: UAVid sequences, ClaraVid blocks), nested for one seed.
+    budget: float = 1.0  # in (0, 1]: 0.01, 0.05, 0.1, 0.25, 1.0 for a label-budget curve
+    budget_by: str = "auto"  # auto | sequence | block | pass | mission | folder
+    budget_seed: int = 0  # the draw's seed, apart from `seed`: one subset, several trainings
     augment: AugmentConfig = field(default_factory=AugmentConfig)
 
 
@@ -98,6 +105,9 @@ class ModelConfig:
     use_cls: bool = False  # dpt: CLS readout; linear: CLS concatenated to each token
     backbone_kwargs: dict[str, Any] = field(default_factory=dict)  # tiny test backbones
     freeze_backbone: bool = True  # the paper's protocol; false trains the backbone too
+    # Another run's checkpoint (best.pt) whose head (and stored backbone) starts this run; a
+    # fresh optimiser and step 0, not a resume. Same backbone and class names required.
+    init: str | None = None
 
 
 @dataclass
@@ -386,6 +396,10 @@ def check_config(cfg: DictConfig) -> None:
     )
     _require(d.sampler in SAMPLERS, "data.sampler", d.sampler, f"one of {', '.join(SAMPLERS)}")
     _require(d.sampler_bins >= 1, "data.sampler_bins", d.sampler_bins, ">= 1")
+    _require(math.isfinite(d.budget) and 0 < d.budget <= 1, "data.budget", d.budget,
+             "a fraction in (0, 1]: 0.1 keeps 10 % of the training images")  # fmt: skip
+    _require(d.budget_by in BUDGET_UNITS, "data.budget_by", d.budget_by,
+             f"one of {', '.join(BUDGET_UNITS)}")  # fmt: skip
     _require(d.num_workers >= 0, "data.num_workers", d.num_workers, ">= 0")
     _require(d.crops_per_frame >= 1, "data.crops_per_frame", d.crops_per_frame, ">= 1")
     _require(d.val_limit is None or d.val_limit >= 1, "data.val_limit", d.val_limit, ">= 1 or null")
@@ -469,7 +483,8 @@ def resolve_backbone(cfg: DictConfig) -> None:
       backbone's patch size (its ``model.backbone_kwargs.patch_size`` when overridden);
     - ``model.weights``: licence-gated weights (DINOv3) cannot be ``official`` and must be
       given as a path; a path is recorded absolute (``~`` expanded, symbolic links kept), so
-      the checkpoints that record it are evaluated and exported from any folder.
+      the checkpoints that record it are evaluated and exported from any folder;
+    - ``model.init``: recorded absolute too.
 
     Raises:
         ConfigError: an unknown backbone, a size off the patch grid (naming the two nearest
@@ -484,6 +499,8 @@ def resolve_backbone(cfg: DictConfig) -> None:
     _check_weights(cfg, spec)
     if _weights_path(m) is not None:
         m.weights = os.path.abspath(os.path.expanduser(m.weights))
+    if m.init is not None:  # recorded absolute, as the weights: the run is read from anywhere
+        m.init = os.path.abspath(os.path.expanduser(m.init))
     patch = int(m.backbone_kwargs.get("patch_size", spec.patch_size))
     if a.mean is None:
         a.mean = tuple(spec.mean)

@@ -1,0 +1,200 @@
+"""Label budgets: train on a fraction of a dataset's labelled training images, drawn by whole
+sequence, flight or block.
+
+``data.budget=0.1`` keeps about 10 % of the training split's images. They are drawn as whole
+units (``data.budget_by``): UAVid sequences, ClaraVid spatial blocks (the split's own unit) or
+passes (viewpoint folders), or image folders, never single images, so no kept image has its
+overlapping neighbour left out of the budget, or the other way round. The draw is::
+
+    units = sorted unit names; order = permutation(len(units), seed=data.budget_seed)
+    keep the first k units of that order, k >= 1 the count whose images come closest to
+    fraction × images (a tie keeps the larger)
+
+Every budget of one seed is a prefix of the same order, so a smaller budget's images are a
+subset of a larger one's (nested), and ``1.0`` keeps every image. Units hold different numbers
+of images, so the realised share differs from the asked one (UAVid: sequences of 10 frames);
+:class:`Budget` records both, the units kept, and the kept images' count and digest.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from claravid.data.segmentation import ClaraVidSegmentation
+from claravid.data.targets import UAVidSegmentation
+from claravid.train.config import BUDGET_UNITS
+
+__all__ = ["BUDGET_UNITS", "Budget", "BudgetError", "apply_budget", "draw_budget", "draw_units"]
+
+#: The unit ``auto`` draws, per ``data.dataset``.
+DEFAULT_UNIT = {"uavid": "sequence", "claravid": "block"}
+#: The units each dataset has (``folder``: an image's parent folder below the root).
+UNITS_OF = {"uavid": ("sequence", "folder"), "claravid": ("block", "pass", "mission", "folder")}
+
+
+class BudgetError(ValueError):
+    """A label budget that cannot be drawn (the message names the key and what to do)."""
+
+
+@dataclass(frozen=True)
+class Budget:
+    """What a label budget kept of the training split.
+
+    Attributes:
+        fraction: the share asked for (``data.budget``).
+        unit: the unit drawn whole (``sequence``, ``block``, ``pass``, ``mission``, ``folder``).
+        seed: ``data.budget_seed``.
+        units: the units kept, in draw order.
+        num_units: units in the whole split.
+        keys: the kept images' keys (relative paths without extension), sorted.
+        num_images: images in the whole split.
+        indices: the kept images' indices into the whole split, ascending.
+    """
+
+    fraction: float
+    unit: str
+    seed: int
+    units: tuple[str, ...]
+    num_units: int
+    keys: tuple[str, ...]
+    num_images: int
+    indices: tuple[int, ...]
+
+    @property
+    def realised(self) -> float:
+        """The share of the split's images kept."""
+        return len(self.keys) / self.num_images
+
+    @property
+    def digest(self) -> str:
+        """SHA-256 of the kept keys, one per line, sorted: equal digests, equal images."""
+        return hashlib.sha256("".join(k + "\n" for k in self.keys).encode()).hexdigest()
+
+    def record(self, keys: bool = False) -> dict[str, Any]:
+        """Plain values for the checkpoint; with ``keys``, also every kept image's key (what
+        ``out_dir/budget.json`` holds)."""
+        record = {
+            "fraction": self.fraction,
+            "unit": self.unit,
+            "seed": self.seed,
+            "realised": self.realised,
+            "num_units": self.num_units,
+            "units": list(self.units),
+            "num_images": self.num_images,
+            "kept_images": len(self.keys),
+            "digest": self.digest,
+        }
+        return {**record, "keys": list(self.keys)} if keys else record
+
+    def line(self) -> str:
+        """One line for the run's log."""
+        return (
+            f"label budget: data.budget={self.fraction:g} by {self.unit} (seed {self.seed}): "
+            f"{len(self.units)} of {self.num_units} {self.unit} unit(s), {len(self.keys)} of "
+            f"{self.num_images} images ({100 * self.realised:.1f} %), sha256 {self.digest[:12]}"
+        )
+
+
+def draw_units(labels: Sequence[str], fraction: float, seed: int) -> tuple[list[str], list[int]]:
+    """The units kept and the indices of their items, for items labelled with their unit.
+
+    Args:
+        labels: each item's unit.
+        fraction: in (0, 1].
+        seed: the draw's seed (the same for every budget of one curve).
+
+    Returns:
+        ``(units in draw order, kept item indices ascending)``.
+    """
+    if not 0 < fraction <= 1:
+        raise BudgetError(f"bad value for data.budget: {fraction!r} (a fraction in (0, 1])")
+    names = sorted(set(labels))
+    if not names:
+        return [], []
+    order = [names[i] for i in np.random.default_rng(seed).permutation(len(names))]
+    sizes = {name: 0 for name in names}
+    for label in labels:
+        sizes[label] += 1
+    cumulative = np.cumsum([sizes[name] for name in order])
+    target = fraction * len(labels)
+    # The first of the reversed minima: the larger k on a tie. Monotone in the target, so
+    # budgets of one seed are nested prefixes; 1.0 reaches every unit exactly.
+    distance = np.abs(cumulative - target)[::-1]
+    k = len(order) - int(np.argmin(distance))
+    kept = set(order[:k])
+    return order[:k], [i for i, label in enumerate(labels) if label in kept]
+
+
+def unit_labels(dataset: Any, unit: str) -> tuple[list[str], list[str]]:
+    """``(keys, unit labels)`` of every image of a UAVid or ClaraVid training split.
+
+    Raises:
+        BudgetError: the dataset has no such unit.
+    """
+    if isinstance(dataset, UAVidSegmentation):
+        kind = "uavid"
+        keys = [p.relative_to(dataset.root).with_suffix("").as_posix() for p in dataset.images]
+        folders = [str(Path(k).parent) for k in keys]
+        labels = {"sequence": [p.parent.parent.name for p in dataset.images], "folder": folders}
+    elif isinstance(dataset, ClaraVidSegmentation):
+        kind = "claravid"
+        keys = [f.key for f in dataset.frames]
+        folders = [str(Path(k).parent) for k in keys]
+        by = {"pass": folders, "mission": [k.split("/", 1)[0] for k in keys], "folder": folders}
+        labels = {**by, "block": dataset.block_ids() if unit == "block" else []}
+    else:
+        raise BudgetError(
+            f"label budgets draw from UAVid or ClaraVid, not {type(dataset).__name__}"
+        )
+    if unit not in UNITS_OF[kind]:
+        raise BudgetError(
+            f"bad value for data.budget_by: {unit!r} ({kind} images are drawn by "
+            f"{', '.join(UNITS_OF[kind])}, or auto: {DEFAULT_UNIT[kind]})"
+        )
+    return keys, labels[unit]
+
+
+def draw_budget(dataset: Any, fraction: float, unit: str = "auto", seed: int = 0) -> Budget:
+    """The label budget of a training split (the dataset is not changed: see `apply_budget`).
+
+    Raises:
+        BudgetError: a fraction outside (0, 1], a unit the dataset does not have.
+    """
+    if not 0 < fraction <= 1:
+        raise BudgetError(f"bad value for data.budget: {fraction!r} (a fraction in (0, 1])")
+    if unit == "auto":
+        unit = DEFAULT_UNIT["uavid" if isinstance(dataset, UAVidSegmentation) else "claravid"]
+    keys, labels = unit_labels(dataset, unit)
+    units, indices = draw_units(labels, fraction, seed)
+    return Budget(
+        fraction=float(fraction),
+        unit=unit,
+        seed=int(seed),
+        units=tuple(units),
+        num_units=len(set(labels)),
+        keys=tuple(sorted(keys[i] for i in indices)),
+        num_images=len(keys),
+        indices=tuple(indices),
+    )
+
+
+def _unsupported(dataset: Any) -> str:
+    return f"label budgets draw from UAVid or ClaraVid, not {type(dataset).__name__}"
+
+
+def apply_budget(dataset: Any, budget: Budget) -> None:
+    """Keep only the budget's images in ``dataset``, in place, in the split's order."""
+    if isinstance(dataset, UAVidSegmentation):
+        dataset.images = [dataset.images[i] for i in budget.indices]
+    elif isinstance(dataset, ClaraVidSegmentation):
+        dataset.frames = [dataset.frames[i] for i in budget.indices]
+    else:
+        raise BudgetError(
+            f"label budgets draw from UAVid or ClaraVid, not {type(dataset).__name__}"
+        )
