@@ -50,8 +50,9 @@ class Budget:
         fraction: the share asked for (``data.budget``).
         unit: the unit drawn whole (``sequence``, ``block``, ``pass``, ``mission``, ``folder``).
         seed: ``data.budget_seed``.
-        units: the units kept, in draw order.
-        num_units: units in the whole split.
+        units: the units kept, in draw order; None for 1.0, which draws nothing (every image
+            is kept, and the units are not even named: a ClaraVid block needs the extrinsics).
+        num_units: units in the whole split (None for 1.0).
         keys: the kept images' keys (relative paths without extension), sorted.
         num_images: images in the whole split.
         indices: the kept images' indices into the whole split, ascending.
@@ -60,8 +61,8 @@ class Budget:
     fraction: float
     unit: str
     seed: int
-    units: tuple[str, ...]
-    num_units: int
+    units: tuple[str, ...] | None
+    num_units: int | None
     keys: tuple[str, ...]
     num_images: int
     indices: tuple[int, ...]
@@ -85,7 +86,7 @@ class Budget:
             "seed": self.seed,
             "realised": self.realised,
             "num_units": self.num_units,
-            "units": list(self.units),
+            "units": None if self.units is None else list(self.units),
             "num_images": self.num_images,
             "kept_images": len(self.keys),
             "digest": self.digest,
@@ -94,6 +95,8 @@ class Budget:
 
     def line(self) -> str:
         """One line for the run's log."""
+        if self.units is None:
+            return f"label budget: every image ({self.num_images}), sha256 {self.digest[:12]}"
         return (
             f"label budget: data.budget={self.fraction:g} by {self.unit} (seed {self.seed}): "
             f"{len(self.units)} of {self.num_units} {self.unit} unit(s), {len(self.keys)} of "
@@ -131,8 +134,9 @@ def draw_units(labels: Sequence[str], fraction: float, seed: int) -> tuple[list[
     return order[:k], [i for i, label in enumerate(labels) if label in kept]
 
 
-def unit_labels(dataset: Any, unit: str) -> tuple[list[str], list[str]]:
-    """``(keys, unit labels)`` of every image of a UAVid or ClaraVid training split.
+def unit_labels(dataset: Any, unit: str, named: bool = True) -> tuple[list[str], list[str]]:
+    """``(keys, unit labels)`` of every image of a UAVid or ClaraVid training split; without
+    ``named``, the unit is only checked (ClaraVid blocks, from the extrinsics, are not made).
 
     Raises:
         BudgetError: the dataset has no such unit.
@@ -147,7 +151,7 @@ def unit_labels(dataset: Any, unit: str) -> tuple[list[str], list[str]]:
         keys = [f.key for f in dataset.frames]
         folders = [str(Path(k).parent) for k in keys]
         by = {"pass": folders, "mission": [k.split("/", 1)[0] for k in keys], "folder": folders}
-        labels = {**by, "block": dataset.block_ids() if unit == "block" else []}
+        labels = {**by, "block": dataset.block_ids() if unit == "block" and named else []}
     else:
         raise BudgetError(
             f"label budgets draw from UAVid or ClaraVid, not {type(dataset).__name__}"
@@ -170,6 +174,11 @@ def draw_budget(dataset: Any, fraction: float, unit: str = "auto", seed: int = 0
         raise BudgetError(f"bad value for data.budget: {fraction!r} (a fraction in (0, 1])")
     if unit == "auto":
         unit = DEFAULT_UNIT["uavid" if isinstance(dataset, UAVidSegmentation) else "claravid"]
+    if fraction == 1:  # nothing to draw: every image, the unit only checked
+        keys, _ = unit_labels(dataset, unit, named=False)
+        every = tuple(range(len(keys)))
+        return Budget(float(fraction), unit, int(seed), None, None, tuple(sorted(keys)),
+                      len(keys), every)  # fmt: skip
     keys, labels = unit_labels(dataset, unit)
     units, indices = draw_units(labels, fraction, seed)
     return Budget(

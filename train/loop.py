@@ -229,7 +229,7 @@ def build_run(
     start = int(ckpt["step"]) if ckpt else 0
     if ckpt is not None and start >= total:  # total >= 1: only a checkpoint gets there
         return _finished(out, ckpt, start, total, say)
-    if main:
+    if main and budget.units is not None:  # a draw (below 1.0): said, and its keys written
         _record_budget(out, budget, say)
     val_set, palette = _validation_data(cfg, train_set, say)
     if info.is_main:  # one process builds the label cache; the others wait and then read it

@@ -95,10 +95,13 @@ def test_uavid_budget_takes_whole_sequences_and_records_them(uavid_sequences):
     for fraction in CURVE:
         ds = UAVidSegmentation(uavid_sequences, split="train")
         budget = draw_budget(ds, fraction, "auto", seed=4)
-        assert budget.unit == "sequence" and budget.num_images == 11 and budget.num_units == 5
+        assert budget.unit == "sequence" and budget.num_images == 11
         apply_budget(ds, budget)
         sequences = {p.parent.parent.name for p in ds.images}
-        assert sequences == set(budget.units)
+        if fraction < 1:
+            assert budget.num_units == 5 and sequences == set(budget.units)
+        else:  # 1.0 draws nothing: every image
+            assert budget.units is None and sequences == set(SEQUENCES)
         assert len(ds) == sum(SEQUENCES[s] for s in sequences)  # whole sequences only
         keys = sorted(p.relative_to(uavid_sequences).with_suffix("").as_posix() for p in ds.images)
         assert list(budget.keys) == keys
@@ -123,8 +126,9 @@ def test_claravid_budget_takes_whole_blocks_or_passes(claravid_root):
         assert budget.unit == unit and 0 < len(budget.keys) < len(ds)
         assert _whole_units(labels, budget.indices)
         assert {labels[i] for i in budget.indices} == set(budget.units)
-    with pytest.raises(BudgetError, match=r"data\.budget_by: 'sequence'"):
-        draw_budget(ClaraVidSegmentation(claravid_root, split="train"), 0.5, "sequence")
+    for fraction in (0.5, 1.0):  # checked also where nothing is drawn
+        with pytest.raises(BudgetError, match=r"data\.budget_by: 'sequence'"):
+            draw_budget(ClaraVidSegmentation(claravid_root, split="train"), fraction, "sequence")
 
 
 @pytest.mark.parametrize("bad", ["data.budget=0", "data.budget=1.01", "data.budget=-1",
@@ -137,6 +141,14 @@ def test_config_refuses_a_bad_budget_in_one_line(bad, claravid_root, tmp_path, c
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and bad.split("=")[0] in err and "Traceback" not in err
     assert not (tmp_path / "run").exists()
+
+
+def test_a_unit_the_dataset_lacks_stops_the_run_in_one_line(claravid_root, tmp_path, capsys):
+    args = tiny(claravid_root, tmp_path / "run", "data.budget=0.5", "data.budget_by=sequence")
+    assert main(["--config", "demo", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "data.budget_by: 'sequence'" in err
+    assert "block, pass, mission, folder" in err and not (tmp_path / "run").exists()
 
 
 def test_a_budgeted_uavid_run_records_its_images(uavid_sequences, tmp_path, capsys):
@@ -153,3 +165,13 @@ def test_a_budgeted_uavid_run_records_its_images(uavid_sequences, tmp_path, caps
     assert ckpt["classes"] == list(load_palette("uavid").names) and ckpt["init"] is None
     written = json.loads((out / "budget.json").read_text())
     assert written["keys"] == list(expected.keys) and written["digest"] == expected.digest
+
+
+def test_a_run_of_every_image_records_them_and_writes_no_budget_file(uavid_sequences, tmp_path):
+    out = tmp_path / "run"
+    args = tiny(uavid_sequences, out, "data.dataset=uavid", "data.val_dataset=uavid",
+                "data.val_split=val", "train.steps=1", "val.every=0")  # fmt: skip
+    assert main(["--config", "demo", *args]) == 0
+    record = read_checkpoint(out / "last.pt")["budget"]
+    assert record["fraction"] == 1.0 and record["kept_images"] == record["num_images"] == 11
+    assert record["units"] is None and not (out / "budget.json").exists()
