@@ -10,6 +10,7 @@ from claravid.train import load_config
 from claravid.train.cli import main
 from claravid.train.loop import build_run
 from claravid.train.outdir import MARKER
+from tests.models.backbones.reference import random_official_state
 from tests.tiny import MODEL, tiny
 
 
@@ -118,3 +119,44 @@ def test_init_refuses_another_head_shape_and_the_folder_stays_free(uavid_root, t
     assert not (out / "last.pt").exists() and not (out / "metrics.jsonl").exists()
     assert sorted(p.name for p in out.iterdir()) <= sorted([MARKER, "budget.json"])
     assert main(["--config", "demo", *_uavid(uavid_root, out)]) == 0
+
+
+def test_a_frozen_backbone_from_a_weights_file_loads_the_head_only(
+    claravid_root, uavid_root, tmp_path, capsys
+):
+    """The paper's path: the backbone is a weights file, frozen; the checkpoints reference it,
+    so model.init loads the head, and the new run's checkpoints reference the file too."""
+    weights = tmp_path / "dino.pth"
+    backbone = models.build_model("dinov2_vits14", 8, **MODEL).backbone
+    torch.save(random_official_state(backbone, seed=3), weights)
+    frozen = [f"model.weights={weights}", "model.freeze_backbone=true"]
+    source = tmp_path / "source"
+    args = tiny(claravid_root, source, "train.steps=1", "val.every=0", *frozen)
+    assert main(["--config", "demo", *args]) == 0
+    stored = read_checkpoint(source / "last.pt")
+    assert not stored["backbone_included"]
+    out = tmp_path / "run"
+    cfg = load_config("demo", _uavid(uavid_root, out, f"model.init={source / 'last.pt'}", *frozen))
+    said = []
+    run = build_run(cfg, resume=False, say=said.append)
+    own = run.model.state_dict()
+    for key, value in stored["model"].items():  # the head, and nothing else, is the source's
+        assert torch.equal(own[key], value), key
+    assert not run.store_backbone and any("model.init: head from" in s for s in said), said
+    # Other backbone weights than the source's: its head would read other features.
+    other = _uavid(uavid_root, tmp_path / "other", f"model.init={source / 'last.pt'}",
+                   "model.weights=null")  # fmt: skip
+    _refused(capsys, other, tmp_path / "other", "other backbone weights", "model.weights")
+
+
+def test_a_resumed_run_continues_from_its_own_checkpoint_not_model_init(
+    trained_v2, uavid_root, tmp_path, capsys
+):
+    source = tmp_path / "source.pt"
+    source.write_bytes(trained_v2["ckpt"].read_bytes())
+    out = tmp_path / "run"
+    args = ["--config", "demo", *_uavid(uavid_root, out, f"model.init={source}")]
+    assert main(args) == 0
+    source.unlink()  # gone: a resume does not read it again
+    assert main([*args, "--resume"]) == 0
+    assert "already finished" in capsys.readouterr().out
