@@ -2,9 +2,11 @@
 sequence, flight or block.
 
 ``data.budget=0.1`` keeps about 10 % of the training split's images. They are drawn as whole
-units (``data.budget_by``): UAVid sequences, ClaraVid spatial blocks (the split's own unit) or
-passes (viewpoint folders), or image folders, never single images, so no kept image has its
-overlapping neighbour left out of the budget, or the other way round. The draw is::
+units (``data.budget_by``): UAVid and AeroScapes sequences, ClaraVid spatial blocks (the
+split's own unit) or passes (viewpoint folders), or image folders (any dataset that lists its
+``images`` below a ``root``), never single images, so no kept image has its overlapping
+neighbour left out of the budget, or the other way round. A split whose images all lie in one
+unit (a flat folder) has no share to draw below 1.0, and says so. The draw is::
 
     units = sorted unit names; order = permutation(len(units), seed=data.budget_seed)
     keep the first k units of that order, k >= 1 the count whose images come closest to
@@ -32,10 +34,15 @@ from claravid.train.config import BUDGET_UNITS
 
 __all__ = ["BUDGET_UNITS", "Budget", "BudgetError", "apply_budget", "draw_budget", "draw_units"]
 
-#: The unit ``auto`` draws, per ``data.dataset``.
-DEFAULT_UNIT = {"uavid": "sequence", "claravid": "block"}
-#: The units each dataset has (``folder``: an image's parent folder below the root).
-UNITS_OF = {"uavid": ("sequence", "folder"), "claravid": ("block", "pass", "mission", "folder")}
+#: The unit ``auto`` draws, per dataset kind (``data.dataset``); any other kind: ``folder``.
+DEFAULT_UNIT = {"uavid": "sequence", "claravid": "block", "aeroscapes": "sequence"}
+#: The units each dataset kind has (``folder``: an image's parent folder below the root; an
+#: AeroScapes sequence is the first field of its names, ``000001`` of ``000001_001.jpg``).
+UNITS_OF = {
+    "uavid": ("sequence", "folder"),
+    "claravid": ("block", "pass", "mission", "folder"),
+    "aeroscapes": ("sequence", "folder"),
+}
 
 
 class BudgetError(ValueError):
@@ -134,34 +141,48 @@ def draw_units(labels: Sequence[str], fraction: float, seed: int) -> tuple[list[
     return order[:k], [i for i, label in enumerate(labels) if label in kept]
 
 
+def dataset_kind(dataset: Any) -> str:
+    """``claravid``, ``uavid``, the name a dataset of another real layout gives itself
+    (``dataset``: ``aeroscapes``, ``udd6`` ...), or ``folder``."""
+    if isinstance(dataset, ClaraVidSegmentation):
+        return "claravid"
+    if isinstance(dataset, UAVidSegmentation):
+        return "uavid"
+    return str(getattr(dataset, "dataset", None) or "folder")
+
+
 def unit_labels(dataset: Any, unit: str, named: bool = True) -> tuple[list[str], list[str]]:
-    """``(keys, unit labels)`` of every image of a UAVid or ClaraVid training split; without
-    ``named``, the unit is only checked (ClaraVid blocks, from the extrinsics, are not made).
+    """``(keys, unit labels)`` of every image of a training split: ClaraVid's frames, or the
+    ``images`` (paths below ``root``) of UAVid and the other real datasets; without ``named``,
+    the unit is only checked (ClaraVid blocks, from the extrinsics, are not made).
 
     Raises:
-        BudgetError: the dataset has no such unit.
+        BudgetError: the dataset has no such unit, or neither frames nor images.
     """
-    if isinstance(dataset, UAVidSegmentation):
-        kind = "uavid"
-        keys = [p.relative_to(dataset.root).with_suffix("").as_posix() for p in dataset.images]
-        folders = [str(Path(k).parent) for k in keys]
-        labels = {"sequence": [p.parent.parent.name for p in dataset.images], "folder": folders}
-    elif isinstance(dataset, ClaraVidSegmentation):
-        kind = "claravid"
-        keys = [f.key for f in dataset.frames]
-        folders = [str(Path(k).parent) for k in keys]
-        by = {"pass": folders, "mission": [k.split("/", 1)[0] for k in keys], "folder": folders}
-        labels = {**by, "block": dataset.block_ids() if unit == "block" and named else []}
-    else:
-        raise BudgetError(
-            f"label budgets draw from UAVid or ClaraVid, not {type(dataset).__name__}"
-        )
-    if unit not in UNITS_OF[kind]:
+    kind = dataset_kind(dataset)
+    units = UNITS_OF.get(kind, ("folder",))
+    if unit not in units:
         raise BudgetError(
             f"bad value for data.budget_by: {unit!r} ({kind} images are drawn by "
-            f"{', '.join(UNITS_OF[kind])}, or auto: {DEFAULT_UNIT[kind]})"
+            f"{', '.join(units)}, or auto: {DEFAULT_UNIT.get(kind, 'folder')})"
         )
-    return keys, labels[unit]
+    if isinstance(dataset, ClaraVidSegmentation):
+        keys = [f.key for f in dataset.frames]
+        folders = [str(Path(k).parent) for k in keys]
+        if unit == "block":
+            return keys, dataset.block_ids() if named else []
+        return keys, {"pass": folders, "mission": [k.split("/", 1)[0] for k in keys],
+                      "folder": folders}[unit]  # fmt: skip
+    images = getattr(dataset, "images", None)
+    if not isinstance(images, list):
+        raise BudgetError(_unsupported(dataset))
+    paths = [Path(p) for p in images]
+    keys = [p.relative_to(dataset.root).with_suffix("").as_posix() for p in paths]
+    if unit == "folder":
+        return keys, [str(Path(k).parent) for k in keys]
+    if kind == "uavid":  # seqN/Images/NNNNNN.png
+        return keys, [p.parent.parent.name for p in paths]
+    return keys, [p.stem.split("_", 1)[0] for p in paths]  # AeroScapes: SSSSSS_FFF
 
 
 def draw_budget(dataset: Any, fraction: float, unit: str = "auto", seed: int = 0) -> Budget:
@@ -173,13 +194,20 @@ def draw_budget(dataset: Any, fraction: float, unit: str = "auto", seed: int = 0
     if not 0 < fraction <= 1:
         raise BudgetError(f"bad value for data.budget: {fraction!r} (a fraction in (0, 1])")
     if unit == "auto":
-        unit = DEFAULT_UNIT["uavid" if isinstance(dataset, UAVidSegmentation) else "claravid"]
+        unit = DEFAULT_UNIT.get(dataset_kind(dataset), "folder")
     if fraction == 1:  # nothing to draw: every image, the unit only checked
         keys, _ = unit_labels(dataset, unit, named=False)
         every = tuple(range(len(keys)))
         return Budget(float(fraction), unit, int(seed), None, None, tuple(sorted(keys)),
                       len(keys), every)  # fmt: skip
     keys, labels = unit_labels(dataset, unit)
+    if len(set(labels)) == 1:
+        raise BudgetError(
+            f"data.budget={fraction:g} draws whole {unit}s, and the {len(keys)} training images "
+            f"are all in one {unit} ({labels[0]}): no share of them can be drawn without "
+            "splitting it; choose another data.budget_by, or train on every image "
+            "(data.budget=1.0)"
+        )
     units, indices = draw_units(labels, fraction, seed)
     return Budget(
         fraction=float(fraction),
@@ -194,16 +222,22 @@ def draw_budget(dataset: Any, fraction: float, unit: str = "auto", seed: int = 0
 
 
 def _unsupported(dataset: Any) -> str:
-    return f"label budgets draw from UAVid or ClaraVid, not {type(dataset).__name__}"
+    return f"label budgets draw from datasets of frames or images, not {type(dataset).__name__}"
 
 
 def apply_budget(dataset: Any, budget: Budget) -> None:
-    """Keep only the budget's images in ``dataset``, in place, in the split's order."""
-    if isinstance(dataset, UAVidSegmentation):
-        dataset.images = [dataset.images[i] for i in budget.indices]
-    elif isinstance(dataset, ClaraVidSegmentation):
+    """Keep only the budget's images in ``dataset``, in place, in the split's order (ClaraVid's
+    ``frames``; otherwise ``images`` and, where the dataset lists them beside, ``masks``)."""
+    if isinstance(dataset, ClaraVidSegmentation):
         dataset.frames = [dataset.frames[i] for i in budget.indices]
-    else:
-        raise BudgetError(
-            f"label budgets draw from UAVid or ClaraVid, not {type(dataset).__name__}"
-        )
+        return
+    lists = [name for name in ("images", "masks")
+             if isinstance(getattr(dataset, name, None), list)]  # fmt: skip
+    if "images" not in lists:
+        raise BudgetError(_unsupported(dataset))
+    for name in lists:
+        values = getattr(dataset, name)
+        if len(values) != budget.num_images:  # not the split this budget was drawn from
+            raise BudgetError(f"the budget was drawn from {budget.num_images} images, not "
+                              f"{len(values)}")  # fmt: skip
+        setattr(dataset, name, [values[i] for i in budget.indices])

@@ -175,3 +175,35 @@ def test_a_run_of_every_image_records_them_and_writes_no_budget_file(uavid_seque
     record = read_checkpoint(out / "last.pt")["budget"]
     assert record["fraction"] == 1.0 and record["kept_images"] == record["num_images"] == 11
     assert record["units"] is None and not (out / "budget.json").exists()
+
+
+class _Layout:
+    """A real dataset of another layout as the readers list one: ``root``, ``dataset``, and
+    ``images`` with their ``masks`` beside (paths only: the draw reads no pixel)."""
+
+    def __init__(self, root, dataset, stems, folder="JPEGImages"):
+        self.root, self.dataset = root, dataset
+        self.images = [root / folder / f"{s}.jpg" for s in stems]
+        self.masks = [root / "SegmentationClass" / f"{s}.png" for s in stems]
+
+
+def test_aeroscapes_sequences_are_drawn_whole_with_their_masks(tmp_path):
+    # 4 sequences of 1, 2, 3 and 4 frames, named as AeroScapes names them (SSSSSS_FFF).
+    stems = [f"{seq:06d}_{f:03d}" for seq in range(1, 5) for f in range(1, seq + 1)]
+    ds = _Layout(tmp_path, "aeroscapes", stems)
+    budget = draw_budget(ds, 0.3, seed=2)
+    assert budget.unit == "sequence" and budget.num_units == 4
+    apply_budget(ds, budget)
+    kept = {p.stem.split("_")[0] for p in ds.images}
+    assert kept == set(budget.units) and len(ds.images) == sum(int(s) for s in kept)
+    assert [m.stem for m in ds.masks] == [p.stem for p in ds.images]  # masks kept beside
+
+
+def test_a_flat_folder_has_no_share_below_1_and_says_so(tmp_path):
+    flat = _Layout(tmp_path, "udd6", [f"DJI_{i:04d}" for i in range(6)], folder="train/src")
+    with pytest.raises(BudgetError, match=r"all in one folder \(train/src\).*data\.budget=1\.0"):
+        draw_budget(flat, 0.5)
+    with pytest.raises(BudgetError, match=r"data\.budget_by: 'sequence'.*drawn by folder"):
+        draw_budget(flat, 0.5, "sequence")
+    every = draw_budget(flat, 1.0)  # every image: nothing to draw, nothing refused
+    assert every.unit == "folder" and len(every.keys) == 6
