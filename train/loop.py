@@ -222,7 +222,8 @@ def build_run(
     if main and (message := C.statistics_warning(cfg)) is not None:
         warnings.warn(message, C.StatisticsWarning, stacklevel=2)  # once: rank 0, at start
     frames_per_step = check_batch(cfg, info.world_size)
-    train_set, budget = _training_data(cfg)
+    train_set = _training_data(cfg)
+    budget = _label_budget(cfg, train_set)
     cfg.train.steps = C.derive_steps(cfg, len(train_set))  # resolved: stored in config.yaml
     total = int(cfg.train.steps)
     out, ckpt = _claim_out_dir(cfg, resume, info, say)
@@ -298,17 +299,21 @@ def _start_process(cfg: DictConfig, say: Any) -> tuple[DistInfo, Any]:
     return info, say if info.is_main else (lambda *a, **k: None)
 
 
-def _training_data(cfg: DictConfig) -> tuple[Any, Budget]:
-    """The training split cut to its label budget (``data.budget``), its UAVid labels checked
-    against ``data.palette``."""
+def _training_data(cfg: DictConfig) -> Any:
+    """The training split, its UAVid labels checked against ``data.palette``."""
     train_set = build_train_dataset(cfg)
-    d = cfg.data
-    budget = draw_budget(train_set, d.budget, d.budget_by, d.budget_seed)
-    apply_budget(train_set, budget)
     if isinstance(train_set, UAVidSegmentation):  # label files in a palette: the right one?
         check_palette_fit([train_set.label_path(p) for p in train_set.images],
                           load_palette(cfg.data.palette), "data.palette")  # fmt: skip
-    return train_set, budget
+    return train_set
+
+
+def _label_budget(cfg: DictConfig, train_set: Any) -> Budget:
+    """Cut the training split to its label budget (``data.budget``), in place; the draw."""
+    d = cfg.data
+    budget = draw_budget(train_set, d.budget, d.budget_by, d.budget_seed)
+    apply_budget(train_set, budget)
+    return budget
 
 
 def _record_budget(out: Path, budget: Budget, say: Any) -> None:
