@@ -160,6 +160,7 @@ def test_a_budgeted_uavid_run_records_its_images(uavid_sequences, tmp_path, caps
     said = capsys.readouterr().out
     expected = draw_budget(UAVidSegmentation(uavid_sequences), 0.25, seed=4)
     assert "data.budget=0.25 by sequence (seed 4)" in said and expected.digest[:12] in said
+    assert "best.pt, budget.json" in said  # the last lines name it among the results
     ckpt = read_checkpoint(out / "last.pt")
     assert ckpt["budget"] == expected.record()
     assert ckpt["classes"] == list(load_palette("uavid").names) and ckpt["init"] is None
