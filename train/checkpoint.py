@@ -5,7 +5,10 @@
 
     "step", "config" (the resolved config), "optimizer", "scheduler", "scaler",
     "rng" (torch, cuda, numpy, python), "sampler" ({"step", "frames_seen"}),
-    "best_miou", "best_step", "metrics" (the last validation row)
+    "best_miou", "best_step", "metrics" (the last validation row),
+    "classes" (the class names, in train-id order), "budget" (the label budget drawn:
+    `claravid.train.budget.Budget.record`), "init" (the checkpoint ``model.init`` started
+    from, or None)
 
 Everything is a tensor or a plain container, so ``torch.load(weights_only=True)`` reads it,
 and the file is written to a temp file and renamed: a kill at any moment leaves the previous
@@ -80,12 +83,16 @@ def save_training_checkpoint(
     best_step: int | None,
     metrics: dict[str, Any] | None,
     backbone_trained: bool,
+    **records: Any,
 ) -> Path:
-    """Write a complete, resumable checkpoint atomically (see the module docstring)."""
+    """Write a complete, resumable checkpoint atomically (see the module docstring).
+
+    ``records``: further plain entries (``classes``, ``budget``, ``init``).
+    """
     return models.save_checkpoint(
         model,
         path,
-        # A trained backbone is no longer the weights file it came from: store it.
+        # A trained (or loaded) backbone is no longer the weights file it came from: store it.
         include_backbone=True if backbone_trained else None,
         step=int(step),
         config=config,
@@ -97,6 +104,7 @@ def save_training_checkpoint(
         best_miou=best_miou,
         best_step=best_step,
         metrics=metrics or {},
+        **records,
     )
 
 

@@ -95,7 +95,8 @@ def _run(args: argparse.Namespace) -> int:
             f"(step {result.last_val.get('step')}): mIoU {_num(result.last_val.get('miou'))}"
             + (f", per delentropy bin: {per_bin}" if per_bin else "")
         )
-    print(f"results in {out}: config.yaml, metrics.jsonl, curves.png, last.pt, best.pt")
+    drawn = ", budget.json" if (out / "budget.json").is_file() else ""  # a label budget's images
+    print(f"results in {out}: config.yaml, metrics.jsonl, curves.png, last.pt, best.pt{drawn}")
     best = out / "best.pt" if (out / "best.pt").is_file() else out / "last.pt"
     # claravid-eval reads the validation data, palette, split and windows from the checkpoint.
     # Shell-quoted: a path with spaces is pasted back as one argument.

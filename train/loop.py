@@ -22,6 +22,7 @@ then per step :func:`optimiser_step` and :func:`after_step` (log row, validation
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import random
 import shlex
@@ -49,9 +50,11 @@ from claravid.data.targets import UAVidSegmentation
 from claravid.eval.inference.windows import WindowConfig
 from claravid.infra.cli import check_device
 from claravid.infra.distributed import DistInfo, barrier, init_distributed
+from claravid.infra.files import atomic_write_text
 from claravid.infra.precision import autocast_dtype, precision_name
 from claravid.io import jpeg_region
 from claravid.train import config as C
+from claravid.train.budget import Budget, apply_budget, draw_budget
 from claravid.train.checkpoint import (
     load_training_checkpoint,
     restore_model,
@@ -69,6 +72,7 @@ from claravid.train.data import (
     prepare_label_caches,
     split_table,
 )
+from claravid.train.init import apply_init, init_record, read_init
 from claravid.train.logs import RunLog, plot_curves, read_metrics
 from claravid.train.optim import build_optimizer, build_scheduler, clip_gradients
 from claravid.train.outdir import prepare_out_dir
@@ -145,6 +149,9 @@ class Run:
     best_miou: float | None = None
     best_step: int | None = None
     last_val: dict[str, Any] = field(default_factory=dict)
+    # What every checkpoint records beside the weights: classes, label budget, init source.
+    records: dict[str, Any] = field(default_factory=dict)
+    store_backbone: bool = False  # a trained backbone, or one loaded by model.init
     images: int = 0  # images since the last log row (for images/s)
     tick: float = 0.0  # when the last log row was written
 
@@ -161,7 +168,7 @@ class Run:
             path, self.model, step=step, config=C.to_plain(self.cfg), optimizer=self.optimizer,
             scheduler=self.scheduler, scaler=self.scaler, frames_per_step=self.frames_per_step,
             best_miou=self.best_miou, best_step=self.best_step, metrics=self.last_val,
-            backbone_trained=not self.cfg.model.freeze_backbone,
+            backbone_trained=self.store_backbone, **self.records,
         )  # fmt: skip
 
 
@@ -210,24 +217,29 @@ def build_run(
     """
     C.resolve_backbone(cfg)  # idempotent: a config not from load_config gets it too
     C.check_weights_file(cfg)  # before indexing, the label cache and config.yaml
+    init = _init_source(cfg, resume)  # likewise: a refused model.init writes nothing
     info, say = _start_process(cfg, say)
     device, main = info.device, info.is_main
     if main and (message := C.statistics_warning(cfg)) is not None:
         warnings.warn(message, C.StatisticsWarning, stacklevel=2)  # once: rank 0, at start
     frames_per_step = check_batch(cfg, info.world_size)
     train_set = _training_data(cfg)
+    budget = _label_budget(cfg, train_set)
     cfg.train.steps = C.derive_steps(cfg, len(train_set))  # resolved: stored in config.yaml
     total = int(cfg.train.steps)
     out, ckpt = _claim_out_dir(cfg, resume, info, say)
     start = int(ckpt["step"]) if ckpt else 0
     if ckpt is not None and start >= total:  # total >= 1: only a checkpoint gets there
         return _finished(out, ckpt, start, total, say)
+    if main and budget.units is not None:  # a draw (below 1.0): said, and its keys written
+        _record_budget(out, budget, say)
     val_set, palette = _validation_data(cfg, train_set, say)
     if info.is_main:  # one process builds the label cache; the others wait and then read it
         prepare_label_caches([train_set, val_set], cfg.data.num_workers, say)
         say(f"RGB crops: {jpeg_region.decoder()}")
     barrier()
     model = _build_model(cfg, palette.num_classes)
+    from_init = init is not None and ckpt is None and _start_from(model, cfg, init, say)
     dtype = autocast_dtype(cfg.train.precision, device)
     # Checked before the first step, not at the first validation.
     window = _val_window(cfg, model.patch_size, precision_name(dtype))
@@ -259,13 +271,21 @@ def build_run(
     batches = _batches(cfg, train_set, info, start)
     if ckpt:  # after the loader drew its base seed from the torch RNG
         set_rng_state(ckpt["rng"])
+    if ckpt:  # a resumed run keeps what its first start recorded of model.init
+        started_from = ckpt.get("init")
+    else:
+        started_from = init_record(init, cfg.model.init) if init is not None else None
+    records = {"classes": list(palette.names), "budget": budget.record(), "init": started_from}
+    store = (
+        not cfg.model.freeze_backbone or from_init or bool(ckpt and ckpt.get("backbone_included"))
+    )
     return Run(
         cfg=cfg, info=info, out=out, start=start, total=total, model=model, module=module,
         ddp=ddp, optimizer=optimizer, scheduler=scheduler, scaler=scaler, dtype=dtype,
         weights=weights, validator=validator, batches=batches,
         log=RunLog(out, start, cfg.log.tensorboard) if main else None,
         frames_per_step=frames_per_step, say=say, best_miou=best_miou, best_step=best_step,
-        last_val=last_val,
+        last_val=last_val, records=records, store_backbone=store,
     )  # fmt: skip
 
 
@@ -287,6 +307,39 @@ def _training_data(cfg: DictConfig) -> Any:
         check_palette_fit([train_set.label_path(p) for p in train_set.images],
                           load_palette(cfg.data.palette), "data.palette")  # fmt: skip
     return train_set
+
+
+def _label_budget(cfg: DictConfig, train_set: Any) -> Budget:
+    """Cut the training split to its label budget (``data.budget``), in place; the draw."""
+    d = cfg.data
+    budget = draw_budget(train_set, d.budget, d.budget_by, d.budget_seed)
+    apply_budget(train_set, budget)
+    return budget
+
+
+def _record_budget(out: Path, budget: Budget, say: Any) -> None:
+    """The label budget in the log, and in ``out_dir/budget.json`` with the kept images' keys."""
+    say(budget.line())
+    atomic_write_text(out / "budget.json", json.dumps(budget.record(keys=True), indent=1) + "\n")
+
+
+def _init_source(cfg: DictConfig, resume: bool) -> dict[str, Any] | None:
+    """The checkpoint ``model.init`` names, checked against this run (None: no model.init,
+    or a resume, which continues from ``last.pt`` instead)."""
+    m = cfg.model
+    if m.init is None or (resume and (Path(cfg.out_dir) / "last.pt").is_file()):
+        return None
+    classes = list(load_palette(cfg.data.palette).names)
+    return read_init(m.init, m.backbone, dict(m.backbone_kwargs), m.weights, m.head, classes)
+
+
+def _start_from(model: models.Segmenter, cfg: DictConfig, init: dict[str, Any], say: Any) -> bool:
+    """Load ``model.init``'s head (and stored backbone); whether the backbone came too."""
+    loaded = apply_init(model, init, cfg.model.init)
+    what = "head and backbone" if loaded else "head"
+    say(f"model.init: {what} from {cfg.model.init} (step {init.get('step')} of that run); "
+        "a fresh optimiser from step 0")  # fmt: skip
+    return loaded
 
 
 def _claim_out_dir(

@@ -14,6 +14,7 @@ from claravid.data.transforms import statistics_problem
 from claravid.infra.precision import PRECISIONS
 from claravid.models.grid import natural_size, nearest_multiples
 from claravid.train.config.schema import (
+    BUDGET_UNITS,
     CLASS_WEIGHTS,
     DATASETS,
     SAMPLERS,
@@ -77,6 +78,10 @@ def _check_data(d: DictConfig) -> None:
     )
     _require(d.sampler in SAMPLERS, "data.sampler", d.sampler, f"one of {', '.join(SAMPLERS)}")
     _require(d.sampler_bins >= 1, "data.sampler_bins", d.sampler_bins, ">= 1")
+    _require(math.isfinite(d.budget) and 0 < d.budget <= 1, "data.budget", d.budget,
+             "a fraction in (0, 1]: 0.1 keeps 10 % of the training images")  # fmt: skip
+    _require(d.budget_by in BUDGET_UNITS, "data.budget_by", d.budget_by,
+             f"one of {', '.join(BUDGET_UNITS)}")  # fmt: skip
     _require(d.num_workers >= 0, "data.num_workers", d.num_workers, ">= 0")
     _require(d.crops_per_frame >= 1, "data.crops_per_frame", d.crops_per_frame, ">= 1")
     _require(d.val_limit is None or d.val_limit >= 1, "data.val_limit", d.val_limit, ">= 1 or null")
@@ -167,7 +172,8 @@ def resolve_backbone(cfg: DictConfig) -> None:
       backbone's patch size (its ``model.backbone_kwargs.patch_size`` when overridden);
     - ``model.weights``: licence-gated weights (DINOv3) cannot be ``official`` and must be
       given as a path; a path is recorded absolute (``~`` expanded, symbolic links kept), so
-      the checkpoints that record it are evaluated and exported from any folder.
+      the checkpoints that record it are evaluated and exported from any folder;
+    - ``model.init``: recorded absolute too.
 
     Raises:
         ConfigError: an unknown backbone, a size off the patch grid (naming the two nearest
@@ -182,6 +188,8 @@ def resolve_backbone(cfg: DictConfig) -> None:
     _check_weights(cfg, spec)
     if _weights_path(m) is not None:
         m.weights = os.path.abspath(os.path.expanduser(m.weights))
+    if m.init is not None:  # recorded absolute, as the weights: the run is read from anywhere
+        m.init = os.path.abspath(os.path.expanduser(m.init))
     patch = int(m.backbone_kwargs.get("patch_size", spec.patch_size))
     if a.mean is None:
         a.mean = tuple(spec.mean)

@@ -15,6 +15,8 @@ CLASS_WEIGHTS = ("none", "inverse", "median_frequency", "log_inverse")
 SCHEDULES = ("poly", "cosine")
 DATASETS = ("claravid", "uavid")
 SAMPLERS = ("uniform", "complexity_balanced")
+#: What ``data.budget_by`` accepts (`claravid.train.budget`): ``auto`` is the dataset's unit.
+BUDGET_UNITS = ("auto", "sequence", "block", "pass", "mission", "folder")
 
 
 class ConfigError(ValueError):
@@ -58,6 +60,11 @@ class DataConfig:
     class_weights: str = "none"  # none | inverse | median_frequency | log_inverse
     sampler: str = "uniform"  # uniform | complexity_balanced (equal draws per delentropy bin)
     sampler_bins: int = 3  # delentropy quantile bins of complexity_balanced
+    # Label budget (docs/training.md): the share of the training split's labelled images kept,
+    # drawn as whole units (auto: UAVid sequences, ClaraVid blocks), nested for one seed.
+    budget: float = 1.0  # in (0, 1]: 0.01, 0.05, 0.1, 0.25, 1.0 for a label-budget curve
+    budget_by: str = "auto"  # auto | sequence | block | pass | mission | folder
+    budget_seed: int = 0  # the draw's seed, apart from `seed`: one subset, several trainings
     augment: AugmentConfig = field(default_factory=AugmentConfig)
 
 
@@ -73,6 +80,9 @@ class ModelConfig:
     use_cls: bool = False  # dpt: CLS readout; linear: CLS concatenated to each token
     backbone_kwargs: dict[str, Any] = field(default_factory=dict)  # tiny test backbones
     freeze_backbone: bool = True  # the paper's protocol; false trains the backbone too
+    # Another run's checkpoint (best.pt) whose head (and stored backbone) starts this run; a
+    # fresh optimiser and step 0, not a resume. Same backbone and class names required.
+    init: str | None = None
 
 
 @dataclass
