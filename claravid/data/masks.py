@@ -47,6 +47,10 @@ class UnknownLabelWarning(UserWarning):
     """A mask holds ids or colours outside the palette; those pixels were ignored."""
 
 
+class DatasetMismatchWarning(UserWarning):
+    """Label files look like another dataset's than the palette's (UDD5 read as UDD6)."""
+
+
 def _png_palette(data: np.ndarray) -> np.ndarray | None:
     """The PLTE chunk of a PNG as uint8 N×3 RGB, or None."""
     raw = data.tobytes()
@@ -218,12 +222,15 @@ def _fitting_datasets(labels: list[np.ndarray], but: str) -> list[str]:
     ]
 
 
-def check_udd_version(label_files: list[Path], dataset: str) -> None:
+def check_udd_version(label_files: list[Path], dataset: str, strict: bool = True) -> None:
     """Stop when a UDD6 read sees UDD5's index masks, or a UDD5 read UDD6's.
 
     UDD5's ids 0..4 mean Vegetation, Building, Road, Vehicle, Other, UDD6's 0..5 Other,
     Facade, Road, Vegetation, Vehicle, Roof: read as the other, four classes of five are wrong
     and no value is unknown. What tells them apart is Roof (id 5), in every urban UDD6 image.
+
+    ``strict=False`` (a folder read with the ``udd6`` palette, whose masks may be anyone's ids
+    0..5) warns instead.
 
     Raises:
         ValueError: the sampled index masks hold no id 5 (read as ``udd6``) or some (``udd5``).
@@ -233,17 +240,22 @@ def check_udd_version(label_files: list[Path], dataset: str) -> None:
     if not labels or any(label.ndim == 3 for label in labels):
         return  # colour masks: UDD5 and UDD6 give a colour the same meaning
     top = max((int(label.max()) for label in labels if label.size), default=0)
+    message = None
     if dataset == "udd6" and top <= 4:
-        raise ValueError(
+        message = (
             f"{len(files)} UDD6 label file(s) such as {files[0]} hold only ids 0-4 and no Roof "
             "(5): this is a UDD5 tree, whose ids mean other classes (0 Vegetation, 1 Building, "
             "2 Road, 3 Vehicle, 4 Other); read it as udd5 (--dataset udd5, palette syndrone)"
         )
     if dataset == "udd5" and top == 5:
-        raise ValueError(
+        message = (
             f"UDD5 label file(s) such as {files[0]} hold id 5, UDD6's Roof: this is a UDD6 "
             "tree, whose ids mean other classes; read it as udd6 (--dataset udd6)"
         )
+    if message is not None and strict:
+        raise ValueError(message)
+    if message is not None:
+        warnings.warn(message.replace("this is", "this may be"), DatasetMismatchWarning, 2)
 
 
 def check_palette_fit(
@@ -271,8 +283,8 @@ def check_palette_fit(
     labels = [read_label_image(f) for f in files]
     decoder = real_decoder(palette, dataset)
     udd = dataset if dataset is not None else palette.name
-    if udd in ("udd5", "udd6"):
-        check_udd_version(label_files, udd)
+    if udd in ("udd5", "udd6"):  # a folder read in the udd6 palette: a warning only
+        check_udd_version(label_files, udd, strict=dataset is not None)
     if decoder is not None:
         share = decoder.unknown_share(labels)
         if share <= REAL_MAX_UNKNOWN:

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from claravid.data.masks import check_palette_fit
+from claravid.data.masks import DatasetMismatchWarning, check_palette_fit
 from claravid.data.palettes import PaletteError, load_palette
 from claravid.data.real_layouts import RealSegmentation, list_pairs
 from claravid.io.yamlfile import load_yaml
@@ -48,10 +48,13 @@ def test_a_missing_mask_is_named(tmp_path):
 def test_udd6_read_of_a_udd5_tree_says_so_in_one_line(tmp_path):
     make_tree(tmp_path, "udd5")
     ds = RealSegmentation(tmp_path, "udd6", split="all", palette="syndrone")
-    for palette, dataset in ((ds.palette, "udd6"), (load_palette("udd6"), None)):
+    for palette in (ds.palette, load_palette("udd6")):
         with pytest.raises(ValueError, match="this is a UDD5 tree") as error:
-            check_palette_fit(ds.masks, palette, dataset=dataset)
+            check_palette_fit(ds.masks, palette, dataset="udd6")
         assert "\n" not in str(error.value) and "--dataset udd5" in str(error.value)
+    # A folder read in the udd6 palette (masks may be anyone's ids 0..5): a warning only.
+    with pytest.warns(DatasetMismatchWarning, match="this may be a UDD5 tree"):
+        check_palette_fit(ds.masks, load_palette("udd6"))
 
 
 def test_udd5_read_of_a_udd6_tree_says_so(tmp_path):
