@@ -191,3 +191,17 @@ def test_a_udd6_tree_reads_the_same_ids_through_its_own_palette(tmp_path):
     assert ds.palette.name == "udd6"
     raw = cv2.imread(str(ds.masks[0]), cv2.IMREAD_UNCHANGED)
     np.testing.assert_array_equal(ds.read_mask(0).numpy(), raw)
+
+
+def test_values_outside_the_dataset_are_ignored_and_counted_in_every_encoding():
+    udd6 = load_palette("syndrone").real_map("udd6")
+    # ids: 0 Other -> ignore, 5 Roof -> Construction (4), 9 unknown, 255 ignore (not unknown)
+    ids, unknown = udd6.decode(np.array([[0, 5, 9, 255]], np.uint8))
+    assert ids.tolist() == [[255, 4, 255, 255]] and unknown == 1
+    ids, unknown = udd6.decode(np.array([[3, 5, 300, 255, 261]], np.uint16))  # 261: not 5
+    assert ids.tolist() == [[1, 4, 255, 255, 255]] and unknown == 2
+    rgb = np.array([[[0, 0, 0], [70, 70, 70], [1, 2, 3]]], np.uint8)
+    ids, unknown = udd6.decode(rgb)
+    assert ids.tolist() == [[255, 4, 255]] and unknown == 1
+    vdd = load_palette("syndrone").real_map("vdd")  # VDD publishes ids only
+    assert vdd.decode(rgb)[1] == 3
