@@ -56,3 +56,25 @@ def test_a_udd5_tree_read_as_udd6_stops_in_one_line_writing_nothing(udd5, tmp_pa
     assert len(lines) == 1 and "Traceback" not in err, err
     assert "this is a UDD5 tree" in lines[0] and "--dataset udd5" in lines[0]
     assert not out.exists()
+
+
+def test_uavid_through_syndrone_on_all_labelled_images(tmp_path):
+    root = tmp_path / "uavid"
+    truth = make_tree(root, "uavid")
+    preds = tmp_path / "preds"
+    for label in truth:  # every prediction Construction: only UAVid's Building (1/8) is right
+        image = label.replace("/Labels/", "/Images/")
+        (preds / image).parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(preds / image), np.full((HEIGHT, WIDTH), 4, np.uint8))
+    out = tmp_path / "rep"
+    assert main(_argv(root, preds, out, "uavid", "all")) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["overall"]["num_images"] == 4 and '"split": "all"' in json.dumps(report)
+    # Clutter is ignored; Construction's IoU = Building pixels / all non-ignored pixels.
+    names = [n for label in truth.values() for n in label]
+    scored = sum(n != "Clutter" for n in names)
+    iou = report["overall"]["per_class_iou"]
+    assert iou["Construction"] == pytest.approx(names.count("Building") / scored)  # 70/490
+    # Obstacle and Water: in no label and never predicted (union 0), left out of the mean.
+    assert iou["Obstacle"] is None and iou["Water"] is None
+    assert report["overall"]["miou"] == pytest.approx((1 / 7) / 5)
