@@ -117,10 +117,6 @@ def read_label_image(path: str | Path) -> np.ndarray:
     return np.ascontiguousarray(image[..., 2::-1])  # BGR(A) -> RGB
 
 
-#: Real datasets without a palette of their own classes: their labels need a real side.
-_REAL_SIDE_ONLY = ("udd5", "icg")
-
-
 def real_decoder(palette: Palette, dataset: str | None) -> RealMap | None:
     """The real side of ``palette`` that decodes ``dataset``'s masks; None: the masks hold the
     palette's own ids or colours (a dataset's own palette, e.g. ``udd6`` for UDD6).
@@ -140,9 +136,10 @@ def real_decoder(palette: Palette, dataset: str | None) -> RealMap | None:
             f"palette {palette.name} decodes the labels of {', '.join(palette.datasets)}, not "
             f"{title}'s; add real.{dataset} to it or pick another palette"
         )
-    # UAVid labels converted to another palette's ids are read as that palette's (as ever).
-    foreign = palette.name in available_palettes() and palette.name not in (dataset, "uavid")
-    if foreign and dataset != "uavid" and (dataset in _REAL_SIDE_ONLY or palette.name in NATIVE):
+    # A shipped palette of other classes would read this dataset's ids as its own. (UAVid
+    # labels converted to another palette's ids are read as that palette's, as ever.)
+    foreign = palette.name in available_palettes() and palette.name != dataset
+    if foreign and dataset != "uavid":
         raise PaletteError(
             f"palette {palette.name} is written in its own classes' ids and colours, not "
             f"{title}'s, so {title}'s ids would be read as other classes; use a palette whose "

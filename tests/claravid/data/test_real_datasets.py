@@ -85,10 +85,14 @@ def test_an_index_tree_of_another_dataset_is_named_from_its_ids(tmp_path):
         check_palette_fit(masks, load_palette("syndrone"), dataset="vdd")
 
 
-def test_a_palette_of_another_datasets_ids_is_refused_for_udd5(tmp_path):
-    make_tree(tmp_path, "udd5")
-    with pytest.raises(PaletteError, match="real side covers udd5"):
-        RealSegmentation(tmp_path, "udd5", palette="udd6")
+@pytest.mark.parametrize(
+    ("dataset", "palette"), [("udd5", "udd6"), ("vdd", "claravid"), ("udd6", "uavid")]
+)
+def test_a_shipped_palette_of_other_classes_is_refused(tmp_path, dataset, palette):
+    # UDD5's ids read as UDD6's, or VDD's as ClaraVid's, would all be "known" and wrong.
+    make_tree(tmp_path, dataset)
+    with pytest.raises(PaletteError, match=f"real side covers {dataset}"):
+        RealSegmentation(tmp_path, dataset, palette=palette)
 
 
 def test_icg_class_dict_with_a_colour_twice_is_named(tmp_path):
