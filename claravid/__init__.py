@@ -20,12 +20,14 @@ __all__ = [
     "DatasetNotFoundError",
     "FolderSegmentation",
     "Palette",
+    "RealSegmentation",
     "UAVidSegmentation",
     "load_palette",
 ]
 
 if TYPE_CHECKING:
     from claravid.data.palettes import Palette, load_palette
+    from claravid.data.real_layouts import RealSegmentation
     from claravid.data.sdk import ClaravidDataset
     from claravid.data.segmentation import ClaraVidSegmentation
     from claravid.data.targets import FolderSegmentation, UAVidSegmentation
@@ -38,6 +40,7 @@ else:
             "ClaraVidSegmentation": "claravid.data.segmentation",
             "UAVidSegmentation": "claravid.data.targets",
             "FolderSegmentation": "claravid.data.targets",
+            "RealSegmentation": "claravid.data.real_layouts",
             "Palette": "claravid.data.palettes",
             "load_palette": "claravid.data.palettes",
             "DatasetNotFoundError": "claravid.infra.errors",

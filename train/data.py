@@ -15,6 +15,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from claravid.data.label_cache import CacheWriteError
 from claravid.data.masks import read_mask
+from claravid.data.real_layouts import LAYOUT_DATASETS, RealSegmentation
 from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.data.splits import SPLITS
 from claravid.data.targets import UAVidSegmentation
@@ -25,7 +26,7 @@ from claravid.train.config import to_plain
 from claravid.train.sampler import StepSampler
 
 #: A training or validation split, as the builders below make it.
-SegmentationSplit: TypeAlias = ClaraVidSegmentation | UAVidSegmentation
+SegmentationSplit: TypeAlias = ClaraVidSegmentation | UAVidSegmentation | RealSegmentation
 
 
 class SampleDataset(Protocol):
@@ -85,12 +86,16 @@ def _check_root(root: str | None, key: str) -> Path:
 
 
 def _split(cfg: DictConfig, kind: str, root: Path, split: str) -> SegmentationSplit:
-    """One split of UAVid or ClaraVid, uint8 images and masks without transforms (the one
-    branch both builders share: training crops them in `CropDataset`, validation normalises
-    them on the model's device)."""
+    """One split of ClaraVid, UAVid or another real dataset, uint8 images and masks without
+    transforms (the one branch both builders share: training crops them in `CropDataset`,
+    validation normalises them on the model's device)."""
     if kind == "uavid":
         return UAVidSegmentation(
             root, split=split, palette=cfg.data.palette, mask_dtype=torch.uint8
+        )
+    if kind in LAYOUT_DATASETS:
+        return RealSegmentation(
+            root, kind, split=split, palette=cfg.data.palette, mask_dtype=torch.uint8
         )
     return _claravid(cfg, root, split)
 
@@ -316,7 +321,9 @@ def class_frequencies(dataset: SampleDataset, num_classes: int) -> np.ndarray:
     for i in range(len(dataset)):
         if isinstance(dataset, UAVidSegmentation):  # the label file alone, not the image
             path = dataset.label_path(dataset.images[i])
-            mask = read_mask(path, dataset.palette).ravel()
+            mask = read_mask(path, dataset.palette, "uavid").ravel()
+        elif isinstance(dataset, RealSegmentation):
+            mask = dataset.read_mask(i).numpy().ravel()
         else:
             mask = dataset[i]["mask"].numpy().ravel()
         counts += np.bincount(mask[mask < num_classes], minlength=num_classes)

@@ -45,6 +45,7 @@ from claravid import models
 from claravid.data.ignore import IGNORE_INDEX
 from claravid.data.masks import check_palette_fit
 from claravid.data.palettes import load_palette
+from claravid.data.real_layouts import RealSegmentation
 from claravid.data.samples import normalise
 from claravid.data.targets import UAVidSegmentation
 from claravid.eval.inference.windows import WindowConfig
@@ -305,7 +306,9 @@ def _training_data(cfg: DictConfig) -> Any:
     train_set = build_train_dataset(cfg)
     if isinstance(train_set, UAVidSegmentation):  # label files in a palette: the right one?
         check_palette_fit([train_set.label_path(p) for p in train_set.images],
-                          load_palette(cfg.data.palette), "data.palette")  # fmt: skip
+                          load_palette(cfg.data.palette), "data.palette", "uavid")  # fmt: skip
+    if isinstance(train_set, RealSegmentation):  # ids or colours of the dataset named?
+        check_palette_fit(train_set.masks, train_set.palette, "data.palette", train_set.dataset)
     return train_set
 
 
@@ -371,7 +374,9 @@ def _validation_data(cfg: DictConfig, train_set: Any, say: Any) -> tuple[Any, An
     palette = load_palette(cfg.data.palette)
     if isinstance(val_set, UAVidSegmentation):  # UAVid val labels in data.palette: right one?
         check_palette_fit([val_set.label_path(p) for p in val_set.images], palette,
-                          "data.palette")  # fmt: skip
+                          "data.palette", "uavid")  # fmt: skip
+    if isinstance(val_set, RealSegmentation):  # ids or colours of the dataset named?
+        check_palette_fit(val_set.masks, palette, "data.palette", val_set.dataset)
     return val_set, palette
 
 

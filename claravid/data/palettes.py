@@ -19,7 +19,8 @@ reduction is one 256-entry lookup table over label codes (``claravid.io.labels``
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,8 @@ import cv2
 import numpy as np
 
 from claravid.data.ignore import IGNORE_INDEX
+from claravid.data.real_classes import NATIVE, RealMap
+from claravid.data.real_classes import color_indices as color_indices  # re-exported
 from claravid.infra.resources import shipped_file, shipped_names
 from claravid.io.labels import DYNAMIC_OFFSET
 from claravid.io.layout import CLASSES, UNLABELED_ID
@@ -50,6 +53,10 @@ class Palette:
         lut: uint8[256], label code -> train id (``ignore_index`` where ignored).
         ignore_index: the train id of ignored pixels (255).
         uses_dynamic: whether the reduction reads the dynamic mask.
+        real: the real side: real dataset name -> how its native classes map onto this
+            palette (empty for a palette that names no real dataset).
+        no_analogue: ClaraVid class -> the palette's stated rule for it, where the class has
+            no counterpart in the real datasets (e.g. GreenEnergy).
     """
 
     name: str
@@ -58,6 +65,8 @@ class Palette:
     lut: np.ndarray
     ignore_index: int = IGNORE_INDEX
     uses_dynamic: bool = False
+    real: Mapping[str, RealMap] = field(default_factory=dict)
+    no_analogue: Mapping[str, str] = field(default_factory=dict)
 
     @property
     def num_classes(self) -> int:
@@ -74,6 +83,15 @@ class Palette:
         """A colour-coded label image (uint8 H×W×3 RGB) -> train ids; other colours -> ignore."""
         return color_indices(rgb, self.colors, missing=self.ignore_index)
 
+    @property
+    def datasets(self) -> tuple[str, ...]:
+        """The real datasets whose labels this palette decodes (its ``real:`` side)."""
+        return tuple(self.real)
+
+    def real_map(self, dataset: str) -> RealMap | None:
+        """How ``dataset``'s native classes map onto this palette, or None."""
+        return self.real.get(dataset)
+
     def colorize(self, train_ids: np.ndarray) -> np.ndarray:
         """Train ids -> uint8 RGB image; ignored pixels black."""
         table = np.zeros((256, 3), dtype=np.uint8)
@@ -84,23 +102,6 @@ class Palette:
 def _is_int(value: Any) -> bool:
     # YAML reads `true` as a bool, which Python counts as an int; 1.5 or "7" are not ids.
     return isinstance(value, int) and not isinstance(value, bool)
-
-
-def color_indices(rgb: np.ndarray, table: np.ndarray, missing: int) -> np.ndarray:
-    """Index in ``table`` (N×3 RGB, distinct colours) of each pixel's colour, exact match.
-
-    Returns uint8 H×W indices; colours not in the table get ``missing``.
-    """
-
-    def pack(c: np.ndarray) -> np.ndarray:
-        c = np.asarray(c, dtype=np.uint32)
-        return (c[..., 0] << 16) | (c[..., 1] << 8) | c[..., 2]
-
-    packed, keys = pack(rgb), pack(table)
-    order = np.argsort(keys)
-    slot = np.searchsorted(keys[order], packed).clip(0, len(keys) - 1)
-    found = keys[order][slot] == packed
-    return np.where(found, order[slot], missing).astype(np.uint8)
 
 
 def _fail(source: str, message: str) -> PaletteError:
@@ -180,11 +181,117 @@ def _parse_mapping(
     return resolved
 
 
+def _real_entry(entry: Any, key: str, dataset: str, source: str) -> tuple[str, Any]:
+    """One ``{name, id | color, to}`` entry of the real side, checked against the dataset's
+    published table; returns (native name, target)."""
+    table = NATIVE[dataset]
+    if not isinstance(entry, dict) or {"name", "to"} - entry.keys():
+        raise _fail(source, f"{key}: {entry!r} needs 'name', 'to' and the class's 'id' or 'color'")
+    extra = set(entry) - {"name", "id", "color", "to"}
+    if extra:
+        raise _fail(source, f"{key}: unknown key(s) {sorted(extra)}")
+    name = entry["name"]
+    native = table.get(name) if isinstance(name, str) else None
+    if native is None:
+        raise _fail(
+            source,
+            f"{key}: {table.title} has no class {name!r} (its classes: {', '.join(table.names)})",
+        )
+    if "id" not in entry and "color" not in entry:
+        raise _fail(source, f"{key} ({name}): give its 'id' or its 'color' as {table.title} does")
+    if "id" in entry and entry["id"] != native.id:
+        published = "no ids" if native.id is None else f"id {native.id}"
+        raise _fail(
+            source, f"{key} ({name}): id {entry['id']!r}, but {table.title} gives {published}"
+        )
+    if "color" in entry and (
+        not isinstance(entry["color"], list) or tuple(entry["color"]) != native.color
+    ):
+        published = "no colours" if native.color is None else f"colour {list(native.color)}"
+        raise _fail(
+            source,
+            f"{key} ({name}): colour {entry['color']!r}, but {table.title} gives {published}",
+        )
+    return name, entry["to"]
+
+
+def _parse_real_dataset(entries: Any, dataset: str, names: list[str], source: str) -> RealMap:
+    """``real.<dataset>``: a list of native classes, each to a palette class or ``ignore``."""
+    table = NATIVE[dataset]
+    if not isinstance(entries, list) or not entries:
+        raise _fail(source, f"real.{dataset} must list {table.title}'s classes, each with 'to'")
+    train_id = {name: i for i, name in enumerate(names)}
+    targets: dict[str, int] = {}
+    colors: dict[tuple[Any, ...], str] = {}
+    for number, entry in enumerate(entries, 1):
+        key = f"real.{dataset} entry {number}"
+        if isinstance(entry, dict) and isinstance(entry.get("color"), list):
+            color = tuple(entry["color"])
+            if color in colors:
+                raise _fail(
+                    source,
+                    f"{key}: colour {list(color)} listed twice ({colors[color]!r} and "
+                    f"{entry.get('name')!r}); a colour is one class",
+                )
+            colors[color] = str(entry.get("name"))
+        name, target = _real_entry(entry, key, dataset, source)
+        if target != IGNORE and target not in train_id:
+            raise _fail(
+                source,
+                f"{key} ({name}): {target!r} is not a class of this palette "
+                f"({', '.join(names)}) nor '{IGNORE}'",
+            )
+        resolved = UNLABELED_ID if target == IGNORE else train_id[target]
+        if name in targets:
+            first = IGNORE if targets[name] == UNLABELED_ID else names[targets[name]]
+            raise _fail(
+                source, f"{key}: {table.title} class {name!r} given twice ({first} and {target})"
+            )
+        targets[name] = resolved
+    unmapped = [n for n in table.names if n not in targets]
+    if unmapped:
+        raise _fail(
+            source,
+            f"real.{dataset} leaves {table.title}'s {unmapped} unmapped; map each to a class "
+            f"or '{IGNORE}'",
+        )
+    return RealMap(dataset, targets)
+
+
+def _parse_real(section: Any, names: list[str], source: str) -> dict[str, RealMap]:
+    if section is None:
+        return {}
+    if not isinstance(section, dict):
+        raise _fail(source, f"'real' must map dataset names ({', '.join(NATIVE)}) to class lists")
+    unknown = [d for d in section if d not in NATIVE]
+    if unknown:
+        raise _fail(
+            source, f"real: unknown dataset(s) {unknown}; the toolkit reads {', '.join(NATIVE)}"
+        )
+    return {d: _parse_real_dataset(section[d], d, names, source) for d in section}
+
+
+def _parse_no_analogue(section: Any, source: str) -> dict[str, str]:
+    """``no_analogue``: ClaraVid class -> the rule chosen for it, in words."""
+    if section is None:
+        return {}
+    claravid_names = {c.name for c in CLASSES if c.id != UNLABELED_ID}
+    if not isinstance(section, dict):
+        raise _fail(source, "'no_analogue' must map ClaraVid class names to the rule chosen")
+    for name, rule in section.items():
+        if name not in claravid_names:
+            raise _fail(source, f"no_analogue entry {name!r}: not a ClaraVid class")
+        if not isinstance(rule, str) or not rule.strip():
+            raise _fail(source, f"no_analogue entry {name!r}: state the rule chosen, in words")
+    return dict(section)
+
+
 def palette_from_dict(config: dict[str, Any], source: str = "<dict>") -> Palette:
     """Build a palette from its parsed YAML content (see the module docstring)."""
     if not isinstance(config, dict):
         raise _fail(source, "expected a mapping with 'name' and 'classes'")
-    unknown_keys = set(config) - {"name", "ignore_index", "classes", "mapping", "dynamic"}
+    known_keys = {"name", "ignore_index", "classes", "mapping", "dynamic", "real", "no_analogue"}
+    unknown_keys = set(config) - known_keys
     if unknown_keys:
         raise _fail(source, f"unknown key(s) {sorted(unknown_keys)}")
     if "name" in config and (not isinstance(config["name"], str) or not config["name"].strip()):
@@ -203,12 +310,16 @@ def palette_from_dict(config: dict[str, Any], source: str = "<dict>") -> Palette
         lut[cls.id + DYNAMIC_OFFSET] = dynamic.get(cls.name, static[cls.name])
     lut.setflags(write=False)
     colors.setflags(write=False)
+    real = _parse_real(config.get("real"), names, source)
+    no_analogue = _parse_no_analogue(config.get("no_analogue"), source)
     return Palette(
         name=str(config.get("name", Path(source).stem)),
         names=tuple(names),
         colors=colors,
         lut=lut,
         uses_dynamic=bool(dynamic),
+        real=real,
+        no_analogue=no_analogue,
     )
 
 

@@ -36,7 +36,7 @@ from claravid.io import modalities
 
 #: File extensions read as images (compared in lower case).
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
-UAVID_SPLITS = ("train", "val", "test")
+UAVID_SPLITS = ("train", "val", "test", "all")  # all: train and val, the labelled images
 
 
 def index_folder(folder: Path, what: str) -> dict[str, Path]:
@@ -169,9 +169,10 @@ class UAVidSegmentation(Dataset):
 
     Args:
         root: the folder holding ``uavid_train``, ``uavid_val``, ``uavid_test``.
-        split: ``train``, ``val`` or ``test``.
-        palette: the palette the label files are written in: UAVid's colour-coded labels
-            in ``uavid`` (the default), or label files converted to ids of another palette.
+        split: ``train``, ``val``, ``test`` or ``all`` (train and val: every labelled image).
+        palette: ``uavid`` (the default: UAVid's own colour-coded classes), a palette whose
+            real side covers UAVid (``syndrone``: UAVid's colours mapped onto its classes), or
+            one the label files were converted to.
         transforms: called on each sample dict (see ``claravid.data.transforms``).
         mask_dtype: the masks' dtype: int64 (what a loss takes) or uint8 (255 ignore;
             evaluation keeps masks small until the device); None (default): uint8 with
@@ -193,14 +194,18 @@ class UAVidSegmentation(Dataset):
         self.transforms = transforms
         self.mask_dtype = mask_dtype
         self.palette = load_palette(palette)
-        folder = self.root / f"uavid_{split}"
-        if not folder.is_dir():
-            raise DatasetNotFoundError(
-                f"UAVid {split} split", folder, "Download UAVid and pass the folder holding uavid_*"
-            )
-        self.images = sorted(folder.glob("seq*/Images/*.png"))
-        if not self.images:
-            raise DatasetNotFoundError(f"UAVid {split} images (seq*/Images/*.png)", folder)
+        self.images = []
+        for part in ("train", "val") if split == "all" else (split,):
+            folder = self.root / f"uavid_{part}"
+            if not folder.is_dir():
+                raise DatasetNotFoundError(
+                    f"UAVid {part} split",
+                    folder,
+                    "Download UAVid and pass the folder holding uavid_*",
+                )
+            self.images += sorted(folder.glob("seq*/Images/*.png"))
+            if not self.images:
+                raise DatasetNotFoundError(f"UAVid {part} images (seq*/Images/*.png)", folder)
         self.has_labels = split != "test"
         if self.has_labels:
             missing = [p for p in self.images if not self.label_path(p).is_file()]
@@ -233,7 +238,7 @@ class UAVidSegmentation(Dataset):
         }
         if self.has_labels:
             label_path = self.label_path(path)
-            mask = masks.read_mask(label_path, self.palette)
+            mask = masks.read_mask(label_path, self.palette, "uavid")
             _check_same_size(image, mask, path, label_path)
             sample["mask"] = torch.from_numpy(mask)
         return finish_sample(sample, self.transforms, self.mask_dtype)

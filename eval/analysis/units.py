@@ -12,19 +12,23 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 #: The kinds of data an evaluation reads (``--dataset``).
-DATASETS = ("claravid", "uavid", "folder")
+DATASETS = ("claravid", "uavid", "udd5", "udd6", "vdd", "aeroscapes", "icg", "folder")
+#: The real datasets read by their own layout (``claravid.data.real_layouts``).
+_LAID_OUT = ("udd5", "udd6", "vdd", "aeroscapes", "icg")
 #: Units by dataset kind (``block`` only where extrinsics exist; ``image`` always).
 UNITS: dict[str, tuple[str, ...]] = {
     "claravid": ("mission", "viewpoint", "block", "folder"),
     "uavid": ("sequence", "folder"),
     "folder": ("folder",),
+    **dict.fromkeys(_LAID_OUT, ("folder",)),
 }
 #: What ``--group-by`` accepts (rows of the report).
 GROUP_BY = ("mission", "viewpoint", "sequence", "folder")
 #: What ``--cluster`` accepts (resampled together by the bootstrap).
 CLUSTER_UNITS = ("image", "viewpoint", "mission", "block", "sequence", "folder")
 #: The default cluster per dataset kind, then the fallbacks when it is not stored.
-DEFAULT_CLUSTER = {"claravid": "block", "uavid": "sequence", "folder": "folder"}
+DEFAULT_CLUSTER = {"claravid": "block", "uavid": "sequence", "folder": "folder",
+                   **dict.fromkeys(_LAID_OUT, "image")}  # fmt: skip
 _FALLBACK_CLUSTERS = ("block", "sequence", "viewpoint", "folder", "image")
 _NEEDS = {"mission": "ClaraVid", "viewpoint": "ClaraVid", "block": "ClaraVid with extrinsics",
           "sequence": "UAVid"}  # fmt: skip

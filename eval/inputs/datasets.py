@@ -25,6 +25,7 @@ from claravid.data import targets
 from claravid.data.masks import check_palette_fit
 from claravid.data.masks import read_mask as read_label_mask
 from claravid.data.palettes import Palette, load_palette
+from claravid.data.real_layouts import LAYOUT_DATASETS, RealSegmentation, default_palette
 from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.eval.analysis.units import DATASETS, group_indices
 from claravid.eval.inputs.label_maps import image_key
@@ -158,15 +159,30 @@ def _uavid(root: Path, split: str, pal: Palette, labels: bool = True) -> EvalDat
     if labels:
         if not raw.has_labels:
             raise ValueError(f"UAVid {split} has no labels to evaluate against; use val or train")
-        check_palette_fit([raw.label_path(p) for p in raw.images], pal)
+        check_palette_fit([raw.label_path(p) for p in raw.images], pal, dataset="uavid")
     return _keyed(
         "uavid",
         pal,
         raw,
         [str(p) for p in raw.images],
         [image_key(p, root) for p in raw.images],  # as the samples' "key"
-        lambda i: read_label_mask(raw.label_path(raw.images[i]), pal),
+        lambda i: read_label_mask(raw.label_path(raw.images[i]), pal, "uavid"),
         {"sequence": [p.parent.parent.name for p in raw.images]},  # seqN/Images/<name>
+    )
+
+
+def _laid_out(root: Path, dataset: str, split: str, pal: Palette, labels: bool) -> EvalData:
+    """UDD5, UDD6, VDD, AeroScapes or ICG by its own layout (``real_layouts``)."""
+    raw = RealSegmentation(root, dataset, split=split, palette=pal, mask_dtype=torch.uint8)
+    if labels:
+        check_palette_fit(raw.masks, pal, dataset=dataset)
+    return _keyed(
+        dataset,
+        pal,
+        raw,
+        [str(p) for p in raw.images],
+        [image_key(p, root) for p in raw.images],  # as the samples' "key"
+        raw.read_mask,
     )
 
 
@@ -212,11 +228,13 @@ def open_data(
 
     Args:
         root: the ClaraVid root, the folder holding ``uavid_*``, or a folder of images.
-        dataset: ``claravid``, ``uavid`` or ``folder``.
+        dataset: ``claravid``, ``uavid``, ``udd5``, ``udd6``, ``vdd``, ``aeroscapes``, ``icg``
+            or ``folder``.
         split: ``train``/``val``/``test``/``all`` or a split file (ClaraVid; UAVid has
-            train/val/test); ignored for folders.
-        palette: palette name or YAML (default ``claravid`` for ClaraVid, ``uavid`` for UAVid;
-            required for folders).
+            train/val/test/all, the other real datasets train/val/all, VDD also test, ICG
+            train/all); ignored for folders. The report's ``source.split`` records it.
+        palette: palette name or YAML (default ``claravid`` for ClaraVid, a real dataset's own
+            palette where one is shipped, else ``syndrone``; required for folders).
         masks: the folder of label images mirroring ``root`` (``folder`` only).
         selection: ClaraVid ``missions``, ``altitude``, ``direction`` and ``split_config``
             (e.g. what a training checkpoint used).
@@ -228,7 +246,8 @@ def open_data(
     if dataset not in DATASETS:
         raise ValueError(f"unknown --dataset {dataset!r}; use one of {', '.join(DATASETS)}")
     root = Path(root).absolute()  # report paths must not depend on the working directory
-    pal = load_palette(palette or ("claravid" if dataset == "claravid" else "uavid"))
+    default = {"claravid": "claravid", "folder": "uavid"}.get(dataset) or default_palette(dataset)
+    pal = load_palette(palette or default)
     describe: dict[str, Any] = {"dataset": dataset, "data": str(root), "split": str(split)}
     if dataset == "claravid":
         data = _claravid(root, split, pal, selection or {})
@@ -237,6 +256,8 @@ def open_data(
         describe["selection"] = _selection_used(raw, selection or {})
     elif dataset == "uavid":
         data = _uavid(root, split, pal, labels)
+    elif dataset in LAYOUT_DATASETS:
+        data = _laid_out(root, dataset, split, pal, labels)
     else:
         mask_root = None if masks is None else Path(masks).absolute()
         data = _folder(root, mask_root, palette, pal, labels)

@@ -13,7 +13,7 @@ from claravid.data.transforms import AugmentConfig
 
 CLASS_WEIGHTS = ("none", "inverse", "median_frequency", "log_inverse")
 SCHEDULES = ("poly", "cosine")
-DATASETS = ("claravid", "uavid")
+DATASETS = ("claravid", "uavid", "udd5", "udd6", "vdd", "aeroscapes", "icg")
 SAMPLERS = ("uniform", "complexity_balanced")
 #: What ``data.budget_by`` accepts (`claravid.train.budget`): ``auto`` is the dataset's unit.
 BUDGET_UNITS = ("auto", "sequence", "block", "pass", "mission", "folder")
@@ -49,7 +49,7 @@ class DataConfig:
     split: SplitSettings = field(default_factory=SplitSettings)
     train_split: str = "train"
     val_split: str = "val"
-    val_dataset: str = "claravid"  # claravid | uavid (synthetic-to-real validation)
+    val_dataset: str = "claravid"  # claravid | uavid | udd5 | udd6 | vdd | aeroscapes | icg
     val_root: str | None = None  # null: data.root
     val_limit: int | None = None  # validate on the first N images only (null: all)
     label_cache: bool = (

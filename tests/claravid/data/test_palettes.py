@@ -116,7 +116,8 @@ def test_bad_palette_names_the_entry(change, message):
 
 def test_unknown_palette_name_and_bad_yaml(tmp_path):
     with pytest.raises(
-        PaletteError, match=r"unknown palette 'cityscapes'.*aeroscapes, claravid, uavid, udd6, vdd"
+        PaletteError,
+        match=r"unknown palette 'cityscapes'.*aeroscapes, claravid, syndrone, uavid, udd6, vdd",
     ):
         load_palette("cityscapes")
     (tmp_path / "bad.yaml").write_text("classes: [unclosed")
