@@ -79,6 +79,7 @@ __all__ = [
     "PairTable",
     "QualityTable",
     "ReportSettings",
+    "TTAConfig",
     "WindowConfig",
     "bin_mious",
     "bin_names",
@@ -86,6 +87,7 @@ __all__ = [
     "build_report",
     "calibration_bins",
     "calibration_errors",
+    "class_probabilities",
     "collect",
     "compare",
     "compare_reports",
@@ -131,12 +133,14 @@ if TYPE_CHECKING:
     from claravid.eval.analysis.quality_table import PairTable, QualityTable
     from claravid.eval.analysis.stats import correlation
     from claravid.eval.analysis.table import EvalResult, merge_results
+    from claravid.eval.inference.augment import TTAConfig
     from claravid.eval.inference.collect import CollectSettings, collect
     from claravid.eval.inference.image_sums import ImageMeasures
     from claravid.eval.inference.run_model import ImageScore, evaluate_model, sample_key
     from claravid.eval.inference.sources import load_source
     from claravid.eval.inference.windows import (
         WindowConfig,
+        class_probabilities,
         predict_labels,
         sliding_window_logits,
         window_starts,
@@ -182,6 +186,8 @@ else:
             "compare_reports": "claravid.eval.report.compare",
             # inference (torch)
             "WindowConfig": "claravid.eval.inference.windows",
+            "TTAConfig": "claravid.eval.inference.augment",
+            "class_probabilities": "claravid.eval.inference.windows",
             "predict_labels": "claravid.eval.inference.windows",
             "sliding_window_logits": "claravid.eval.inference.windows",
             "window_starts": "claravid.eval.inference.windows",

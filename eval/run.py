@@ -232,13 +232,14 @@ def _model_and_source(
     run = resolve_settings(
         model, window=inference.window, stride=inference.stride, scale=inference.scale,
         batch_size=inference.batch_size, palette=data.palette, precision=inference.precision,
-        statistics=inference.statistics,
+        statistics=inference.statistics, tta=inference.tta,
     )  # fmt: skip
     window = run.window
     assert window.size is not None and window.stride is not None  # resolved for the model
     source = model.describe()
     source["window"] = {"size": list(window.size), "stride": list(window.stride),
-                        "scale": window.scale}  # fmt: skip
+                        "scale": window.scale,
+                        "tta": None if window.tta is None else window.tta.describe()}  # fmt: skip
     if model.kind == "onnx":  # runs as exported: the file's metadata, None when foreign
         source["precision"] = getattr(model.model, "precision", None)
     else:

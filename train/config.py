@@ -135,6 +135,13 @@ class ValConfig:
     scale: float = 0.5  # resize before windowing (the paper reports at half resolution)
     batch_size: int = 4  # windows per forward pass
     bins: int = 3  # delentropy quantile bins of the val images (miou_bins)
+    # Test-time augmentation (docs/evaluation.md): the ratios of the copies (null: none), the
+    # mirror, the copy-size rule (dinov3 or mmseg) and the dinov3 rule's S (null: the image's
+    # small side at val.scale). Recorded in the checkpoint and the ONNX metadata.
+    tta_scales: list[float] | None = None
+    tta_flip: bool = False
+    tta_rule: str = "dinov3"
+    tta_size: int | None = None
 
 
 @dataclass
@@ -433,6 +440,12 @@ def check_config(cfg: DictConfig) -> None:
     _require(v.stride is None or v.stride >= 1, "val.stride", v.stride, ">= 1 or null")
     _require(v.bins >= 1, "val.bins", v.bins, ">= 1")
     _require(math.isfinite(v.scale) and 0 < v.scale <= 8, "val.scale", v.scale, "in (0, 8]")
+    _require(v.tta_rule in ("dinov3", "mmseg"), "val.tta_rule", v.tta_rule, "dinov3 or mmseg")
+    _require(
+        v.tta_scales is None or (len(v.tta_scales) > 0 and all(0 < r <= 8 for r in v.tta_scales)),
+        "val.tta_scales", v.tta_scales, "ratios in (0, 8], or null",
+    )  # fmt: skip
+    _require(v.tta_size is None or v.tta_size >= 1, "val.tta_size", v.tta_size, ">= 1 or null")
     _check_head(m)
     a = d.augment
     _require(

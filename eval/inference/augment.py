@@ -31,10 +31,10 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import torch
-import torch.nn.functional as F
+if TYPE_CHECKING:  # torch is imported where a copy is resized: settings read this module
+    import torch
 
 RULES = ("dinov3", "mmseg")
 
@@ -166,6 +166,8 @@ def copy_window(height: int, width: int, crop: tuple[int, int], rule: str) -> tu
 
 def resize(image: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     """An image [C,H,W] resized (bilinear, antialiased when shrinking, as PIL resizes)."""
+    import torch.nn.functional as F
+
     if tuple(image.shape[-2:]) == tuple(size):
         return image
     return F.interpolate(
@@ -176,6 +178,8 @@ def resize(image: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
 def back_to(logits: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     """Logits [K,h,w] resized to ``size`` (bilinear, ``align_corners=False``, as the
     protocols resize their predictions to the label)."""
+    import torch.nn.functional as F
+
     if tuple(logits.shape[-2:]) == tuple(size):
         return logits
     return F.interpolate(logits[None], size=size, mode="bilinear", align_corners=False)[0]

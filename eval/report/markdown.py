@@ -6,6 +6,8 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from claravid.eval.analysis.gaps import evaluation_protocol
+
 HARDEST_TABLE = 10
 
 
@@ -98,6 +100,9 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         )
     lines.append(f"- palette: {report['palette']} ({len(classes)} classes), ignore index "
                  f"{report['ignore_index']}")  # fmt: skip
+    protocol = evaluation_protocol(report)
+    if protocol:
+        lines.append(f"- protocol: {protocol}")
     method = binning.get("method")
     if method == "fixed":
         lines.append(f"- bins: fixed delentropy edges {binning.get('edges')}")
