@@ -106,6 +106,19 @@ SHARED_HELP = {
 }
 
 
+#: The help of the test-time augmentation flags (`add_tta_flags`).
+TTA_HELP = {
+    "--tta": "test-time augmentation as a published protocol runs it: dinov3 (ratios 0.9 to 1.1 "
+    "and the mirror, the DINOv3 size rule), mmseg (ratios 0.5 to 1.75 and the mirror, "
+    "mmsegmentation's), or none (default: the model file's, else none)",
+    "--tta-scales": "test-time augmentation ratios, comma-separated, e.g. 0.9,0.95,1,1.05,1.1 "
+    "(with --tta: instead of the preset's)",
+    "--flip": "test-time augmentation: also run each copy mirrored left-right",
+    "--tta-size": "S of the dinov3 size rule, the small side at ratio 1 (the official "
+    "evaluation uses its window, 512 or 896; default: the image's small side at --scale)",
+}
+
+
 def _add(parser: Any, *names: str, **kwargs: Any) -> None:
     """``add_argument`` with the shared help of ``names[-1]`` (a parser or an argument group)."""
     parser.add_argument(*names, help=SHARED_HELP[names[-1]], **kwargs)
@@ -143,6 +156,34 @@ def add_window_flags(parser: Any) -> None:
     _add(parser, "--stride", type=window_size, metavar="WxH")
     _add(parser, "--scale", type=positive_float, metavar="S")
     _add(parser, "--batch-size", type=positive_int, metavar="N")
+
+
+def add_tta_flags(parser: Any) -> None:
+    """``--tta {dinov3,mmseg,none}``, ``--tta-scales LIST`` (`ratio_list`), ``--flip`` and
+    ``--tta-size S``: test-time augmentation; all unset: None (the model file's record, else
+    none). ``claravid.eval.inference.augment.tta_from_flags`` turns them into settings."""
+    tta = ("dinov3", "mmseg", "none")
+    parser.add_argument("--tta", choices=tta, metavar="{" + ",".join(tta) + "}",
+                        help=TTA_HELP["--tta"])  # fmt: skip
+    parser.add_argument("--tta-scales", type=ratio_list, metavar="LIST",
+                        help=TTA_HELP["--tta-scales"])  # fmt: skip
+    parser.add_argument("--flip", action="store_true", help=TTA_HELP["--flip"])
+    parser.add_argument("--tta-size", type=positive_int, metavar="S", help=TTA_HELP["--tta-size"])
+
+
+def ratio_list(text: str) -> tuple[float, ...]:
+    """argparse type for comma-separated ratios > 0 (``0.9,1,1.1``)."""
+    try:
+        values = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated ratios such as 0.9,1,1.1, got {text!r}"
+        ) from None
+    if not values or not all(math.isfinite(v) and 0 < v <= 8 for v in values):
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated ratios in (0, 8] such as 0.9,1,1.1, got {text!r}"
+        )
+    return values
 
 
 def add_statistics_flag(parser: Any, names: Iterable[str]) -> None:

@@ -134,6 +134,33 @@ class TTAConfig:
         return dinov3_size(height, width, short, ratio)
 
 
+def tta_from_flags(
+    preset: str | None,
+    scales: Sequence[float] | None = None,
+    flip: bool = False,
+    size: int | None = None,
+) -> TTAConfig | bool | None:
+    """The augmentation the command-line flags ask for (``claravid.infra.cli.add_tta_flags``):
+    ``--tta none``: False (none, whatever the model file records); a preset, its ratios
+    replaced by ``--tta-scales`` when given; ``--tta-scales`` and/or ``--flip`` alone: the
+    ``dinov3`` rule with those ratios (default 1) and mirror; no flag: None (the model file's).
+
+    Raises:
+        ValueError: ``--tta none`` with other TTA flags, or values `TTAConfig` refuses.
+    """
+    if preset == "none":
+        if scales or flip or size is not None:
+            raise ValueError("--tta none turns test-time augmentation off: drop --tta-scales, "
+                             "--flip and --tta-size, or choose --tta dinov3/mmseg")  # fmt: skip
+        return False
+    if preset is not None:
+        chosen = TTAConfig.preset(preset, size=size)
+        return TTAConfig(tuple(scales), True, chosen.rule, size) if scales else chosen
+    if scales or flip or size is not None:
+        return TTAConfig(tuple(scales or (1.0,)), flip, "dinov3", size)
+    return None
+
+
 def dinov3_size(height: int, width: int, short: int, ratio: float) -> tuple[int, int]:
     """The DINOv3 evaluation's copy size: small side ``int(short·ratio)``, for ``ratio < 1``
     rounded up to a multiple of 32; the other side ``int(small·long/short_side + 0.5)``."""

@@ -110,3 +110,25 @@ def test_the_settings_refuse_what_is_not_a_protocol():
         InferenceSettings(tta="dinov3")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="tta must be a TTAConfig"):
         InferenceSettings(tta=True)
+
+
+def test_the_flags_make_the_settings():
+    import argparse
+
+    from claravid.eval.inference.augment import tta_from_flags
+    from claravid.infra.cli import ratio_list
+
+    assert tta_from_flags(None) is None  # the model file's, else none
+    assert tta_from_flags("none") is False
+    assert tta_from_flags("dinov3") == TTAConfig.preset("dinov3")
+    assert tta_from_flags("mmseg", (0.5, 1.0)) == TTAConfig((0.5, 1.0), True, "mmseg")
+    assert tta_from_flags(None, (0.9, 1.1), True, 512) == TTAConfig((0.9, 1.1), True, "dinov3", 512)
+    assert tta_from_flags(None, None, True) == TTAConfig((1.0,), True)
+    assert ratio_list("0.9, 1,1.1") == (0.9, 1.0, 1.1)
+    with pytest.raises(ValueError, match="--tta none turns"):
+        tta_from_flags("none", (1.0,))
+    with pytest.raises(ValueError, match="dinov3 rule"):
+        tta_from_flags("mmseg", size=512)
+    for bad in ("", "0.9,x", "0,1", "nan"):
+        with pytest.raises(argparse.ArgumentTypeError, match="ratios"):
+            ratio_list(bad)
