@@ -9,7 +9,8 @@ work starts and written atomically; nothing the tool did not write is replaced w
 The same concept is the same flag, with the same help, on every command that has it, made by
 one builder here: ``--data`` (where the images are), ``-o/--output`` (what the command writes),
 ``--checkpoint``, the ClaraVid selection ``--missions``/``--altitude``/``--direction`` (comma
-lists), the windows ``--window``/``--stride``/``--scale``/``--batch-size``, ``--device``,
+lists), the windows ``--window``/``--stride``/``--scale``/``--batch-size``, the test-time
+augmentation ``--tta``/``--tta-scales``/``--flip``/``--tta-size``, ``--device``,
 ``--precision``, ``--workers``, ``--no-progress`` and ``--debug``. A size is ``WxH`` (width x
 height) or ``N`` for a square (`parse_size`).
 
@@ -103,11 +104,6 @@ SHARED_HELP = {
     "imagenet (DINOv2, DINOv3 web weights) or sat493m (DINOv3 _sat weights)",
     "--precision": "autocast of a PyTorch model: auto (the default: float32 on a CPU, bf16 on a "
     "GPU that supports it, else fp16), fp32, bf16 or fp16",
-}
-
-
-#: The help of the test-time augmentation flags (`add_tta_flags`).
-TTA_HELP = {
     "--tta": "test-time augmentation as a published protocol runs it: dinov3 (ratios 0.9 to 1.1 "
     "and the mirror, the DINOv3 size rule), mmseg (ratios 0.5 to 1.75 and the mirror, "
     "mmsegmentation's), or none (default: the model file's, else none)",
@@ -163,12 +159,10 @@ def add_tta_flags(parser: Any) -> None:
     ``--tta-size S``: test-time augmentation; all unset: None (the model file's record, else
     none). ``claravid.eval.inference.augment.tta_from_flags`` turns them into settings."""
     tta = ("dinov3", "mmseg", "none")
-    parser.add_argument("--tta", choices=tta, metavar="{" + ",".join(tta) + "}",
-                        help=TTA_HELP["--tta"])  # fmt: skip
-    parser.add_argument("--tta-scales", type=ratio_list, metavar="LIST",
-                        help=TTA_HELP["--tta-scales"])  # fmt: skip
-    parser.add_argument("--flip", action="store_true", help=TTA_HELP["--flip"])
-    parser.add_argument("--tta-size", type=positive_int, metavar="S", help=TTA_HELP["--tta-size"])
+    _add(parser, "--tta", choices=tta, metavar="{" + ",".join(tta) + "}")
+    _add(parser, "--tta-scales", type=ratio_list, metavar="LIST")
+    _add(parser, "--flip", action="store_true")
+    _add(parser, "--tta-size", type=positive_int, metavar="S")
 
 
 def ratio_list(text: str) -> tuple[float, ...]:
