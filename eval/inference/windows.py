@@ -19,6 +19,10 @@ Precision (``WindowConfig.precision``): ``auto`` runs float32 on a CPU and autoc
 ``fp16`` autocast to that type on any device (bf16 is fast on CPUs with AVX512-BF16 or AMX).
 The logits are float32 whatever the precision.
 
+Test-time augmentation (``WindowConfig.tta``, :mod:`claravid.eval.inference.augment`) runs these
+windows on each resized and mirrored copy and averages the copies' probabilities
+(`class_probabilities`); `predict_labels` takes their argmax.
+
 Any model works: a ``torch.nn.Module`` or a callable returning numpy
 (``claravid.models.OnnxSegmenter``).
 """
