@@ -132,3 +132,17 @@ def test_the_flags_make_the_settings():
     for bad in ("", "0.9,x", "0,1", "nan"):
         with pytest.raises(argparse.ArgumentTypeError, match="ratios"):
             ratio_list(bad)
+
+
+def test_an_onnx_file_averages_the_same_probabilities(model_files, model_onnx):
+    """An ONNX source (numpy out, patch multiples in) gives the checkpoint's TTA probabilities,
+    its small copies' windows padded to the patch grid the same way."""
+    from claravid import models
+
+    runner = models.OnnxSegmenter(model_onnx["onnx"])
+    image = torch.randint(0, 256, (3, 48, 64), dtype=torch.uint8,
+                          generator=torch.Generator().manual_seed(6))  # fmt: skip
+    config = WindowConfig(size=(42, 56), tta=TTAConfig((0.5, 1.0), True, "mmseg"))
+    want = class_probabilities(model_files["model"], image, config)
+    got = class_probabilities(runner, image, config)
+    assert (got - want).abs().max() <= 1e-4
