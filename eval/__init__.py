@@ -73,9 +73,9 @@ __all__ = [
     "Bootstrap",
     "CollectSettings",
     "DataChoice",
-    "EvalResult",
     "InferenceSettings",
     "ReportSettings",
+    "TTAConfig",
     "WindowConfig",
     "boundary_iou",
     "build_report",
@@ -101,7 +101,7 @@ if TYPE_CHECKING:
     from claravid.eval.analysis.calibration import calibration_errors
     from claravid.eval.analysis.metrics import mean_iou
     from claravid.eval.analysis.miou_bins import stratify
-    from claravid.eval.analysis.table import EvalResult
+    from claravid.eval.inference.augment import TTAConfig
     from claravid.eval.inference.collect import CollectSettings, collect
     from claravid.eval.inference.sources import load_source
     from claravid.eval.inference.windows import WindowConfig
@@ -123,11 +123,11 @@ else:
             "mean_iou": "claravid.eval.analysis.metrics",
             "Bootstrap": "claravid.eval.analysis.bootstrap",
             "stratify": "claravid.eval.analysis.miou_bins",
-            "EvalResult": "claravid.eval.analysis.table",
             "build_report": "claravid.eval.report.build",
             "load_result": "claravid.eval.report.files",
             "write_outputs": "claravid.eval.report.folder",
             "WindowConfig": "claravid.eval.inference.windows",
+            "TTAConfig": "claravid.eval.inference.augment",
             "confusion_matrix": "claravid.eval.measures.confusion",
             "open_data": "claravid.eval.inputs.datasets",
             "load_source": "claravid.eval.inference.sources",

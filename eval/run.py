@@ -286,13 +286,14 @@ def _model_and_source(
     run = resolve_settings(
         model, window=inference.window, stride=inference.stride, scale=inference.scale,
         batch_size=inference.batch_size, palette=data.palette, precision=inference.precision,
-        statistics=inference.statistics,
+        statistics=inference.statistics, tta=inference.tta,
     )  # fmt: skip
     window = run.window
     assert window.size is not None and window.stride is not None  # resolved for the model
     source = model.describe()
     source["window"] = {"size": list(window.size), "stride": list(window.stride),
-                        "scale": window.scale}  # fmt: skip
+                        "scale": window.scale,
+                        "tta": None if window.tta is None else window.tta.describe()}  # fmt: skip
     if model.kind == "onnx":  # runs as exported: the file's number format, None when foreign
         source["dtype"] = getattr(model.model, "dtype", None)
         source["precision"] = None  # no autocast: ONNX Runtime runs the file's own types

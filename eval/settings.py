@@ -31,6 +31,7 @@ from claravid.eval.analysis.bootstrap import Bootstrap
 from claravid.eval.analysis.complexity_measures import parse_measures
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.analysis.units import CLUSTER_UNITS, DATASETS, GROUP_BY, check_unit
+from claravid.eval.inference.augment import TTAConfig
 from claravid.infra.cli import UsageError, selection_names
 from claravid.infra.precision import PRECISIONS
 from claravid.models.backbones.specs import NAMED_STATISTICS
@@ -145,6 +146,9 @@ class InferenceSettings:
         statistics: the input statistics of an ONNX file exported elsewhere, which records
             none: ``imagenet`` or ``sat493m`` (required for such a file, refused for any other:
             a checkpoint or a claravid export carries its own).
+        tta: test-time augmentation (scales and mirror, e.g. ``TTAConfig.preset("dinov3")``);
+            None: what the model file recorded (training's ``val.tta_*``), else none; False:
+            none, whatever the file recorded.
     """
 
     window: int | tuple[int, int] | None = None
@@ -155,8 +159,14 @@ class InferenceSettings:
     precision: str = "auto"
     provider: str | None = None
     statistics: str | None = None
+    tta: TTAConfig | bool | None = None
 
     def __post_init__(self) -> None:
+        if self.tta is not None and self.tta is not False and not isinstance(self.tta, TTAConfig):
+            raise ValueError(
+                f"tta must be a TTAConfig (e.g. TTAConfig.preset('dinov3')), False (none) or "
+                f"None (the model file's), got {self.tta!r}"
+            )
         object.__setattr__(self, "window", _size(self.window, "--window"))
         object.__setattr__(self, "stride", _size(self.stride, "--stride"))
         if self.scale is not None and not (

@@ -30,6 +30,8 @@ MODULES = {
     "claravid-train": (train, ["--config", "demo"]),
 }
 EVERYWHERE = ("--output",)
+#: The test-time augmentation flags (claravid.infra.cli.add_tta_flags).
+TTA = ("--tta", "--tta-scales", "--flip", "--tta-size")
 #: The shared flags (besides -o/--output) each command has: one spelling, one help text.
 SHARED = {
     "claravid-synth": ("--missions", "--altitude", "--direction"),
@@ -39,9 +41,9 @@ SHARED = {
     "claravid-export": ("--checkpoint",),  # no --precision: the file's number format is --dtype
     "claravid-eval": ("--data", "--checkpoint", "--missions", "--altitude", "--direction",
                       "--window", "--stride", "--scale", "--batch-size", "--statistics",
-                      "--device", "--precision"),
+                      "--device", "--precision", *TTA),
     "claravid-predict": ("--checkpoint", "--window", "--stride", "--scale", "--batch-size",
-                         "--statistics", "--device", "--precision"),
+                         "--statistics", "--device", "--precision", *TTA),
     "claravid-train": ("--data", "--precision"),
 }  # fmt: skip
 COMMANDS = {name: (module.build_parser, needed) for name, (module, needed) in MODULES.items()}
@@ -171,6 +173,9 @@ BAD_VALUES = {
     "--batch-size": ("-2", "expected a positive integer, got '-2'"),
     "--precision": ("fp8", "invalid choice: 'fp8' (choose from "),
     "--statistics": ("lvd1689m", "invalid choice: 'lvd1689m' (choose from "),
+    "--tta": ("ade20k", "invalid choice: 'ade20k' (choose from "),
+    "--tta-scales": ("0.9,x", "expected comma-separated ratios such as 0.9,1,1.1, got '0.9,x'"),
+    "--tta-size": ("0", "expected a positive integer, got '0'"),
 }
 
 

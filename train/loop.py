@@ -48,6 +48,7 @@ from claravid.data.palettes import load_palette
 from claravid.data.real_layouts import RealSegmentation
 from claravid.data.samples import normalise
 from claravid.data.targets import UAVidSegmentation
+from claravid.eval.inference.augment import TTAConfig
 from claravid.eval.inference.windows import WindowConfig
 from claravid.infra.cli import check_device
 from claravid.infra.distributed import DistInfo, barrier, init_distributed
@@ -538,8 +539,12 @@ def _val_window(cfg: DictConfig, patch_size: int, precision: str) -> WindowConfi
     v = cfg.val
     try:
         augment = cfg.data.augment  # the normalisation the training crops get
+        tta = None
+        if v.tta_scales is not None:
+            tta = TTAConfig(tuple(v.tta_scales), bool(v.tta_flip), v.tta_rule, v.tta_size)
         window = WindowConfig(v.window, v.stride, v.scale, v.batch_size, precision,
-                              mean=tuple(augment.mean), std=tuple(augment.std))  # fmt: skip
+                              mean=tuple(augment.mean), std=tuple(augment.std),
+                              tta=tta)  # fmt: skip
         window.check_patch(patch_size)
     except ValueError as exc:
         raise ValueError(

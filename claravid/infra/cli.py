@@ -9,7 +9,8 @@ work starts and written atomically; nothing the tool did not write is replaced w
 The same concept is the same flag, with the same help, on every command that has it, made by
 one builder here: ``--data`` (where the images are), ``-o/--output`` (what the command writes),
 ``--checkpoint``, the ClaraVid selection ``--missions``/``--altitude``/``--direction`` (comma
-lists), the windows ``--window``/``--stride``/``--scale``/``--batch-size``, ``--device``,
+lists), the windows ``--window``/``--stride``/``--scale``/``--batch-size``, the test-time
+augmentation ``--tta``/``--tta-scales``/``--flip``/``--tta-size``, ``--device``,
 ``--precision``, ``--workers``, ``--no-progress`` and ``--debug``. A size is ``WxH`` (width x
 height) or ``N`` for a square (`parse_size`).
 
@@ -103,6 +104,14 @@ SHARED_HELP = {
     "imagenet (DINOv2, DINOv3 web weights) or sat493m (DINOv3 _sat weights)",
     "--precision": "autocast of a PyTorch model: auto (the default: float32 on a CPU, bf16 on a "
     "GPU that supports it, else fp16), fp32, bf16 or fp16",
+    "--tta": "test-time augmentation as a published protocol runs it: dinov3 (ratios 0.9 to 1.1 "
+    "and the mirror, the DINOv3 size rule), mmseg (ratios 0.5 to 1.75 and the mirror, "
+    "mmsegmentation's), or none (default: the model file's, else none)",
+    "--tta-scales": "test-time augmentation ratios, comma-separated, e.g. 0.9,0.95,1,1.05,1.1 "
+    "(with --tta: instead of the preset's)",
+    "--flip": "test-time augmentation: also run each copy mirrored left-right",
+    "--tta-size": "S of the dinov3 size rule, the small side at ratio 1 (the official "
+    "evaluation uses its window, 512 or 896; default: the image's small side at --scale)",
 }
 
 
@@ -143,6 +152,32 @@ def add_window_flags(parser: Any) -> None:
     _add(parser, "--stride", type=window_size, metavar="WxH")
     _add(parser, "--scale", type=positive_float, metavar="S")
     _add(parser, "--batch-size", type=positive_int, metavar="N")
+
+
+def add_tta_flags(parser: Any) -> None:
+    """``--tta {dinov3,mmseg,none}``, ``--tta-scales LIST`` (`ratio_list`), ``--flip`` and
+    ``--tta-size S``: test-time augmentation; all unset: None (the model file's record, else
+    none). ``claravid.eval.inference.augment.tta_from_flags`` turns them into settings."""
+    tta = ("dinov3", "mmseg", "none")
+    _add(parser, "--tta", choices=tta, metavar="{" + ",".join(tta) + "}")
+    _add(parser, "--tta-scales", type=ratio_list, metavar="LIST")
+    _add(parser, "--flip", action="store_true")
+    _add(parser, "--tta-size", type=positive_int, metavar="S")
+
+
+def ratio_list(text: str) -> tuple[float, ...]:
+    """argparse type for comma-separated ratios > 0 (``0.9,1,1.1``)."""
+    try:
+        values = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated ratios such as 0.9,1,1.1, got {text!r}"
+        ) from None
+    if not values or not all(math.isfinite(v) and 0 < v <= 8 for v in values):
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated ratios in (0, 8] such as 0.9,1,1.1, got {text!r}"
+        )
+    return values
 
 
 def add_statistics_flag(parser: Any, names: Iterable[str]) -> None:

@@ -56,11 +56,38 @@ def _edges(report: dict[str, Any]) -> list[tuple[Any, Any]]:
     return [(b.get("lo"), b.get("hi")) for b in report["bins"]]
 
 
+def evaluation_protocol(report: dict[str, Any]) -> str | None:
+    """How a model's report was predicted, in words: windows, stride, scale and test-time
+    augmentation (None for a report of label maps or one that does not say)."""
+    window = report.get("source", {}).get("window")
+    if not isinstance(window, dict) or "size" not in window:
+        return None
+    (h, w), (sh, sw) = window["size"], window.get("stride") or ("?", "?")
+    text = f"windows {w}x{h} every {sw}x{sh}, scale {window.get('scale')}"
+    tta = window.get("tta")
+    if not tta:
+        return text + ", one copy (no test-time augmentation)"
+    ratios = ", ".join(f"{r:g}" for r in tta.get("scales", []))
+    size = f", S {tta['size']}" if tta.get("size") else ""
+    mirror = " and the mirror" if tta.get("flip") else ""
+    return (
+        text + f", test-time augmentation ({tta.get('rule')} rule{size}): ratios {ratios}{mirror}"
+    )
+
+
 def comparison_warnings(reports: Sequence[dict[str, Any]], names: Sequence[str]) -> list[str]:
-    """What makes the side-by-side rows not comparable: palettes, binning, bin ranges."""
+    """What makes the side-by-side rows not comparable: palettes, binning, bin ranges, and the
+    evaluation protocol (test-time augmentation: a gap then includes what it buys)."""
     out = []
     first, name0 = reports[0], names[0]
     for report, name in itertools.islice(zip(reports, names, strict=True), 1, None):
+        t0 = (first.get("source", {}).get("window") or {}).get("tta")
+        t1 = (report.get("source", {}).get("window") or {}).get("tta")
+        if t0 != t1 and evaluation_protocol(first) and evaluation_protocol(report):
+            out.append(
+                f"evaluation protocols differ: {name0} {evaluation_protocol(first)}; {name} "
+                f"{evaluation_protocol(report)}; the gaps include the augmentation's effect"
+            )
         if report["palette"] != first["palette"] or report["classes"] != first["classes"]:
             out.append(
                 f"palettes differ: {name0} uses {first['palette']}, {name} uses "

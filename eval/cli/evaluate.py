@@ -32,6 +32,7 @@ from typing import Any
 
 from claravid.eval.analysis.bootstrap import Bootstrap
 from claravid.eval.analysis.units import CLUSTER_UNITS, DATASETS, GROUP_BY
+from claravid.eval.inference.augment import tta_from_flags
 from claravid.eval.report.files import REPORT
 from claravid.eval.settings import (
     SELECTION,
@@ -51,6 +52,7 @@ from claravid.infra.cli import (
     add_progress_flag,
     add_selection_flags,
     add_statistics_flag,
+    add_tta_flags,
     add_window_flags,
     add_workers_flag,
     non_negative_int,
@@ -68,7 +70,8 @@ QUALITY_FLAGS = ("boundary", "calibration", "consistency")
 #: Model flags a source has no use for: label maps are read, not predicted, and a checkpoint
 #: runs in PyTorch (the ONNX file's --precision is refused where the precision is resolved).
 _IDLE_FOR_SOURCE = {"checkpoint": ("provider",),
-                    "predictions": ("provider", "precision", "statistics")}  # fmt: skip
+                    "predictions": ("provider", "precision", "statistics", "tta",
+                                    "tta_scales", "tta_size")}  # fmt: skip
 
 
 def _epilog() -> str:
@@ -96,6 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_data(p, labels=True)
     infer = p.add_argument_group("inference")
     add_window_flags(infer)
+    add_tta_flags(infer)
     add_statistics_flag(infer, NAMED_STATISTICS)
     add_device_flag(infer)
     add_precision_flag(infer)
@@ -247,7 +251,10 @@ def _source(args: argparse.Namespace) -> str:
     source = next(name for name in SOURCES if getattr(args, name) is not None)
     for name in _IDLE_FOR_SOURCE.get(source, ()):
         if getattr(args, name) is not None:
-            raise UsageError(f"--{name} does nothing with --{source}; drop it")
+            flag = name.replace("_", "-")
+            raise UsageError(f"--{flag} does nothing with --{source}; drop it")
+    if source == "predictions" and args.flip:
+        raise UsageError("--flip does nothing with --predictions; drop it")
     from claravid.infra.precision import flag_precision
 
     args.precision = flag_precision(args.precision, pytorch=source == "checkpoint")
@@ -272,7 +279,9 @@ def _inference(args: argparse.Namespace) -> InferenceSettings:
     return InferenceSettings(window=args.window, stride=args.stride, scale=args.scale,
                              batch_size=args.batch_size, device=args.device,
                              precision=args.precision, provider=args.provider,
-                             statistics=args.statistics)  # fmt: skip
+                             statistics=args.statistics,
+                             tta=tta_from_flags(args.tta, args.tta_scales, args.flip,
+                                                args.tta_size))  # fmt: skip
 
 
 def _report_settings(args: argparse.Namespace) -> ReportSettings:

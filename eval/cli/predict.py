@@ -30,6 +30,7 @@ from torch.utils.data import DataLoader, Dataset
 from tqdm.auto import tqdm
 
 from claravid.data.palettes import Palette, load_palette
+from claravid.eval.inference.augment import tta_from_flags
 from claravid.eval.inference.sources import RunSettings
 from claravid.eval.inference.windows import predict_labels
 from claravid.eval.inputs.label_maps import (
@@ -48,6 +49,7 @@ from claravid.infra.cli import (
     add_precision_flag,
     add_progress_flag,
     add_statistics_flag,
+    add_tta_flags,
     add_window_flags,
     add_workers_flag,
     check_device,
@@ -161,6 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_output_flag(p, required=True)
     p.add_argument("--palette", help="palette for the colours (default: the checkpoint's)")
     add_window_flags(p)
+    add_tta_flags(p)
     add_statistics_flag(p, NAMED_STATISTICS)
     add_device_flag(p)
     add_precision_flag(p)
@@ -190,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
         source, window=args.window, stride=args.stride, scale=args.scale,
         batch_size=args.batch_size, palette=args.palette, precision=precision,
         statistics=args.statistics,
+        tta=tta_from_flags(args.tta, args.tta_scales, args.flip, args.tta_size),
     )  # fmt: skip
     palette = _palette_for(settings, args.no_overlays, source.num_classes)
     config = settings.window

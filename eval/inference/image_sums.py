@@ -3,7 +3,10 @@
 A model's image goes through the sliding windows once (:mod:`claravid.eval.inference.windows`);
 its logits give the prediction (argmax) and, for calibration, each pixel's confidence, the
 largest softmax probability ``1 / Σ_k exp(l_k − max_l)`` (one reduction on the model's device;
-the class probabilities are never copied off it). The sums themselves are
+the class probabilities are never copied off it). With test-time augmentation the prediction
+and the confidence are the argmax and the largest of the probabilities averaged over the
+copies (:mod:`claravid.eval.inference.augment`), so calibration and Boundary IoU score what
+the augmented model predicts. The sums themselves are
 :func:`claravid.eval.measures.boundary.boundary_iou` and
 :func:`claravid.eval.measures.calibration_sums.calibration_sums`.
 """
@@ -15,7 +18,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from claravid.eval.inference.windows import Model, WindowConfig, sliding_window_logits
+from claravid.eval.inference.windows import (
+    Model,
+    WindowConfig,
+    class_probabilities,
+    sliding_window_logits,
+)
 from claravid.eval.measures.boundary import DILATION_RATIO, boundary_iou
 from claravid.eval.measures.calibration_sums import N_BINS as CALIBRATION_BINS
 from claravid.eval.measures.calibration_sums import calibration_sums
@@ -46,8 +54,15 @@ def predict_with_confidence(
     probability [H,W] (float32), both on the image's device.
 
     The prediction is the argmax of the logits, the first class on ties, as the confidence's
-    class is; so the confidence is that of the predicted class.
+    class is; so the confidence is that of the predicted class. With test-time augmentation
+    (``config.tta``) both come from the probabilities averaged over the copies.
     """
+    if config.tta is not None:
+        probs = class_probabilities(model, image, config)
+        if not confidence:
+            return probs.argmax(0), None
+        top, prediction = probs.max(0)
+        return prediction, top
     logits = sliding_window_logits(model, image, config)
     if not confidence:
         return logits.argmax(0), None

@@ -21,6 +21,7 @@ from typing import Any
 
 import torch
 
+from claravid.eval.inference.augment import TTAConfig
 from claravid.eval.inference.windows import Model, WindowConfig, model_statistics
 from claravid.infra.cli import UsageError
 from claravid.models.backbones.specs import NAMED_STATISTICS
@@ -113,7 +114,7 @@ def checkpoint_defaults(checkpoint: Mapping[str, Any]) -> dict[str, Any]:
         if key in window:
             h, w = window[key]
             out[name] = h if h == w else (h, w)
-    for name in ("scale", "batch_size"):
+    for name in ("scale", "batch_size", "tta"):
         if name in window:
             out[name] = window[name]
     augment = read("augment")
@@ -135,7 +136,7 @@ def onnx_defaults(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
     for name, key in (("window", "size"), ("stride", "stride")):
         if key in window:
             out[name] = tuple(window[key])
-    for name in ("scale", "batch_size"):
+    for name in ("scale", "batch_size", "tta"):
         if name in window:
             out[name] = window[name]
     palette = metadata.get("palette")
@@ -176,6 +177,7 @@ class RunSettings:
             "batch_size": w.batch_size,
             "palette": self.palette,
             "normalisation": {k: self.normalisation[k] for k in ("mean", "std")},
+            "tta": None if w.tta is None else w.tta.describe(),
             "from": dict(self.origins),
         }
 
@@ -196,6 +198,7 @@ def resolve_settings(
     palette: str | Path | None = None,
     precision: str = "auto",
     statistics: str | None = None,
+    tta: TTAConfig | bool | None = None,
 ) -> RunSettings:
     """Window, stride, scale, batch size, palette and normalisation: flag, else the model
     file's record, else the default. A ``--stride`` recorded for another window is dropped
@@ -266,7 +269,10 @@ def resolve_settings(
     if statistics is not None:  # a foreign ONNX file: the user's word, never a guess
         named = normalisation_from_config(None, default=NAMED_STATISTICS[statistics])
     normalisation = pick("normalisation", named, recorded.get("normalisation"), default_norm)
+    recorded_tta = recorded.get("tta")
+    chosen = pick("tta", tta, TTAConfig.from_record(recorded_tta) if recorded_tta else None, None)
     config = WindowConfig(
+        tta=chosen if isinstance(chosen, TTAConfig) else None,
         size=size,
         stride=step,
         scale=pick("scale", scale, recorded.get("scale"), DEFAULT_SCALE),

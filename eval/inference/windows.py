@@ -19,6 +19,10 @@ Precision (``WindowConfig.precision``): ``auto`` runs float32 on a CPU and autoc
 ``fp16`` autocast to that type on any device (bf16 is fast on CPUs with AVX512-BF16 or AMX).
 The logits are float32 whatever the precision.
 
+Test-time augmentation (``WindowConfig.tta``, :mod:`claravid.eval.inference.augment`) runs these
+windows on each resized and mirrored copy and averages the copies' probabilities
+(`class_probabilities`); `predict_labels` takes their argmax.
+
 Any model works: a ``torch.nn.Module`` or a callable returning numpy
 (``claravid.models.OnnxSegmenter``).
 """
@@ -36,6 +40,7 @@ import torch
 import torch.nn.functional as F
 
 from claravid.data.samples import normalise as normalise_image
+from claravid.eval.inference.augment import TTAConfig, back_to, copy_window, resize
 from claravid.infra.precision import PRECISIONS, autocast, autocast_dtype
 from claravid.models.grid import PAPER_WINDOW, natural_size, patch_fix
 
@@ -57,6 +62,9 @@ class WindowConfig:
         mean, std: the model's input normalisation of uint8 images (per channel, RGB, on the
             0–1 scale); None: the model's own statistics (:meth:`for_model`). A float image is
             taken as normalised already.
+        tta: test-time augmentation (scales and mirror, :mod:`claravid.eval.inference.augment`):
+            the prediction is then the argmax of probabilities averaged over the copies
+            (`class_probabilities`); None: one copy at ``scale``.
     """
 
     size: tuple[int, int] | None = None
@@ -66,8 +74,13 @@ class WindowConfig:
     precision: str = "auto"
     mean: tuple[float, float, float] | None = None
     std: tuple[float, float, float] | None = None
+    tta: TTAConfig | None = None
 
     def __post_init__(self) -> None:
+        if self.tta is not None and not isinstance(self.tta, TTAConfig):
+            raise ValueError(
+                f"tta must be a TTAConfig (e.g. TTAConfig.preset('dinov3')), got {self.tta!r}"
+            )
         if self.precision not in PRECISIONS:
             raise ValueError(
                 f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}"
@@ -200,6 +213,42 @@ def _forward(model: Model, batch: torch.Tensor, config: WindowConfig) -> torch.T
     return out.to(batch.device, torch.float32)
 
 
+def window_average(
+    model: Model,
+    image: torch.Tensor,
+    window: tuple[int, int],
+    stride: tuple[int, int],
+    config: WindowConfig,
+    pad_to: tuple[int, int] | None = None,
+) -> torch.Tensor:
+    """Window-averaged logits [K,H,W] (float32) of a normalised image [3,H,W] at least one
+    ``window`` in size: windows every ``stride``, the last of a row or column flush with the
+    border (`window_starts`), their logits summed in place and divided by how many windows
+    covered each pixel.
+
+    ``pad_to``: a larger size each window is padded to (zeros at the bottom and right) before
+    the model sees it, the padding's logits cut off again (for a model that takes patch
+    multiples only, given a window that is not one).
+    """
+    (h, w), (wh, ww), (sh, sw) = image.shape[-2:], window, stride
+    boxes = [(y, x) for y in window_starts(h, wh, sh) for x in window_starts(w, ww, sw)]
+    logits: torch.Tensor | None = None
+    hits = torch.zeros((h, w), dtype=torch.float32, device=image.device)
+    for i in range(0, len(boxes), config.batch_size):
+        chunk = boxes[i : i + config.batch_size]
+        batch = torch.stack([image[:, y : y + wh, x : x + ww] for y, x in chunk])
+        if pad_to is not None and tuple(pad_to) != (wh, ww):
+            batch = F.pad(batch, (0, pad_to[1] - ww, 0, pad_to[0] - wh))
+        out = _forward(model, batch.contiguous(), config)[..., :wh, :ww]
+        if logits is None:
+            logits = torch.zeros((out.shape[1], h, w), dtype=torch.float32, device=image.device)
+        for (y, x), window_logits in zip(chunk, out, strict=True):
+            logits[:, y : y + wh, x : x + ww] += window_logits
+            hits[y : y + wh, x : x + ww] += 1
+    assert logits is not None  # at least one window always exists
+    return logits.div_(hits)
+
+
 def sliding_window_logits(
     model: Model, image: torch.Tensor, config: WindowConfig | None = None
 ) -> torch.Tensor:
@@ -211,17 +260,18 @@ def sliding_window_logits(
             already normalised float, on the device the model runs on.
         config: window size, stride, scale, batch size, precision, normalisation (what it
             leaves unset comes from the model: `WindowConfig.for_model`).
+
+    Raises:
+        ValueError: the config asks for test-time augmentation, which averages probabilities,
+            not logits (`class_probabilities`).
     """
     config = (config or WindowConfig()).for_model(model)
-    if (
-        image.ndim != 3
-        or image.shape[0] != 3
-        or not (image.is_floating_point() or image.dtype == torch.uint8)
-    ):
+    if config.tta is not None:
         raise ValueError(
-            f"expected a uint8 or normalised float image [3,H,W], got {tuple(image.shape)} "
-            f"{image.dtype}"
+            "test-time augmentation averages probabilities, not logits: use "
+            "class_probabilities (or predict_labels) with a config that sets tta"
         )
+    _check_image(image)
     image = normalise(image, config)
     full_h, full_w = image.shape[-2:]
     if config.scale != 1.0:
@@ -234,21 +284,7 @@ def sliding_window_logits(
     (wh, ww), (sh, sw) = config.size, config.stride
     if h < wh or w < ww:  # pad to one window; the padding is cut off below
         image = F.pad(image, (0, max(0, ww - w), 0, max(0, wh - h)))
-    ph, pw = image.shape[-2:]
-    boxes = [(y, x) for y in window_starts(ph, wh, sh) for x in window_starts(pw, ww, sw)]
-    logits: torch.Tensor | None = None
-    hits = torch.zeros((ph, pw), dtype=torch.float32, device=image.device)
-    for i in range(0, len(boxes), config.batch_size):
-        chunk = boxes[i : i + config.batch_size]
-        batch = torch.stack([image[:, y : y + wh, x : x + ww] for y, x in chunk])
-        out = _forward(model, batch.contiguous(), config)
-        if logits is None:
-            logits = torch.zeros((out.shape[1], ph, pw), dtype=torch.float32, device=image.device)
-        for (y, x), window_logits in zip(chunk, out, strict=True):
-            logits[:, y : y + wh, x : x + ww] += window_logits
-            hits[y : y + wh, x : x + ww] += 1
-    assert logits is not None  # at least one window always exists
-    logits = (logits / hits)[:, :h, :w]
+    logits = window_average(model, image, (wh, ww), (sh, sw), config)[:, :h, :w]
     if (h, w) != (full_h, full_w):
         logits = F.interpolate(
             logits[None], size=(full_h, full_w), mode="bilinear", align_corners=False
@@ -256,9 +292,75 @@ def sliding_window_logits(
     return logits
 
 
+def _check_image(image: torch.Tensor) -> None:
+    if (
+        image.ndim != 3
+        or image.shape[0] != 3
+        or not (image.is_floating_point() or image.dtype == torch.uint8)
+    ):
+        raise ValueError(
+            f"expected a uint8 or normalised float image [3,H,W], got {tuple(image.shape)} "
+            f"{image.dtype}"
+        )
+
+
+def class_probabilities(
+    model: Model, image: torch.Tensor, config: WindowConfig | None = None
+) -> torch.Tensor:
+    """Class probabilities [K,H,W] (float32, on the image's device) of an image [3,H,W]: the
+    softmax of the window logits, or with ``config.tta`` their mean over the augmented copies
+    (:mod:`claravid.eval.inference.augment`), at the image's own size.
+
+    One running sum [K,H,W] takes the copies in turn, so memory does not grow with them.
+    """
+    config = (config or WindowConfig()).for_model(model)
+    if config.tta is None:
+        return sliding_window_logits(model, image, config).softmax(0)
+    _check_image(image)
+    tta, single = config.tta, dataclasses.replace(config, tta=None)
+    image = normalise(image, config)
+    full = (int(image.shape[-2]), int(image.shape[-1]))
+    assert config.size is not None and config.stride is not None  # for_model sets both
+    total: torch.Tensor | None = None
+    copies = tta.copies()
+    for ratio, flipped in copies:
+        copy = resize(image, tta.copy_size(*full, ratio, config.scale))
+        if flipped:
+            copy = copy.flip(-1)
+        window = copy_window(int(copy.shape[-2]), int(copy.shape[-1]), config.size, tta.rule)
+        logits = window_average(model, copy, window, config.stride, single,
+                                _model_input(model, window))  # fmt: skip
+        del copy
+        logits = back_to(logits, full)
+        if flipped:
+            logits = logits.flip(-1)
+        probs = logits.softmax(0)
+        del logits
+        total = probs if total is None else total.add_(probs)
+        del probs
+    assert total is not None  # a TTAConfig has at least one scale
+    return total.div_(len(copies))
+
+
+def _model_input(model: Model, window: tuple[int, int]) -> tuple[int, int] | None:
+    """The size a window is padded to for a model that cannot take it as it is: an ONNX
+    file's fixed input, or the next multiple of the model's patch size; None: as it is."""
+    fixed = getattr(model, "input_size", None)
+    if fixed is not None:
+        return (int(fixed[0]), int(fixed[1]))
+    patch = getattr(model, "patch_size", None)
+    if not patch:
+        return None
+    p = int(patch)
+    return (-(-window[0] // p) * p, -(-window[1] // p) * p)
+
+
 def predict_labels(
     model: Model, image: torch.Tensor, config: WindowConfig | None = None
 ) -> torch.Tensor:
     """Train ids [H,W] (int64) of an image [3,H,W] (uint8 or normalised float): argmax of the
-    window logits."""
+    window logits, or with ``config.tta`` of the probabilities averaged over the copies."""
+    config = (config or WindowConfig()).for_model(model)
+    if config.tta is not None:
+        return class_probabilities(model, image, config).argmax(0)
     return sliding_window_logits(model, image, config).argmax(0)

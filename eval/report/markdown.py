@@ -6,6 +6,7 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from claravid.eval.analysis.gaps import evaluation_protocol
 from claravid.eval.report.cells import bin_range, md_table, number, with_ci
 from claravid.eval.report.quality_text import (
     missing_everywhere,
@@ -91,6 +92,9 @@ def _header(report: dict[str, Any]) -> list[str]:
         )
     lines.append(f"- palette: {report['palette']} ({len(classes)} classes), ignore index "
                  f"{report['ignore_index']}")  # fmt: skip
+    protocol = evaluation_protocol(report)
+    if protocol:
+        lines.append(f"- protocol: {protocol}")
     method = binning.get("method")
     if method == "fixed":
         lines.append(f"- bins: fixed delentropy edges {binning.get('edges')}")

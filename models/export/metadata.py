@@ -12,7 +12,7 @@ named it `precision`)::
      "palette": {"name", "names", "colors" (K x [R, G, B]), "ignore_index"} | null,
      "normalisation": {"mean", "std", "channels": "RGB", "value_range": [0, 255],
                        "formula": "(x / 255 - mean) / std"},
-     "window": {"size": [h, w], "stride": [h, w], "scale", "batch_size"} (known keys only),
+     "window": {"size": [h, w], "stride": [h, w], "scale", "batch_size", "tta"} (known keys only),
      "training": {"step", "config_sha256"} (known keys only)}
 
 Lists in the document are in tensor order ([h, w]); the readable ``claravid.input_size`` is
@@ -84,7 +84,9 @@ def window_from_config(config: Any) -> dict[str, Any]:
     """The validation windows of a resolved training config (``val.window/stride/scale/...``).
 
     Returns only the keys the config sets with a usable value: ``size`` and ``stride`` as
-    ``[h, w]``, ``scale`` (float > 0), ``batch_size``.
+    ``[h, w]``, ``scale`` (float > 0), ``batch_size``, and ``tta`` (``rule``, ``scales``,
+    ``flip``, ``size``: the test-time augmentation of ``val.tta_*``) when ``val.tta_scales``
+    lists ratios.
     """
     out: dict[str, Any] = {}
     for name, key in (("size", "window"), ("stride", "stride")):
@@ -96,6 +98,15 @@ def window_from_config(config: Any) -> dict[str, Any]:
         out["scale"] = float(scale)
     if _positive_int(config_get(config, "val", "batch_size")):
         out["batch_size"] = config_get(config, "val", "batch_size")
+    scales = config_get(config, "val", "tta_scales")
+    if isinstance(scales, list | tuple) and scales:  # the evaluation protocol validated with
+        size = config_get(config, "val", "tta_size")
+        out["tta"] = {
+            "rule": str(config_get(config, "val", "tta_rule") or "dinov3"),
+            "scales": [float(r) for r in scales],
+            "flip": bool(config_get(config, "val", "tta_flip")),
+            "size": size if _positive_int(size) else None,
+        }
     return out
 
 

@@ -70,11 +70,24 @@ def test_unknown_key_in_a_yaml_file(tmp_path):
         ("data.class_weights=foo", "median_frequency"),
         ("data.crops_per_frame=0", "data.crops_per_frame"),
         ("train.steps", "not key=value"),
+        ("val.tta_rule=timm", "val.tta_rule"),
+        ("val.tta_scales=[0,1]", "val.tta_scales"),
+        ("val.tta_size=0", "val.tta_size"),
     ],
 )
 def test_bad_values_name_the_key(override, message):
     with pytest.raises(ConfigError, match=message):
         load_config("demo", [override])
+
+
+def test_validation_runs_the_configured_test_time_augmentation():
+    from claravid.eval import TTAConfig
+    from claravid.train.loop import _val_window
+
+    cfg = load_config("demo", ["val.tta_scales=[0.9,1.0,1.1]", "val.tta_flip=true",
+                               "val.tta_rule=mmseg"])  # fmt: skip
+    assert _val_window(cfg, 14, "auto").tta == TTAConfig((0.9, 1.0, 1.1), True, "mmseg")
+    assert _val_window(load_config("demo"), 14, "auto").tta is None
 
 
 def test_missing_required_key(tmp_path):

@@ -135,6 +135,12 @@ def _check_val(v: DictConfig) -> None:
     _require(v.stride is None or v.stride >= 1, "val.stride", v.stride, ">= 1 or null")
     _require(v.bins >= 1, "val.bins", v.bins, ">= 1")
     _require(math.isfinite(v.scale) and 0 < v.scale <= 8, "val.scale", v.scale, "in (0, 8]")
+    _require(v.tta_rule in ("dinov3", "mmseg"), "val.tta_rule", v.tta_rule, "dinov3 or mmseg")
+    _require(
+        v.tta_scales is None or (len(v.tta_scales) > 0 and all(0 < r <= 8 for r in v.tta_scales)),
+        "val.tta_scales", v.tta_scales, "ratios in (0, 8], or null",
+    )  # fmt: skip
+    _require(v.tta_size is None or v.tta_size >= 1, "val.tta_size", v.tta_size, ">= 1 or null")
 
 
 def _check_augment(a: DictConfig) -> None:

@@ -120,6 +120,13 @@ class ValConfig:
     scale: float = 0.5  # resize before windowing (the paper reports at half resolution)
     batch_size: int = 4  # windows per forward pass
     bins: int = 3  # delentropy quantile bins of the val images (miou_bins)
+    # Test-time augmentation (docs/evaluation.md): the ratios of the copies (null: none), the
+    # mirror, the copy-size rule (dinov3 or mmseg) and the dinov3 rule's S (null: the image's
+    # small side at val.scale). Recorded in the checkpoint and the ONNX metadata.
+    tta_scales: list[float] | None = None
+    tta_flip: bool = False
+    tta_rule: str = "dinov3"
+    tta_size: int | None = None
 
 
 @dataclass
