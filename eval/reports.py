@@ -144,6 +144,7 @@ def compare(
     bootstrap: Bootstrap | None = None,
     cluster: str | None = None,
     *,
+    oracle: str | Path | None = None,
     overwrite: bool = False,
 ) -> str:
     """Compare reports, the first the baseline: the Markdown table; with ``output`` also
@@ -154,6 +155,9 @@ def compare(
         output: the folder to write to (None: only return the text).
         bootstrap: resamples, level and seed of the gaps' intervals (default 1000, 0.95, 0).
         cluster: the resampled unit (default: the baseline's dataset default).
+        oracle: a target-supervised model's report: the first report is then the source-only
+            model, the others adapted ones, and the comparison adds the fraction of the
+            source-to-oracle gap each closes, per bin and per class, with intervals.
         overwrite: replace a folder this tool did not write.
     """
     from claravid.eval.report.compare import compare_reports
@@ -162,7 +166,7 @@ def compare(
     check_type(bootstrap, Bootstrap, "bootstrap", "Bootstrap(resamples=1000)")
     if output is not None:
         check_output_dir(output, marker="compare.md", overwrite=overwrite)
-    text, messages = compare_reports(reports, output, bootstrap, cluster)
+    text, messages = compare_reports(reports, output, bootstrap, cluster, oracle)
     for message in messages:
         warnings.warn(message, UserWarning, stacklevel=2)
     return text

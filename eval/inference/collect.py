@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from claravid.data.palette_fold import PaletteFold
 from claravid.dsp.tiles import check_tile_count, check_tile_size
 from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.analysis.quality_table import (
@@ -34,12 +35,13 @@ from claravid.eval.analysis.tile_bins import TileTable
 from claravid.eval.inference.background import Background
 from claravid.eval.inference.complexity_job import ComplexityJob
 from claravid.eval.inference.hardest import Hardest
+from claravid.eval.inference.image_sums import predict_with_confidence
 from claravid.eval.inference.pair_stream import PairKeeper, PairStream
 from claravid.eval.inference.quality_collect import label_map_measure, pair_item, quality_table
 from claravid.eval.inference.quality_plan import QualityPlan, plan_quality
 from claravid.eval.inference.run_model import ImageScore, evaluate_model
 from claravid.eval.inference.sources import ModelSource
-from claravid.eval.inference.windows import WindowConfig, predict_labels
+from claravid.eval.inference.windows import WindowConfig
 from claravid.eval.inputs.datasets import EvalData
 from claravid.eval.inputs.label_maps import (
     check_missing,
@@ -116,6 +118,8 @@ class CollectSettings:
         quality: the measures beyond mIoU
             (:func:`~claravid.eval.inference.quality_plan.plan_quality`); None: each one on
             where the source and data allow it.
+        fold: a fine model (or its label maps) scored through the data's palette
+            (:mod:`claravid.data.palette_fold`); None: the model predicts the palette's classes.
     """
 
     window: WindowConfig | None = None
@@ -128,6 +132,7 @@ class CollectSettings:
     allow_missing: bool = False
     progress: bool = False
     quality: QualityPlan | None = None
+    fold: PaletteFold | None = None
 
 
 def contiguous_shard(n: int) -> list[int]:
@@ -210,11 +215,9 @@ def collect(
 
                     def predict_other(key: str) -> np.ndarray:
                         image = frames.image(key).to(s.device)
-                        return (
-                            predict_labels(model.model, image, window)
-                            .to("cpu", torch.uint8)
-                            .numpy()
-                        )
+                        ids, _ = predict_with_confidence(model.model, image, window, False,
+                                                         s.fold)  # fmt: skip
+                        return ids.to("cpu", torch.uint8).numpy()
 
                     stream = PairStream(frames, [data.keys[i] for i in mine], k, predict_other,
                                         pair_keeper, mine, background)  # fmt: skip
@@ -242,6 +245,7 @@ def collect(
                     on_score=on_score,
                     measures=plan.image_measures(),
                     background=background,
+                    fold=s.fold,
                 )
                 confusions = [s.confusion for s in scores]
                 tile_confs = [s.tiles for s in scores]
@@ -251,10 +255,10 @@ def collect(
         else:
             assert predictions is not None  # one of model and predictions, checked above
             threads = max(1, workers)
-            measure = label_map_measure(data, predictions, plan, frames, pair_keeper)
+            measure = label_map_measure(data, predictions, plan, frames, pair_keeper, s.fold)
             scored = label_map_confusions(data, predictions, mine, threads=threads,
                                           tile_size=tile_size, progress=s.progress,
-                                          measure=measure)  # fmt: skip
+                                          measure=measure, fold=s.fold)  # fmt: skip
             confusions, tile_confs = [c for c, _, _ in scored], [t for _, t, _ in scored]
             extras = [(None if e is None else e[0], None) for _, _, e in scored]
             pairs = {data.keys[i]: e[1] for i, (_, _, e) in zip(mine, scored, strict=True)

@@ -43,6 +43,7 @@ def build_report(
         clusters=clusters,
         bootstrap=settings,
         quality=result.quality,
+        predictable=result.source.get("predictable"),
     )
     if result.tiles is not None and len(result.tiles):
         numbers["tiles"] = tile_report(

@@ -73,6 +73,7 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
     measures beyond mIoU, the hardest images, plots."""
     # The measures' sections format with this module's helpers: imported here, not at the top.
     from claravid.eval.report.quality_text import quality_sections
+    from claravid.eval.report.transfer_text import fold_lines, predictable_section
 
     source, classes = report["source"], report["classes"]
     binning = source.get("binning", {})
@@ -98,6 +99,7 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
         )
     lines.append(f"- palette: {report['palette']} ({len(classes)} classes), ignore index "
                  f"{report['ignore_index']}")  # fmt: skip
+    lines += fold_lines(source)
     method = binning.get("method")
     if method == "fixed":
         lines.append(f"- bins: fixed delentropy edges {binning.get('edges')}")
@@ -124,6 +126,7 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
     rows.append(["**overall**", "", str(overall["num_images"]), *_scores(overall)])
     lines += md_table(["bin", "delentropy", "images", "mIoU", "pixel acc"], rows)
     lines += _warnings(report)
+    lines += predictable_section(report)
 
     if report["groups"]:
         lines += [f"## Per {binning.get('group_by') or 'group'}", ""]
@@ -306,6 +309,7 @@ def _gap_tables(analysis: dict[str, Any]) -> list[str]:
     """One table per compared report: gap B − A overall and per bin, interval, p-value; then
     the gaps of the measures beyond mIoU."""
     from claravid.eval.report.quality_text import quality_gap_lines
+    from claravid.eval.report.transfer_text import predictable_gap_lines
 
     unc = analysis["uncertainty"]
     lines = [uncertainty_line(unc) or "", ""]
@@ -322,6 +326,7 @@ def _gap_tables(analysis: dict[str, Any]) -> list[str]:
         rows = [[b["name"], *_gap_cell(b, r)] for b in comp["bins"]]
         rows.append(["**overall**", *_gap_cell(comp["overall"], r)])
         lines += md_table(["bin", "gap [interval]", "p-value", "interval excludes 0"], rows)
+        lines += predictable_gap_lines(comp, analysis["baseline"])
         lines += quality_gap_lines(comp, analysis["baseline"])
     return lines
 
