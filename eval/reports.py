@@ -60,6 +60,7 @@ def merge(
     from claravid.eval.report.build import build_report
     from claravid.eval.report.files import load_result
     from claravid.eval.report.folder import write_outputs
+    from claravid.eval.run import check_classes
 
     parts = report_list(parts, "merge", "merge(['part0', 'part1'], 'all')")
     check_type(settings, ReportSettings, "settings", "ReportSettings(bins=5)")
@@ -72,12 +73,14 @@ def merge(
     result = merge_results(results, [str(p) for p in parts])
     _warn_dropped_tiles(results, result, parts)
     settings.check_bins(len(result.paths))
+    check_classes(settings.classes, result.classes)
     report = build_report(
         result,
         bins=settings.bins,
         edges=settings.edges,
         group_by=settings.group_by,
         bootstrap=settings.intervals(result.attributes, result.default_cluster()),
+        classes=settings.classes,
     )
     warn_outside_edges(report, result.complexity["delent"], len(result.paths))
     write_outputs(output, report, result)

@@ -174,6 +174,7 @@ def evaluate(
     if report.group_by is not None:
         opened.groups(report.group_by)  # fails now, not after the inference
     report.check_bins(len(opened))
+    check_classes(report.classes, opened.palette.names)  # before the inference, not after
     intervals = report.intervals(opened.attributes, default_cluster(opened.name, opened.attributes))
     # Refused now, not after the inference: the images' clusters are known before it runs.
     intervals.check_memory(unit_labels(opened.paths, opened.attributes, intervals.cluster))
@@ -206,7 +207,8 @@ def evaluate(
         result = collected.result
         report.check_bins(len(result.paths))
         numbers = build_report(result, bins=report.bins, edges=report.edges,
-                               group_by=report.group_by, bootstrap=intervals)  # fmt: skip
+                               group_by=report.group_by, bootstrap=intervals,
+                               classes=report.classes)  # fmt: skip
         warn_outside_edges(numbers, result.complexity["delent"], len(result.paths))
         dirs = [Path(d) for d in (predictions, save_predictions) if d is not None]
         items = hardest_items(result, opened, report.hardest, collected.hardest, dirs,
@@ -291,6 +293,20 @@ def _open(data: DataChoice, model: Any, run: Any, predictions: Any) -> tuple[Any
     else:
         fold = scoring_fold(defaults.get("model_classes"), None, opened.palette, None)
     return opened, fold
+
+
+def check_classes(classes: Sequence[str] | None, names: Sequence[str]) -> None:
+    """Refuse a ``--classes`` subset that names a class the palette does not have.
+
+    Raises:
+        UsageError: one line naming the unknown classes and the palette's.
+    """
+    from claravid.eval.analysis.predictable import subset_mask
+
+    try:
+        subset_mask(list(names), classes)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def predictable_classes(palette: Any, fold: Any) -> list[str]:

@@ -68,6 +68,23 @@ def predictable_mask(classes: Sequence[str], names: Sequence[str] | None) -> np.
     return None if mask.all() or not mask.any() else mask
 
 
+def subset_mask(classes: Sequence[str], names: Sequence[str] | None) -> np.ndarray | None:
+    """bool [K] of a user's class subset (``ReportSettings.classes``); None without one.
+
+    Raises:
+        ValueError: a name that is not one of ``classes``, or no name at all.
+    """
+    if names is None:
+        return None
+    unknown = [n for n in names if n not in classes]
+    if unknown or not names:
+        raise ValueError(
+            f"--classes {','.join(names)}: {', '.join(unknown) or 'no class'} not in the "
+            f"palette's classes ({', '.join(classes)})"
+        )
+    return np.asarray([c in set(names) for c in classes], dtype=bool)
+
+
 def add_predictable(
     report: dict[str, Any],
     confusions: np.ndarray,
@@ -76,10 +93,13 @@ def add_predictable(
     groups: Mapping[str, Sequence[int]],
     clusters: Sequence[str],
     bootstrap: Bootstrap | None,
+    *,
+    key: str = "predictable",
 ) -> None:
     """Add ``miou_predictable`` (with ``miou_predictable_ci`` when ``bootstrap``), ``miou_cap``
     and ``unpredictable_present`` to every row of ``report`` in place (nothing when
-    ``predictable`` is None). Each row draws from ``<row stream>:predictable``."""
+    ``predictable`` is None). Each row draws from ``<row stream>:predictable``. With another
+    ``key`` (``classes``: a user's subset) only ``miou_<key>`` and its interval."""
     if predictable is None:
         return
     classes = report["classes"]
@@ -97,22 +117,18 @@ def add_predictable(
         (row, members, f"group:{name}")
         for (name, members), row in zip(groups.items(), report["groups"], strict=True)
     ]
+    name = f"miou_{key}"
     for row, members, stream in sets:
         members = list(members)
-        summed = confusions[members].sum(axis=0) if members else np.zeros((k, k), np.int64)
-        cap, missing = miou_cap(summed, predictable)
         value = point_values(features, members, statistic)[0] if members else np.nan
-        row["miou_predictable"] = finite_or_none(float(value))
+        row[name] = finite_or_none(float(value))
         if bootstrap is not None and members:
             found = sums_interval(
-                features,
-                ids,
-                members,
-                bootstrap,
-                statistic,
-                ["miou_predictable"],
-                stream=f"{stream}:predictable",
+                features, ids, members, bootstrap, statistic, [name], stream=f"{stream}:{key}"
             )
-            row["miou_predictable_ci"] = found["miou_predictable_ci"]
-        row["miou_cap"] = cap
-        row["unpredictable_present"] = [classes[i] for i in missing]
+            row[f"{name}_ci"] = found[f"{name}_ci"]
+        if key == "predictable":
+            summed = confusions[members].sum(axis=0) if members else np.zeros((k, k), np.int64)
+            cap, missing = miou_cap(summed, predictable)
+            row["miou_cap"] = cap
+            row["unpredictable_present"] = [classes[i] for i in missing]

@@ -73,7 +73,11 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
     measures beyond mIoU, the hardest images, plots."""
     # The measures' sections format with this module's helpers: imported here, not at the top.
     from claravid.eval.report.quality_text import quality_sections
-    from claravid.eval.report.transfer_text import fold_lines, predictable_section
+    from claravid.eval.report.transfer_text import (
+        fold_lines,
+        predictable_section,
+        subset_section,
+    )
 
     source, classes = report["source"], report["classes"]
     binning = source.get("binning", {})
@@ -127,6 +131,7 @@ def report_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
     lines += md_table(["bin", "delentropy", "images", "mIoU", "pixel acc"], rows)
     lines += _warnings(report)
     lines += predictable_section(report)
+    lines += subset_section(report)
 
     if report["groups"]:
         lines += [f"## Per {binning.get('group_by') or 'group'}", ""]

@@ -60,6 +60,20 @@ def predictable_section(report: dict[str, Any]) -> list[str]:
     return lines + md_table(header, rows)
 
 
+def subset_section(report: dict[str, Any]) -> list[str]:
+    """mIoU over the classes of ``--classes``, beside mIoU over all classes, per row."""
+    chosen = report["source"].get("classes_subset")
+    if not chosen or "miou_classes" not in report["overall"]:
+        return []
+    lines = [f"## mIoU over {', '.join(chosen)}", ""]
+    rows = [
+        [row["name"], with_ci(row["miou"], row.get("miou_ci")),
+         with_ci(row.get("miou_classes"), row.get("miou_classes_ci"))]
+        for row in [*report["bins"], {**report["overall"], "name": "**overall**"}]
+    ]  # fmt: skip
+    return lines + md_table(["bin", "mIoU, all classes", "mIoU, chosen classes"], rows)
+
+
 def _fraction_cell(entry: dict[str, Any] | None) -> str:
     if not entry or entry.get("closed") is None:
         return "–"

@@ -95,3 +95,18 @@ def test_compare_keeps_the_predictable_gap_apart():
     older = _result([IMG1, IMG2], None)
     out = gap_analysis([older, b], reports, ["a", "b"], Bootstrap(resamples=0, cluster="image"))
     assert out["comparisons"][0]["predictable"] is None
+
+
+def test_a_chosen_subset_of_classes():
+    from claravid.eval.settings import ReportSettings
+
+    report = stratify(["i1.png", "i2.png"], np.array([IMG1, IMG2]), CLASSES, subset=["A", "B"])
+    assert report["overall"]["miou_classes"] == pytest.approx(PREDICTABLE)
+    assert "miou_cap" not in report["overall"]  # a subset states no structural zero
+    report = stratify(["i1.png", "i2.png"], np.array([IMG1, IMG2]), CLASSES, subset=["B"])
+    assert report["overall"]["miou_classes"] == pytest.approx(1 / 2)
+    assert ReportSettings(classes=" A,,B ").classes == ["A", "B"]
+    with pytest.raises(ValueError, match="Z not in the palette's classes"):
+        stratify(["i1.png", "i2.png"], np.array([IMG1, IMG2]), CLASSES, subset=["A", "Z"])
+    with pytest.raises(ValueError, match="--classes is empty"):
+        ReportSettings(classes=",")

@@ -275,6 +275,12 @@ def test_fine_label_maps_map_by_the_same_table(fine_model, claravid_root, tmp_pa
         np.add.at(expected, (truth[valid], lut[ids[valid]]), 1)
         np.testing.assert_array_equal(done.result.confusions[n], expected)
     assert done.result.source["fold"]["palette"] == "coarse4"
+    # A subset naming a class the palette lacks is refused before anything is read.
+    with pytest.raises(UsageError, match="Nope not in the palette's classes"):
+        evaluate(tmp_path / "rep3", predictions=maps, data=DataChoice(root=claravid_root,
+                 split=fine_model["split"], palette=str(fine_model["palette"])),
+                 report=ReportSettings(classes="Ground,Nope"))  # fmt: skip
+    assert not (tmp_path / "rep3" / "report.json").exists()
     # Label maps of another palette than the fine one are still refused against --palette.
     (maps / "predictions.json").write_text(
         json.dumps(
@@ -304,3 +310,31 @@ def test_a_model_of_other_classes_is_refused_in_one_line(model_files, tmp_path):
     assert "predicts 8 classes but palette udd6 has 6" in message
     assert "--palette uavid" in message and "\n" not in message
     assert not (tmp_path / "o" / "report.json").exists()
+
+
+@pytest.mark.slow
+def test_onnx_export_of_the_fine_model_is_scored_alike(fine_model, tmp_path):
+    """The same fold for an ONNX file, whose metadata names the 19 classes: the same report
+    numbers as its checkpoint (which the test above checks against the rule)."""
+    from claravid import models
+    from claravid.data.palettes import load_palette
+
+    fine = load_palette("claravid")
+    record = {"name": "claravid", "names": list(fine.names), "colors": fine.colors.tolist()}
+    onnx = tmp_path / "fine.onnx"
+    models.export_onnx(fine_model["model"], onnx,
+                       models.ExportSettings(height=56, width=56, dynamic=True),
+                       provenance=models.Provenance(palette=record))  # fmt: skip
+    quiet = ReportSettings(bootstrap=Bootstrap(resamples=0), boundary=False, consistency=False,
+                           calibration=False, hardest=0)  # fmt: skip
+    data = DataChoice(split=fine_model["split"], palette=str(fine_model["palette"]))
+    window = InferenceSettings(window=WINDOW_HW, device="cpu")
+    by_checkpoint = evaluate(tmp_path / "ck", checkpoint=fine_model["checkpoint"], data=data,
+                             inference=window, report=quiet)  # fmt: skip
+    data = DataChoice(root=by_checkpoint.result.source["data"], split=fine_model["split"],
+                      palette=str(fine_model["palette"]))  # fmt: skip
+    by_onnx = evaluate(tmp_path / "onnx", onnx=onnx, data=data,
+                       inference=InferenceSettings(window=WINDOW_HW, device="cpu",
+                                                   statistics=None), report=quiet)  # fmt: skip
+    assert by_onnx.result.source["fold"]["palette"] == "coarse4"
+    np.testing.assert_array_equal(by_onnx.result.confusions, by_checkpoint.result.confusions)
