@@ -112,11 +112,8 @@ def test_other_images_are_refused():
         )
 
 
-def test_compare_with_an_oracle_writes_gap_closed(tmp_path):
-    """Report folders on disk, compared with --oracle: every image of each model alike, so each
-    resample gives the same fraction: (0.775 - 0.6) / (1 - 0.6) = 0.4375, interval [0.4375,
-    0.4375]."""
-    from claravid.eval import compare
+def _write_reports(folder):
+    """Report folders of three models that score each of 4 images alike."""
     from claravid.eval.report.build import build_report
     from claravid.eval.report.folder import write_outputs
 
@@ -133,7 +130,16 @@ def test_compare_with_an_oracle_writes_gap_closed(tmp_path):
             source={"kind": "predictions"},
         )
         report = build_report(table, bins=2, bootstrap=Bootstrap(resamples=100, cluster="image"))
-        write_outputs(tmp_path / name, report, table)
+        write_outputs(folder / name, report, table)
+
+
+def test_compare_with_an_oracle_writes_gap_closed(tmp_path):
+    """Report folders on disk, compared with --oracle: every image of each model alike, so each
+    resample gives the same fraction: (0.775 - 0.6) / (1 - 0.6) = 0.4375, interval [0.4375,
+    0.4375]."""
+    from claravid.eval import compare
+
+    _write_reports(tmp_path)
     text = compare(
         [tmp_path / "src", tmp_path / "adapt"],
         tmp_path / "cmp",
@@ -148,3 +154,38 @@ def test_compare_with_an_oracle_writes_gap_closed(tmp_path):
     assert "Gap closed" in text and "0.44 [0.44, 0.44]" in text
     with pytest.raises(UsageError, match="at least one adapted"):
         compare([tmp_path / "src"], oracle=tmp_path / "oracle")
+
+
+def test_compare_subcommand_takes_an_oracle(tmp_path, capsys):
+    from claravid.eval.cli.evaluate import main
+
+    _write_reports(tmp_path)
+    src, adapt, oracle = (str(tmp_path / n) for n in ("src", "adapt", "oracle"))
+    argv = ["compare", src, adapt, "--oracle", oracle, "--bootstrap", "100", "-o", f"{src}_cmp"]
+    assert main(argv) == 0
+    saved = json.loads((tmp_path / "src_cmp" / "compare.json").read_text())
+    assert saved["gap_closed"]["adapted"][0]["classes"]["x"]["closed"] == pytest.approx(
+        (4 / 5 - 3 / 5) / (1 - 3 / 5)
+    )
+    capsys.readouterr()
+    assert main(["compare", str(tmp_path / "src"), "--oracle", str(tmp_path / "oracle")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "at least one adapted report" in err and len(err.splitlines()) == 1
+
+
+def test_merge_with_a_class_subset(tmp_path, capsys):
+    """`--classes y` on a re-binning: every row also gets the mIoU over y alone (3/5)."""
+    from claravid.eval.cli.evaluate import main
+
+    _write_reports(tmp_path)
+    src, out = str(tmp_path / "src"), str(tmp_path / "only_y")
+    assert main(["merge", src, "--classes", "y", "--bootstrap", "100", "-o", out]) == 0
+    report = json.loads((tmp_path / "only_y" / "report.json").read_text())
+    assert report["overall"]["miou_classes"] == pytest.approx(3 / 5)
+    assert report["source"]["classes_subset"] == ["y"]
+    assert "## mIoU over y" in (tmp_path / "only_y" / "report.md").read_text()
+    capsys.readouterr()
+    assert main(["merge", src, "--classes", "y,z", "-o", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "z not in the palette's classes" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "bad" / "report.json").exists()
