@@ -312,29 +312,29 @@ def test_a_model_of_other_classes_is_refused_in_one_line(model_files, tmp_path):
     assert not (tmp_path / "o" / "report.json").exists()
 
 
-@pytest.mark.slow
-def test_onnx_export_of_the_fine_model_is_scored_alike(fine_model, tmp_path):
-    """The same fold for an ONNX file, whose metadata names the 19 classes: the same report
-    numbers as its checkpoint (which the test above checks against the rule)."""
-    from claravid import models
+def test_an_onnx_file_naming_the_19_classes_is_folded():
+    """An ONNX file's metadata names its classes (the export's palette record): the 19 fine
+    ones fold into udd6 as its YAML maps them (Building -> Roof; Facade reached by none); an
+    8-class file is refused in one line. The inference itself is the checkpoint's path."""
     from claravid.data.palettes import load_palette
+    from claravid.eval.inference.sources import onnx_defaults
+    from claravid.eval.run import model_classes, scoring_fold
 
-    fine = load_palette("claravid")
-    record = {"name": "claravid", "names": list(fine.names), "colors": fine.colors.tolist()}
-    onnx = tmp_path / "fine.onnx"
-    models.export_onnx(fine_model["model"], onnx,
-                       models.ExportSettings(height=56, width=56, dynamic=True),
-                       provenance=models.Provenance(palette=record))  # fmt: skip
-    quiet = ReportSettings(bootstrap=Bootstrap(resamples=0), boundary=False, consistency=False,
-                           calibration=False, hardest=0)  # fmt: skip
-    data = DataChoice(split=fine_model["split"], palette=str(fine_model["palette"]))
-    window = InferenceSettings(window=WINDOW_HW, device="cpu")
-    by_checkpoint = evaluate(tmp_path / "ck", checkpoint=fine_model["checkpoint"], data=data,
-                             inference=window, report=quiet)  # fmt: skip
-    data = DataChoice(root=by_checkpoint.result.source["data"], split=fine_model["split"],
-                      palette=str(fine_model["palette"]))  # fmt: skip
-    by_onnx = evaluate(tmp_path / "onnx", onnx=onnx, data=data,
-                       inference=InferenceSettings(window=WINDOW_HW, device="cpu",
-                                                   statistics=None), report=quiet)  # fmt: skip
-    assert by_onnx.result.source["fold"]["palette"] == "coarse4"
-    np.testing.assert_array_equal(by_onnx.result.confusions, by_checkpoint.result.confusions)
+    udd6 = load_palette("udd6")
+    meta = {"palette": {"name": "claravid", "names": FINE, "colors": [[0, 0, 0]] * 19}}
+    defaults = onnx_defaults(meta)
+    fold = scoring_fold(model_classes(defaults), 19, udd6, defaults.get("palette"))
+    table = fold.describe()["table"]
+    assert (table["Building"], table["Terrain"], table["Pedestrian"]) == (
+        "Roof",
+        "Vegetation",
+        "Other",
+    )
+    assert fold.describe()["unreachable"] == ["Facade"]
+    names = ["Clutter", "Building", "Road", "Static car", "Tree", "Low vegetation", "Human", "M"]
+    defaults = onnx_defaults(
+        {"palette": {"name": "uavid", "names": names, "colors": [[0] * 3] * 8}}
+    )
+    with pytest.raises(UsageError, match="predicts 8 classes but palette udd6 has 6") as err:
+        scoring_fold(model_classes(defaults), 8, udd6, defaults.get("palette"))
+    assert "--palette uavid" in str(err.value) and "\n" not in str(err.value)
