@@ -60,6 +60,7 @@ def merge(
     from claravid.eval.report.build import build_report
     from claravid.eval.report.files import load_result
     from claravid.eval.report.folder import write_outputs
+    from claravid.eval.run import check_classes
 
     parts = report_list(parts, "merge", "merge(['part0', 'part1'], 'all')")
     check_type(settings, ReportSettings, "settings", "ReportSettings(bins=5)")
@@ -72,12 +73,14 @@ def merge(
     result = merge_results(results, [str(p) for p in parts])
     _warn_dropped_tiles(results, result, parts)
     settings.check_bins(len(result.paths))
+    check_classes(settings.classes, result.classes)
     report = build_report(
         result,
         bins=settings.bins,
         edges=settings.edges,
         group_by=settings.group_by,
         bootstrap=settings.intervals(result.attributes, result.default_cluster()),
+        classes=settings.classes,
     )
     warn_outside_edges(report, result.complexity["delent"], len(result.paths))
     write_outputs(output, report, result)
@@ -144,6 +147,7 @@ def compare(
     bootstrap: Bootstrap | None = None,
     cluster: str | None = None,
     *,
+    oracle: str | Path | None = None,
     overwrite: bool = False,
 ) -> str:
     """Compare reports, the first the baseline: the Markdown table; with ``output`` also
@@ -154,6 +158,9 @@ def compare(
         output: the folder to write to (None: only return the text).
         bootstrap: resamples, level and seed of the gaps' intervals (default 1000, 0.95, 0).
         cluster: the resampled unit (default: the baseline's dataset default).
+        oracle: a target-supervised model's report: the first report is then the source-only
+            model, the others adapted ones, and the comparison adds the fraction of the
+            source-to-oracle gap each closes, per bin and per class, with intervals.
         overwrite: replace a folder this tool did not write.
     """
     from claravid.eval.report.compare import compare_reports
@@ -162,7 +169,7 @@ def compare(
     check_type(bootstrap, Bootstrap, "bootstrap", "Bootstrap(resamples=1000)")
     if output is not None:
         check_output_dir(output, marker="compare.md", overwrite=overwrite)
-    text, messages = compare_reports(reports, output, bootstrap, cluster)
+    text, messages = compare_reports(reports, output, bootstrap, cluster, oracle)
     for message in messages:
         warnings.warn(message, UserWarning, stacklevel=2)
     return text

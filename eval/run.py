@@ -19,6 +19,7 @@ what they return. Merging and comparing saved reports is :mod:`claravid.eval.rep
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -148,9 +149,12 @@ def evaluate(
     # Every rank has checked the untouched folders; only now may any rank write to them.
     distributed.barrier()
     model, run, source = _model_and_source(checkpoint, onnx, predictions, data, inference, info)
-    opened = _open(data, model, run, predictions)
+    opened, fold = _open(data, model, run, predictions)
     plan, intervals = _plan_before_inference(opened, report, has_scores=model is not None)
     source.update(opened.describe)
+    if fold is not None:  # the report says the model was scored through another palette
+        source["fold"] = fold.describe()
+    source["predictable"] = predictable_classes(opened.palette, fold)
     source["measures"] = list(report.measures)
     if report.tiles is not None:
         source["tiles"] = report.tiles
@@ -165,6 +169,7 @@ def evaluate(
         allow_missing=allow_missing,
         progress=info.is_main and progress,
         quality=plan,
+        fold=fold,
     )
     collected = collect(opened, model=model, predictions=predictions, settings=settings,
                         source=source)  # fmt: skip
@@ -173,7 +178,7 @@ def evaluate(
         return Evaluation(output, None, skipped=collected.skipped)
     try:
         numbers = _write_report(output, collected, opened, report, intervals, source,
-                                predictions, save_predictions)  # fmt: skip
+                                predictions, save_predictions, fold)  # fmt: skip
     finally:
         distributed.barrier()  # the other ranks wait for the report, even when it failed
     return Evaluation(output, numbers, collected.result, collected.skipped)
@@ -232,6 +237,7 @@ def _plan_before_inference(
     if report.group_by is not None:
         opened.groups(report.group_by)  # fails now, not after the inference
     report.check_bins(len(opened))
+    check_classes(report.classes, opened.palette.names)  # before the inference, not after
     intervals = report.intervals(opened.attributes, default_cluster(opened.name, opened.attributes))
     # Refused now, not after the inference: the images' clusters are known before it runs.
     intervals.check_memory(unit_labels(opened.paths, opened.attributes, intervals.cluster))
@@ -247,8 +253,10 @@ def _write_report(
     source: dict[str, Any],
     predictions: str | Path | None,
     save_predictions: str | Path | None,
+    fold: Any,
 ) -> dict[str, Any]:
-    """Build the report from the collected table and write its folder (rank 0): its numbers."""
+    """Build the report from the collected table and write its folder (rank 0): its numbers.
+    ``fold`` maps saved fine label maps drawn among the hardest images (None: no fold)."""
     from claravid.eval.inference.hardest import hardest_items
     from claravid.eval.inputs.label_maps import write_marker
     from claravid.eval.report.build import build_report
@@ -257,10 +265,12 @@ def _write_report(
     result = collected.result
     report.check_bins(len(result.paths))
     numbers = build_report(result, bins=report.bins, edges=report.edges,
-                           group_by=report.group_by, bootstrap=intervals)  # fmt: skip
+                           group_by=report.group_by, bootstrap=intervals,
+                           classes=report.classes)  # fmt: skip
     warn_outside_edges(numbers, result.complexity["delent"], len(result.paths))
     dirs = [Path(d) for d in (predictions, save_predictions) if d is not None]
-    items = hardest_items(result, opened, report.hardest, collected.hardest, dirs)
+    items = hardest_items(result, opened, report.hardest, collected.hardest, dirs,
+                          fold if predictions is not None else None)  # fmt: skip
     items += collected.pairs  # the pairs of lowest consistency, below the hardest images
     write_outputs(output, numbers, result, items, opened.palette.colors)
     if save_predictions is not None:
@@ -303,8 +313,9 @@ def _model_and_source(
     return model, run, source
 
 
-def _open(data: DataChoice, model: Any, run: Any, predictions: Any) -> Any:
-    """Open the data: the call's choice, then the model's (or label maps') record."""
+def _open(data: DataChoice, model: Any, run: Any, predictions: Any) -> tuple[Any, Any]:
+    """Open the data: the call's choice, then the model's (or label maps') record; with the
+    fold that scores a fine model through the data's palette (None: no fold)."""
     from claravid.eval.inputs.datasets import open_data
     from claravid.eval.inputs.label_maps import predictions_defaults
 
@@ -334,13 +345,77 @@ def _open(data: DataChoice, model: Any, run: Any, predictions: Any) -> Any:
             f"{exc} (that path comes from the checkpoint {model.path}; pass --data to give the "
             "data's new place)"
         ) from None
-    num_classes = opened.palette.num_classes
-    if model is not None and model.num_classes not in (None, num_classes):
+    if model is not None:
+        fold = scoring_fold(model_classes(model.defaults), model.num_classes, opened.palette,
+                            model.defaults.get("palette"))  # fmt: skip
+    else:
+        fold = scoring_fold(defaults.get("model_classes"), None, opened.palette, None)
+    return opened, fold
+
+
+def check_classes(classes: Sequence[str] | None, names: Sequence[str]) -> None:
+    """Refuse a ``--classes`` subset that names a class the palette does not have.
+
+    Raises:
+        UsageError: one line naming the unknown classes and the palette's.
+    """
+    from claravid.eval.analysis.predictable import subset_mask
+
+    try:
+        subset_mask(list(names), classes)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def predictable_classes(palette: Any, fold: Any) -> list[str]:
+    """The palette classes a model of ClaraVid's classes can predict: those the fold reaches,
+    else those the palette's ClaraVid side maps some class to (``source["predictable"]``)."""
+    from claravid.data.palette_fold import reachable_from_palette
+
+    reach = fold.reachable if fold is not None else reachable_from_palette(palette)
+    return [name for name, ok in zip(palette.names, reach, strict=True) if ok]
+
+
+def model_classes(defaults: dict[str, Any]) -> tuple[str, ...] | None:
+    """The class names a model predicts, from what its file records (an ONNX file's palette, a
+    checkpoint's training palette); None when it records none or its palette is gone."""
+    from claravid.data.palettes import PaletteError, load_palette
+
+    names = (defaults.get("palette_info") or {}).get("names")
+    if isinstance(names, list) and names:
+        return tuple(str(n) for n in names)
+    recorded = defaults.get("palette")
+    if not isinstance(recorded, str) or not recorded:
+        return None
+    try:
+        return load_palette(recorded).names
+    except PaletteError:
+        return None
+
+
+def scoring_fold(
+    names: Sequence[str] | None, count: int | None, palette: Any, trained: str | None
+) -> Any:
+    """How a model (or its label maps) of classes ``names`` (or ``count`` classes) is scored
+    on ``palette``: None when it predicts the palette's classes; a
+    :class:`~claravid.data.palette_fold.PaletteFold` when it predicts ClaraVid's 19 classes
+    and the palette is another.
+
+    Raises:
+        UsageError: any other model whose class count differs from the palette's.
+    """
+    from claravid.data.palette_fold import fold_palette, is_fine
+
+    if names is not None and tuple(names) != tuple(palette.names) and is_fine(names):
+        return fold_palette(names, palette)
+    if count is not None and count != palette.num_classes:
+        was = f" --palette {trained}" if trained else " --palette"
         raise UsageError(
-            f"the model predicts {model.num_classes} classes but palette {opened.palette.name} "
-            f"has {num_classes}; pass the palette it was trained with (--palette)"
+            f"the model predicts {count} classes but palette {palette.name} has "
+            f"{palette.num_classes}; pass the palette it was trained with ({was.strip()}); only "
+            "a model of ClaraVid's 19 classes (palette claravid) is scored through another palette"
         )
-    return opened
+    return None
 
 
 def _split_as_trained(data: DataChoice, spec: dict[str, Any], defaults: dict[str, Any]) -> bool:

@@ -205,6 +205,8 @@ class ReportSettings:
         consistency: cross-view consistency between consecutive frames of a pass (None: on
             where the data has depth and poses, ClaraVid; True: required, refused for other
             data; False: off).
+        classes: a subset of the palette's classes (names, or one comma-separated string):
+            every row also gets ``miou_classes``, the mIoU over them, with its interval.
     """
 
     bins: int = 3
@@ -218,8 +220,17 @@ class ReportSettings:
     boundary: bool | None = None
     calibration: bool | None = None
     consistency: bool | None = None
+    classes: Sequence[str] | None = None
 
     def __post_init__(self) -> None:
+        if self.classes is not None:
+            items = self.classes.split(",") if isinstance(self.classes, str) else self.classes
+            names = [str(c).strip() for c in items if str(c).strip()]
+            if not names:
+                raise ValueError(
+                    "--classes is empty; give class names, e.g. --classes Road,Building"
+                )
+            object.__setattr__(self, "classes", names)
         for name in ("boundary", "calibration", "consistency"):
             value = getattr(self, name)
             if value is not None and not isinstance(value, bool):

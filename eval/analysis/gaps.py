@@ -33,10 +33,12 @@ from claravid.eval.analysis.bins import Bin, choose_bins
 from claravid.eval.analysis.bootstrap import (
     Bootstrap,
     cluster_ids,
+    confusion_features,
     count_clusters,
     paired_gap,
     unpaired_gap,
 )
+from claravid.eval.analysis.predictable import subset_statistic
 from claravid.eval.analysis.quality import STATISTICS, measure_rows
 from claravid.eval.analysis.quality_table import COMPUTED, QUALITY, QualityTable
 from claravid.eval.analysis.sum_intervals import paired_sums_gap, unpaired_sums_gap
@@ -208,6 +210,8 @@ def gap_analysis(
                 "bins": [{"name": where, **row} for (where, _, _), row in zip(sets[1:], rows[1:],
                                                                               strict=True)],
             }  # fmt: skip
+        entry["predictable"] = _predictable_gaps(pair, base, result, base_bins, other_bins,
+                                                 f"compare:{j}")  # fmt: skip
         if not pair.paired:
             entry["note"] = (
                 f"{name} and {names[0]} cover different images: unpaired comparison, each "
@@ -218,6 +222,39 @@ def gap_analysis(
         "baseline": names[0],
         "comparisons": comparisons,
         "uncertainty": settings.describe(count_clusters(base_ids)),
+    }
+
+
+def shared_predictable(a: EvalResult, b: EvalResult) -> list[int] | None:
+    """The classes both reports' models can predict (indices), when some class is not; None
+    when every class is predictable or a report does not say."""
+    first, second = a.source.get("predictable"), b.source.get("predictable")
+    if not isinstance(first, list) or not isinstance(second, list):
+        return None
+    both = set(first) & set(second)
+    subset = [i for i, c in enumerate(a.classes) if c in both]
+    return None if len(subset) in (0, len(a.classes)) else subset
+
+
+def _predictable_gaps(
+    pair: _Pair, a: EvalResult, b: EvalResult, bins_a: Sequence[Bin], bins_b: Sequence[Bin],
+    stream: str,
+) -> dict[str, Any] | None:  # fmt: skip
+    """The mIoU gap over the classes both models can predict, overall and per bin, apart from
+    the all-class gap (None when every class is predictable)."""
+    subset = shared_predictable(a, b)
+    if subset is None:
+        return None
+    statistic = subset_statistic(len(a.classes), subset)
+    rows = [pair.subset_gap(statistic, range(len(a.paths)), range(len(b.paths)),
+                            f"{stream}:overall:predictable")]  # fmt: skip
+    rows += [pair.subset_gap(statistic, x.indices, y.indices, f"{stream}:bin:{x.name}:predictable")
+             for x, y in zip(bins_a, bins_b, strict=False)]  # fmt: skip
+    return {
+        "classes": [a.classes[i] for i in subset],
+        "resamples": pair.settings.resamples,
+        "overall": rows[0],
+        "bins": [{"name": x.name, **row} for x, row in zip(bins_a, rows[1:], strict=False)],
     }
 
 
@@ -292,6 +329,24 @@ class _Pair:
         b_ids = _ids(self.b, self.settings.cluster) if self.paired else self.b_ids
         return unpaired_sums_gap(rows_a, self.a_ids, members_a, rows_b, b_ids, members_b,
                                  self.settings, chosen, names, stream=stream)  # fmt: skip
+
+    def subset_gap(
+        self, statistic: Any, members_a: Sequence[int], members_b: Sequence[int], stream: str
+    ) -> dict[str, Any]:
+        """The gap B − A of an mIoU over a subset of classes
+        (:func:`~claravid.eval.analysis.predictable.subset_statistic`), paired where
+        :meth:`gap` is."""
+        rows_a = confusion_features(self.a.confusions)
+        if self._same_images(members_a, members_b):
+            rows_b = confusion_features(self.b_conf)
+            out = paired_sums_gap(rows_a, rows_b, self.a_ids, members_a, self.settings,
+                                  statistic, ["miou"], stream=stream)  # fmt: skip
+        else:
+            b_ids = _ids(self.b, self.settings.cluster) if self.paired else self.b_ids
+            out = unpaired_sums_gap(rows_a, self.a_ids, members_a,
+                                    confusion_features(self.b.confusions), b_ids, members_b,
+                                    self.settings, statistic, ["miou"], stream=stream)  # fmt: skip
+        return out["miou"]
 
     def gap(self, members_a: Sequence[int], members_b: Sequence[int], stream: str) -> dict:
         """The gap B − A of A's ``members_a`` and B's ``members_b``; paired when the two

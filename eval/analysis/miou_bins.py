@@ -39,6 +39,7 @@ from claravid.eval.analysis.metrics import (
     mean_iou,
     pixel_accuracy,
 )
+from claravid.eval.analysis.predictable import add_predictable, predictable_mask, subset_mask
 from claravid.eval.analysis.quality import image_values, quality_entries, quality_summary
 from claravid.eval.analysis.quality_table import QualityTable
 from claravid.eval.analysis.stats import correlation, group_profile, order_warnings
@@ -73,6 +74,8 @@ def stratify(
     clusters: Sequence[str] | None = None,
     bootstrap: Bootstrap | None = None,
     quality: QualityTable | None = None,
+    predictable: Sequence[str] | None = None,
+    subset: Sequence[str] | None = None,
 ) -> dict[str, Any]:
     """The report's numbers (everything but the ``source`` and palette name).
 
@@ -91,6 +94,11 @@ def stratify(
         quality: the per-image sums of the measures beyond mIoU, in the order of
             ``confusions``; each row gets an entry per computed measure
             (:func:`~claravid.eval.analysis.quality.quality_entries`), each image its values.
+        predictable: the classes the model can predict; when some class is not, every row
+            also gets its mIoU over the predictable classes and its mIoU cap
+            (:mod:`claravid.eval.analysis.predictable`).
+        subset: a user's classes: every row also gets ``miou_classes`` over them, with its
+            interval.
 
     Returns:
         ``{"overall", "bins", "groups", "images", "correlation", "classes", "ignore_index",
@@ -136,6 +144,11 @@ def stratify(
                       list(paths) if clusters is None else clusters, bootstrap)  # fmt: skip
     add_quality(report, quality, classes, bin_list, groups or {},
                 list(paths) if clusters is None else clusters, bootstrap)  # fmt: skip
+    labels = list(paths) if clusters is None else clusters
+    add_predictable(report, confusions, predictable_mask(classes, predictable), bin_list,
+                    groups or {}, labels, bootstrap)  # fmt: skip
+    add_predictable(report, confusions, subset_mask(classes, subset), bin_list, groups or {},
+                    labels, bootstrap, key="classes")  # fmt: skip
     return report
 
 

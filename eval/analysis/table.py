@@ -122,6 +122,10 @@ def merge_results(results: Sequence[EvalResult], names: Sequence[str]) -> EvalRe
 
     sources = [r.source for r in results]
     source = dict(sources[0]) if len(results) == 1 else {"kind": "merge", "parts": sources}
+    predictable = {str(r.source.get("predictable")) for r in results}
+    if len(predictable) == 1 and sources[0].get("predictable") is not None:
+        # What the model can predict is the parts' own: kept when they agree.
+        source["predictable"] = sources[0]["predictable"]
     source["merged_from"] = [str(n) for n in names]
     # The reports this one is made of, theirs included: a re-binning or a merge is the same
     # run as each of them (a comparison calls them not comparable), whatever its own new id.

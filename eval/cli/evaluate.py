@@ -123,11 +123,20 @@ def build_parser() -> argparse.ArgumentParser:
                        ("consistency", "cross-view consistency of consecutive frames (default on "
                                        "with depth and poses)")):  # fmt: skip
         rep.add_argument(f"--{name}", action=argparse.BooleanOptionalAction, help=what)
+    _add_classes(rep)
     rep.add_argument("--save-predictions", type=Path, metavar="DIR", help="write label maps")
     rep.add_argument("--allow-missing", action="store_true", help="skip images w/o prediction")
     add_workers_flag(rep, "complexity and image decoding")
     _add_common(p, rep)
     return p
+
+
+def _add_classes(group: Any) -> None:
+    group.add_argument(
+        "--classes",
+        metavar="A,B,...",
+        help="also the mIoU over these palette classes, in every row (e.g. Road,Building)",
+    )
 
 
 def build_merge_parser() -> argparse.ArgumentParser:
@@ -139,6 +148,7 @@ def build_merge_parser() -> argparse.ArgumentParser:
     rep = p.add_argument_group("report", "-o/--output is the merged report's folder.")
     add_output_flag(rep, required=True)
     _add_binning(rep, measures=False)
+    _add_classes(rep)
     _add_common(p, rep)
     return p
 
@@ -154,6 +164,14 @@ def build_compare_parser() -> argparse.ArgumentParser:
         type=Path,
         metavar="REPORT",
         help="report folders or report.json files; the first is the baseline",
+    )
+    p.add_argument(
+        "--oracle",
+        type=Path,
+        metavar="REPORT",
+        help="a target-supervised model's report: the first report is then the source-only "
+        "model, the others adapted ones, and the comparison adds the share of the gap each "
+        "closes, per bin and per class",
     )
     rep = p.add_argument_group("output", "Unset, the comparison is only printed.")
     add_output_flag(rep)
@@ -294,7 +312,8 @@ def _report_settings(args: argparse.Namespace) -> ReportSettings:
                           measures=getattr(args, "measures", None) or "delent",
                           tiles=getattr(args, "tiles", None),
                           hardest=4 if hardest is None else hardest,
-                          bootstrap=intervals, cluster=args.cluster, **quality)  # fmt: skip
+                          bootstrap=intervals, cluster=args.cluster,
+                          classes=getattr(args, "classes", None), **quality)  # fmt: skip
 
 
 def _print_done(out: Path, report: dict[str, Any], what: str = "plots and confusions") -> None:
@@ -315,7 +334,7 @@ def _run_compare(args: argparse.Namespace) -> int:
 
     report = _report_settings(args)
     print(compare(args.reports, args.output, report.bootstrap, report.cluster,
-                  overwrite=args.overwrite))  # fmt: skip
+                  oracle=args.oracle, overwrite=args.overwrite))  # fmt: skip
     if args.output is not None:
         print(f"comparison: {args.output / 'compare.md'} and {args.output / 'compare.png'}")
     return 0

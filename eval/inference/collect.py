@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from claravid.data.palette_fold import PaletteFold
 from claravid.dsp.tiles import check_tile_count, check_tile_size
 from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.analysis.quality_table import (
@@ -34,12 +35,13 @@ from claravid.eval.analysis.tile_bins import TileTable
 from claravid.eval.inference.background import Background
 from claravid.eval.inference.complexity_job import ComplexityJob
 from claravid.eval.inference.hardest import Hardest
+from claravid.eval.inference.image_sums import predict_with_confidence
 from claravid.eval.inference.pair_stream import PairKeeper, PairStream
 from claravid.eval.inference.quality_collect import label_map_measure, pair_item, quality_table
 from claravid.eval.inference.quality_plan import QualityPlan, plan_quality
 from claravid.eval.inference.run_model import ImageScore, evaluate_model
 from claravid.eval.inference.sources import ModelSource
-from claravid.eval.inference.windows import WindowConfig, predict_labels
+from claravid.eval.inference.windows import WindowConfig
 from claravid.eval.inputs.datasets import EvalData
 from claravid.eval.inputs.label_maps import (
     check_missing,
@@ -116,6 +118,8 @@ class CollectSettings:
         quality: the measures beyond mIoU
             (:func:`~claravid.eval.inference.quality_plan.plan_quality`); None: each one on
             where the source and data allow it.
+        fold: a fine model (or its label maps) scored through the data's palette
+            (:mod:`claravid.data.palette_fold`); None: the model predicts the palette's classes.
     """
 
     window: WindowConfig | None = None
@@ -128,6 +132,7 @@ class CollectSettings:
     allow_missing: bool = False
     progress: bool = False
     quality: QualityPlan | None = None
+    fold: PaletteFold | None = None
 
 
 def contiguous_shard(n: int) -> list[int]:
@@ -262,7 +267,8 @@ def _score_model(work: _Work, model: ModelSource) -> _Scored:
 
             def predict_other(key: str) -> np.ndarray:
                 image = frames.image(key).to(s.device)
-                return predict_labels(model.model, image, window).to("cpu", torch.uint8).numpy()
+                ids, _ = predict_with_confidence(model.model, image, window, False, s.fold)
+                return ids.to("cpu", torch.uint8).numpy()
 
             stream = PairStream(frames, [data.keys[i] for i in work.mine], k, predict_other,
                                 work.pair_keeper, work.mine, background)  # fmt: skip
@@ -290,6 +296,7 @@ def _score_model(work: _Work, model: ModelSource) -> _Scored:
             on_score=on_score,
             measures=work.plan.image_measures(),
             background=background,
+            fold=s.fold,
         )
         return _Scored(
             confusions=[score.confusion for score in scores],
@@ -302,10 +309,11 @@ def _score_model(work: _Work, model: ModelSource) -> _Scored:
 def _score_label_maps(work: _Work, predictions: str | Path) -> _Scored:
     """Read this rank's saved label maps: confusions, boundary sums and pairs."""
     s, data, mine = work.settings, work.data, work.mine
-    measure = label_map_measure(data, predictions, work.plan, work.frames, work.pair_keeper)
+    measure = label_map_measure(data, predictions, work.plan, work.frames, work.pair_keeper,
+                                s.fold)  # fmt: skip
     scored = label_map_confusions(data, predictions, mine, threads=max(1, s.workers),
                                   tile_size=s.tile_size, progress=s.progress,
-                                  measure=measure)  # fmt: skip
+                                  measure=measure, fold=s.fold)  # fmt: skip
     pairs = {data.keys[i]: e[1] for i, (_, _, e) in zip(mine, scored, strict=True)
              if e is not None and e[1] is not None}  # fmt: skip
     return _Scored(

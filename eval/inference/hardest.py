@@ -19,10 +19,11 @@ import numpy as np
 import torch
 
 from claravid.data.ignore import IGNORE_INDEX
+from claravid.data.palette_fold import PaletteFold
 from claravid.eval.analysis.metrics import mean_iou
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.inputs.datasets import EvalData
-from claravid.eval.inputs.label_maps import prediction_file, read_prediction
+from claravid.eval.inputs.label_maps import prediction_file, read_scored
 
 THUMB = 512  # longest side of a hardest-image panel
 
@@ -64,12 +65,15 @@ def hardest_items(
     k: int,
     kept: dict[int, np.ndarray],
     prediction_dirs: Sequence[str | Path],
+    fold: PaletteFold | None = None,
 ) -> list[dict[str, Any]]:
     """Image, ground truth and prediction of the k lowest-mIoU images, as small arrays.
 
     A prediction comes from ``kept`` (the model's run) or from a folder of saved label maps;
-    images without one are left out. With tiles, an item also has its tiles' delentropy grid
-    (``tiles``) and its error pixels (``errors``, :func:`error_map`).
+    images without one are left out. ``fold``: the folders hold a fine model's label maps,
+    scored through the palette (:func:`~claravid.eval.inputs.label_maps.read_scored`). With
+    tiles, an item also has its tiles' delentropy grid (``tiles``) and its error pixels
+    (``errors``, :func:`error_map`).
     """
     if data is None or k <= 0:
         return []
@@ -87,7 +91,7 @@ def hardest_items(
             for folder in prediction_dirs:
                 file = prediction_file(folder, key)
                 if file.is_file():
-                    pred = thumbnail(read_prediction(file, mask.shape, len(result.classes)), True)
+                    pred = thumbnail(read_scored(file, mask.shape, len(result.classes), fold), True)
                     break
         if pred is None:
             continue

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from claravid.data.palette_fold import PaletteFold
 from claravid.eval.inference.windows import (
     Model,
     WindowConfig,
@@ -48,14 +49,20 @@ class ImageMeasures:
 
 
 def predict_with_confidence(
-    model: Model, image: torch.Tensor, config: WindowConfig, confidence: bool
+    model: Model,
+    image: torch.Tensor,
+    config: WindowConfig,
+    confidence: bool,
+    fold: PaletteFold | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Train ids [H,W] of an image and, with ``confidence``, each pixel's largest softmax
     probability [H,W] (float32), both on the image's device.
 
     The prediction is the argmax of the logits, the first class on ties, as the confidence's
     class is; so the confidence is that of the predicted class. With test-time augmentation
-    (``config.tta``) both come from the probabilities averaged over the copies.
+    (``config.tta``) both come from the probabilities averaged over the copies. With a ``fold``
+    (a fine model scored through another palette, :mod:`claravid.data.palette_fold`), the
+    prediction and the confidence are those of the summed probabilities (:func:`folded_scores`).
     """
     if config.tta is not None:
         probs = class_probabilities(model, image, config)
@@ -64,11 +71,36 @@ def predict_with_confidence(
         top, prediction = probs.max(0)
         return prediction, top
     logits = sliding_window_logits(model, image, config)
+    if fold is not None:
+        top, prediction = folded_scores(logits, fold).max(0)
+        return prediction, (top if confidence else None)
     if not confidence:
         return logits.argmax(0), None
     top, prediction = logits.max(0)
     logits -= top  # in place: the logits are this call's own
     return prediction, torch.exp(logits).sum(0).reciprocal_()
+
+
+def folded_scores(logits: torch.Tensor, fold: PaletteFold) -> torch.Tensor:
+    """The fine softmax probabilities summed per palette class [K,H,W] (float32), from the
+    window-averaged fine logits [19,H,W] (overwritten: they are the caller's own).
+
+    A class no fine class reaches scores -1, so that it is never the argmax, not even where
+    every reachable sum underflows to 0.
+    """
+    if logits.shape[0] != fold.num_source:
+        raise ValueError(
+            f"the model gives {logits.shape[0]} classes; the fold expects {fold.num_source}"
+        )
+    # Softmax in place: a 12-Mpixel frame's 19 float32 maps are 0.9 GB; no second copy.
+    logits -= logits.max(0, keepdim=True).values
+    logits.exp_()
+    logits /= logits.sum(0, keepdim=True)
+    matrix = torch.from_numpy(fold.matrix()).to(logits.device)
+    scores = (matrix @ logits.reshape(fold.num_source, -1)).reshape(-1, *logits.shape[1:])
+    unreachable = torch.from_numpy(~fold.reachable).to(logits.device)
+    scores[unreachable] = -1.0
+    return scores
 
 
 def image_measures(

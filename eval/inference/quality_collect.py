@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from claravid.data.palette_fold import PaletteFold
 from claravid.eval.analysis.quality_table import (
     BOUNDARY,
     CALIBRATION,
@@ -21,7 +22,7 @@ from claravid.eval.inference.image_sums import image_measures
 from claravid.eval.inference.pair_stream import PairKeeper
 from claravid.eval.inference.quality_plan import QualityPlan
 from claravid.eval.inputs.datasets import EvalData
-from claravid.eval.inputs.label_maps import prediction_file, read_prediction
+from claravid.eval.inputs.label_maps import prediction_file, read_scored
 from claravid.eval.inputs.pass_frames import PairResult, PassFrames, measure_pair
 
 
@@ -43,6 +44,7 @@ def label_map_measure(
     plan: QualityPlan,
     frames: PassFrames | None,
     keeper: PairKeeper,
+    fold: PaletteFold | None = None,
 ) -> Any:
     """What a label map's reading thread measures beside the confusion: the boundary sums, and
     the image's pair with the next frame (whose label map is read from the same folder),
@@ -58,7 +60,7 @@ def label_map_measure(
         file = prediction_file(folder, key)
         if not file.is_file():
             return f"no label map of the next frame ({file})"
-        return read_prediction(file, frames.mask(key).shape, k)
+        return read_scored(file, frames.mask(key).shape, k, fold)
 
     def measure(index: int, ids: np.ndarray, mask: np.ndarray) -> tuple[Any, Any]:
         boundary, _ = image_measures(ids, mask, k, measures)

@@ -17,6 +17,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm.auto import tqdm
 
+from claravid.data.palette_fold import PaletteFold
 from claravid.eval.inference.background import Background
 from claravid.eval.inference.image_sums import (
     ImageMeasures,
@@ -64,6 +65,7 @@ def evaluate_model(
     on_score: Callable[[dict[str, Any], torch.Tensor, ImageScore], None] | None = None,
     measures: ImageMeasures | None = None,
     background: Background | None = None,
+    fold: PaletteFold | None = None,
 ) -> list[ImageScore]:
     """Predict every image of ``dataset`` with sliding windows and count its confusion.
 
@@ -84,6 +86,9 @@ def evaluate_model(
         measures: also each image's Boundary IoU and calibration sums
             (:class:`~claravid.eval.inference.image_sums.ImageMeasures`).
         background: where those run, beside the next image's prediction (default: at once).
+        fold: a fine model scored through the palette of ``num_classes`` classes: the argmax
+            (and confidence) of its summed probabilities
+            (:func:`~claravid.eval.inference.image_sums.folded_scores`).
 
     Returns:
         One `ImageScore` per image, in dataset order.
@@ -102,7 +107,7 @@ def evaluate_model(
         if "mask" not in sample:
             raise ValueError(f"{sample['path']} has no ground truth: evaluation needs labels")
         prediction, confidence = predict_with_confidence(
-            model, sample["image"].to(device), config, measures.calibration
+            model, sample["image"].to(device), config, measures.calibration, fold
         )
         target = torch.as_tensor(sample["mask"]).to(device)
         if prediction.device.type == "cpu" and num_classes <= 255:

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from claravid.data.masks import read_label_image
+from claravid.data.palette_fold import PaletteFold, is_fine
 from claravid.data.palettes import Palette, load_palette
 from claravid.eval.measures.confusion import image_confusion
 from claravid.infra.cli import UsageError
@@ -97,7 +98,9 @@ def predictions_defaults(
     """What a folder of label maps says about evaluating it: the palette of its ids.
 
     The palette comes from ``DIR/predictions.json`` (written by ``--save-predictions`` and
-    claravid-predict); a ``palette`` given by the user must agree with it.
+    claravid-predict); a ``palette`` given by the user must agree with it, unless the label
+    maps hold ClaraVid's 19 classes: then they are scored through ``palette``
+    (``model_classes`` in the answer names their classes).
 
     Raises:
         UsageError: the folder does not exist, ``palette`` contradicts the marker, or neither
@@ -124,10 +127,14 @@ def predictions_defaults(
         classes = marker.get("classes")
         given = load_palette(palette)
         same = list(given.names) == classes if isinstance(classes, list) else given.name == written
+        if not same and isinstance(classes, list) and is_fine(classes):
+            # A fine model's label maps, scored through the given palette's ClaraVid side.
+            return {"palette": str(palette), "model_classes": list(classes)}
         if not same:
             raise UsageError(
                 f"--palette {palette} contradicts {directory / MARKER}: these label maps hold "
-                f"ids of palette {written}; drop --palette"
+                f"ids of palette {written}; drop --palette (only label maps of ClaraVid's "
+                "19 classes are scored through another palette)"
             )
     return {"palette": written}
 
@@ -178,6 +185,17 @@ def read_prediction(path: str | Path, shape: tuple[int, int], num_classes: int) 
             f"(0..{num_classes - 1})"
         )
     return ids
+
+
+def read_scored(
+    path: str | Path, shape: tuple[int, int], num_classes: int, fold: PaletteFold | None = None
+) -> np.ndarray:
+    """:func:`read_prediction` of ids in the palette scored on: with a ``fold``, the file holds
+    a fine model's ids (checked against its 19 classes), mapped onto the palette
+    (:meth:`PaletteFold.label_table`)."""
+    if fold is None:
+        return read_prediction(path, shape, num_classes)
+    return cv2.LUT(read_prediction(path, shape, fold.num_source), fold.label_table())
 
 
 def find_missing(directory: str | Path, keys: Sequence[str], indices: Iterable[int]) -> list[int]:
@@ -235,11 +253,16 @@ Measure = Callable[[int, np.ndarray, np.ndarray], Any]
 
 
 def _score_one(
-    data: LabeledImages, directory: Path, index: int, tile_size: int | None, measure: Measure | None
+    data: LabeledImages,
+    directory: Path,
+    index: int,
+    tile_size: int | None,
+    measure: Measure | None,
+    fold: PaletteFold | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None, Any]:
     mask = data.read_mask(index)
     k = data.palette.num_classes
-    ids = read_prediction(prediction_file(directory, data.keys[index]), mask.shape, k)
+    ids = read_scored(prediction_file(directory, data.keys[index]), mask.shape, k, fold)
     conf, tiles = image_confusion(ids, mask, k, tile_size)
     return conf, tiles, None if measure is None else measure(index, ids, mask)
 
@@ -253,13 +276,15 @@ def label_map_confusions(
     tile_size: int | None = None,
     progress: bool = False,
     measure: Measure | None = None,
+    fold: PaletteFold | None = None,
 ) -> list[tuple[np.ndarray, np.ndarray | None, Any]]:
     """Per-image confusions (int64 [K,K]) of saved predictions against the labels, each with
     its tiles' confusions (int64 [rows, cols, K, K]) when ``tile_size`` is given, else None,
     and what ``measure`` returns of the image (None without it).
 
     Only the labels and the prediction PNGs are decoded. Decoding and counting release the GIL,
-    so ``threads`` > 1 reads several images at once.
+    so ``threads`` > 1 reads several images at once. With a ``fold`` the label maps hold a
+    fine model's ids, mapped onto the data's palette (:meth:`PaletteFold.label_table`).
     """
     from tqdm.auto import tqdm
 
@@ -269,12 +294,12 @@ def label_map_confusions(
     try:
         if threads <= 1:
             for index in indices:
-                out.append(_score_one(data, directory, index, tile_size, measure))
+                out.append(_score_one(data, directory, index, tile_size, measure, fold))
                 bar.update(1)
         else:
             with ThreadPoolExecutor(threads) as pool:
                 scored = pool.map(
-                    lambda i: _score_one(data, directory, i, tile_size, measure), indices
+                    lambda i: _score_one(data, directory, i, tile_size, measure, fold), indices
                 )
                 for item in scored:
                     out.append(item)

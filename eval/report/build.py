@@ -24,11 +24,13 @@ def build_report(
     edges: Sequence[float] | None = None,
     group_by: str | None = None,
     bootstrap: Bootstrap | None = None,
+    classes: Sequence[str] | None = None,
 ) -> dict[str, Any]:
     """The report's JSON (keys in :data:`KEYS` order); the binning goes under ``source``.
 
     ``bootstrap`` (default: 1000 resamples, level 0.95, seed 0, the dataset's default cluster
-    unit) sets the intervals; its ``cluster`` must be a unit the images carry.
+    unit) sets the intervals; its ``cluster`` must be a unit the images carry. ``classes``: a
+    subset of the classes whose mIoU every row also gets (``miou_classes``).
     """
     settings = bootstrap or Bootstrap(cluster=result.default_cluster())
     clusters = result.cluster_labels(settings.cluster)
@@ -43,6 +45,8 @@ def build_report(
         clusters=clusters,
         bootstrap=settings,
         quality=result.quality,
+        predictable=result.source.get("predictable"),
+        subset=classes,
     )
     if result.tiles is not None and len(result.tiles):
         numbers["tiles"] = tile_report(
@@ -51,6 +55,8 @@ def build_report(
         )  # fmt: skip
     source = dict(result.source)
     source["binning"] = {**numbers.pop("binning", {}), "group_by": group_by}
+    if classes is not None:
+        source["classes_subset"] = list(classes)
     numbers["palette"] = result.palette
     numbers["source"] = source
     return {key: numbers[key] for key in KEYS if key in numbers}

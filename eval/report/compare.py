@@ -19,6 +19,8 @@ from claravid.eval.analysis.gaps import cluster_unit, comparison_warnings, gap_a
 from claravid.eval.report.files import CONFUSIONS, load_result, read_report, write_json
 from claravid.eval.report.markdown import compare_markdown
 from claravid.eval.report.plots import plot_compare
+from claravid.eval.report.transfer_text import gap_closed_lines
+from claravid.infra.cli import UsageError
 from claravid.infra.files import atomic_write_text
 
 
@@ -32,6 +34,7 @@ def compare_reports(
     output: str | Path | None = None,
     settings: Bootstrap | None = None,
     cluster: str | None = None,
+    oracle: str | Path | None = None,
 ) -> tuple[str, list[str]]:
     """The comparison as Markdown and its warnings; with ``output``, also ``compare.md``,
     ``compare.png`` and (when every report has its confusions) ``compare.json`` there.
@@ -42,15 +45,30 @@ def compare_reports(
         settings: bootstrap settings of the gaps (default 1000 resamples, 0.95, seed 0);
             ``resamples=0`` still gives the gaps, without intervals.
         cluster: the cluster unit (default: the baseline's dataset default).
+        oracle: a target-supervised model's report: then the first report is the source-only
+            model, the others adapted ones, and ``compare.json``'s ``gap_closed`` (and
+            ``compare.md``) give the fraction of the source-to-oracle gap each closes
+            (:func:`~claravid.eval.analysis.gap_closed.gap_closed`).
 
     Raises:
-        UsageError: a file is not a claravid-eval report, or the cluster unit is missing.
+        UsageError: a file is not a claravid-eval report, the cluster unit is missing, or
+            ``oracle`` without an adapted report, without confusions, or on other images or
+            classes.
     """
+    if oracle is not None and len(paths) < 2:
+        raise UsageError(
+            "--oracle needs the source-only report first and at least one adapted report "
+            "after it (compare SOURCE ADAPTED --oracle ORACLE)"
+        )
     reports = [read_report(Path(p) / "report.json" if Path(p).is_dir() else p) for p in paths]
     names = _names(paths)
     warnings = comparison_warnings(reports, names)
     analysis = None
     missing = [str(p) for p in paths if not (_folder(p) / CONFUSIONS).is_file()]
+    if oracle is not None and missing:
+        raise UsageError(
+            f"--oracle needs every report's {CONFUSIONS}; missing beside {', '.join(missing)}"
+        )
     if len(paths) >= 2 and not missing:
         results = [load_result(p) for p in paths]
         base = settings or Bootstrap()
@@ -68,6 +86,10 @@ def compare_reports(
             "or p-values"
         )
     text = compare_markdown(reports, names, warnings, analysis, note)
+    if oracle is not None:
+        assert analysis is not None  # checked above: gap closed needs the confusions
+        analysis["gap_closed"] = _gap_closed(paths, names, oracle, reports[0], analysis)
+        text += "\n" + "\n".join(gap_closed_lines(analysis["gap_closed"]))
     if output is not None:
         out = Path(output)
         out.mkdir(parents=True, exist_ok=True)
@@ -78,6 +100,36 @@ def compare_reports(
             (out / "compare.json").unlink(missing_ok=True)
         atomic_write_text(out / "compare.md", text + "\n![compare](compare.png)\n")
     return text, warnings
+
+
+def _gap_closed(
+    paths: Sequence[str | Path],
+    names: Sequence[str],
+    oracle: str | Path,
+    source_report: dict,
+    analysis: dict,
+) -> dict:
+    """The gap closed by each adapted report (all but the first) towards ``oracle``, with the
+    comparison's bootstrap settings and the source-only report's bins."""
+    from claravid.eval.analysis.gap_closed import gap_closed
+    from claravid.eval.analysis.gaps import report_bins
+
+    results = [load_result(p) for p in paths]
+    oracle_result = load_result(oracle)
+    oracle_name = _names([*paths, oracle])[-1]
+    unc = analysis["uncertainty"]
+    settings = Bootstrap(resamples=unc["resamples"], level=unc["level"], seed=unc["seed"],
+                         cluster=unc["cluster"])  # fmt: skip
+    predictable = results[0].source.get("predictable")
+    return gap_closed(
+        results[0],
+        results[1:],
+        oracle_result,
+        [*names, oracle_name],
+        report_bins(results[0], source_report),
+        settings,
+        predictable=predictable if isinstance(predictable, list) else None,
+    )
 
 
 def _names(paths: Sequence[str | Path]) -> list[str]:

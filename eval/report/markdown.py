@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any
 
 from claravid.eval.analysis.gaps import evaluation_protocol
-from claravid.eval.report.cells import bin_range, md_table, number, with_ci
+from claravid.eval.report.cells import bin_range, gap_cell, md_table, number, points_digits, with_ci
 from claravid.eval.report.quality_text import (
     missing_everywhere,
     quality_gap_lines,
     quality_sections,
+)
+from claravid.eval.report.transfer_text import (
+    fold_lines,
+    predictable_gap_lines,
+    predictable_section,
+    subset_section,
 )
 
 HARDEST_TABLE = 10
@@ -95,6 +100,7 @@ def _header(report: dict[str, Any]) -> list[str]:
     protocol = evaluation_protocol(report)
     if protocol:
         lines.append(f"- protocol: {protocol}")
+    lines += fold_lines(source)
     method = binning.get("method")
     if method == "fixed":
         lines.append(f"- bins: fixed delentropy edges {binning.get('edges')}")
@@ -128,6 +134,8 @@ def _bin_sections(report: dict[str, Any]) -> list[str]:
     rows.append(["**overall**", "", str(overall["num_images"]), *_scores(overall)])
     lines += md_table(["bin", "delentropy", "images", "mIoU", "pixel acc"], rows)
     lines += _warnings(report)
+    lines += predictable_section(report)
+    lines += subset_section(report)
 
     if report["groups"]:
         lines += [f"## Per {binning.get('group_by') or 'group'}", ""]
@@ -264,43 +272,9 @@ def compare_markdown(
             a = reports[0]["bins"][i]["miou"] if i < len(reports[0]["bins"]) else None
             b = reports[1]["bins"][i]["miou"] if i < len(reports[1]["bins"]) else None
             gap = None if a is None or b is None else 100 * (b - a)
-            gaps.append([rows[i][0], number(gap, _points_digits([gap]))])
+            gaps.append([rows[i][0], number(gap, points_digits([gap]))])
         lines += md_table(["bin", "gap"], gaps)
     return "\n".join(lines)
-
-
-def _points_digits(values: Sequence[float | None], most: int = 4) -> int:
-    """Decimals for gaps in mIoU points: 1, or as many as the smallest non-zero value needs to
-    show its first significant digit (at most ``most``), so that a gap of 0.003 points with an
-    interval that excludes 0 is not written ``+0.0 [+0.0, +0.0]``."""
-    small = min((abs(v) for v in values if v), default=None)
-    if small is None or small >= 0.05:
-        return 1
-    return min(most, max(1, math.ceil(-math.log10(small))))
-
-
-def _p(p: float | None, resamples: int) -> str:
-    """A p-value; 0 (no resample on the other side) is written as below 1/R."""
-    if p is None:
-        return "–"
-    return f"< {1 / resamples:.2g}" if p == 0 and resamples else f"{p:.3f}"
-
-
-def _gap_cell(row: dict[str, Any], resamples: int) -> list[str]:
-    """Gap in mIoU points with its interval, the p-value, and a mark when 0 is outside."""
-    gap, ci = row.get("gap"), row.get("gap_ci")
-    if gap is None:
-        return ["–", "–", ""]
-    points = [100 * v for v in (gap, *(ci or []))]
-    d = _points_digits(points)
-    text = f"{points[0]:+.{d}f}"
-    if ci:
-        text += f" [{points[1]:+.{d}f}, {points[2]:+.{d}f}]"
-    p = row.get("p_value")
-    if not ci:  # no interval (--bootstrap 0, too few clusters): nothing to exclude
-        return [text, _p(p, resamples), "–"]
-    excludes = ci[0] > 0 or ci[1] < 0
-    return [text, _p(p, resamples), "**yes**" if excludes else "no"]
 
 
 def _gap_tables(analysis: dict[str, Any]) -> list[str]:
@@ -319,9 +293,10 @@ def _gap_tables(analysis: dict[str, Any]) -> list[str]:
         lines += [f"Gap {comp['report']} − {analysis['baseline']} in mIoU points, {kind}; "
                   f"**yes** = the {unc['level']:.0%} interval excludes 0:", ""]  # fmt: skip
         r = unc["resamples"]
-        rows = [[b["name"], *_gap_cell(b, r)] for b in comp["bins"]]
-        rows.append(["**overall**", *_gap_cell(comp["overall"], r)])
+        rows = [[b["name"], *gap_cell(b, r)] for b in comp["bins"]]
+        rows.append(["**overall**", *gap_cell(comp["overall"], r)])
         lines += md_table(["bin", "gap [interval]", "p-value", "interval excludes 0"], rows)
+        lines += predictable_gap_lines(comp, analysis["baseline"])
         lines += quality_gap_lines(comp, analysis["baseline"])
     return lines
 
