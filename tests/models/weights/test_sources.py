@@ -9,6 +9,7 @@ import torch
 from safetensors.torch import save_file
 
 from claravid.models import WeightsError, build_backbone, build_model, save_checkpoint
+from tests.helpers.files import use_hub_cache
 from tests.models.weights.official_v3 import released_v3_state, to_hugging_face, to_timm
 from tests.tiny import TINY_V3
 
@@ -71,7 +72,7 @@ TIMM_SAT = "timm/vit_large_patch16_dinov3.sat493m"
 
 
 def test_a_hub_id_reads_the_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path / "hub"))
+    use_hub_cache(monkeypatch, tmp_path / "hub")
     state = _released()
     timm_config = {
         "architecture": "vit_large_patch16_dinov3",
@@ -98,7 +99,7 @@ def test_a_hub_id_reads_the_cache(tmp_path, monkeypatch):
 
 
 def test_a_hub_id_offline_and_not_cached_says_what_to_download(tmp_path, monkeypatch):
-    monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path / "hub"))
+    use_hub_cache(monkeypatch, tmp_path / "hub")
     repo = "timm/vit_large_patch16_dinov3.lvd1689m"
     with pytest.raises(WeightsError) as err:
         build_backbone("dinov3_vitl16", weights=repo, **TINY_V3)
