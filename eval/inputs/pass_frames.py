@@ -11,8 +11,8 @@ merge into exactly one run's sums.
 The pair's sums are :func:`claravid.eval.measures.cross_view.cross_view` of the two frames'
 depth, poses, intrinsics, predictions, ground truths and dynamic masks
 (:func:`claravid.eval.inputs.pairs.read_geometry`); a frame without its depth PNG,
-extrinsics or dynamic mask (a partial download) makes its pairs unavailable, with the reason,
-and nothing else changes.
+extrinsics or dynamic mask (a partial download), or with one of them damaged, makes its pairs
+unavailable, with the reason, and nothing else changes.
 """
 
 from __future__ import annotations
@@ -128,8 +128,8 @@ class PassFrames:
     def geometry(self, key: str) -> Any:
         """Frame ``key``'s depth, pose, dynamic mask and intrinsics
         (:class:`~claravid.eval.inputs.pairs.FrameGeometry`), or why they cannot be read (a
-        file missing). A damaged file (a pose that is not a rigid transform...) raises, naming
-        it."""
+        file missing, or damaged: a PNG that does not decode, a pose that is not a rigid
+        transform), naming the file: that frame's pairs are unavailable, nothing else."""
         from claravid.eval.inputs.pairs import GeometryUnavailable, read_geometry
 
         with self._lock:
