@@ -2,6 +2,7 @@
 dataset: counted by hand, never an OpenCV error (OpenCV reads a 1x1 array as a scalar)."""
 
 import json
+import re
 
 import cv2
 import numpy as np
@@ -96,3 +97,30 @@ def test_sky_in_both_frames_of_a_pair_is_never_kept():
     sums = cross_view(depth, depth, np.eye(4), c2w_s, scaled_intrinsics((8, 6)), labels, labels,
                       labels, labels, num_classes=2)  # fmt: skip
     assert (sums.status, sums.pixels, sums.kept, sums.agree) == ("ok", 48, 32, 32)
+
+
+@pytest.mark.parametrize(
+    ("count", "conf_sum", "correct", "says"),
+    [([2, -1], [1.0, 0.0], [1, 0], "negative in bin(s) [1]"),
+     ([2, 1], [1.0, 0.5], [3, 0], "more correct pixels than pixels in bin(s) [0]"),
+     ([2, 1], [1.0, float("nan")], [1, 0], "not finite in bin(s) [1]"),
+     ([2, 1], [2.5, 0.5], [1, 0], "a confidence sum above the pixel count in bin(s) [0]")],
+)  # fmt: skip
+def test_calibration_errors_refuse_sums_no_image_gives(count, conf_sum, correct, says):
+    from claravid.eval.analysis.calibration import calibration_errors
+
+    with pytest.raises(ValueError, match=re.escape(says)):  # before: NaN, silently
+        calibration_errors(count, conf_sum, correct)
+    assert calibration_errors([2, 1], [1.0, 0.5], [1, 0]) == pytest.approx((0.5 / 3, 0.5))
+
+
+def test_a_zero_one_dynamic_mask_is_refused_saying_how_to_convert_it():
+    depth = np.full((6, 8), 10.0, np.float32)
+    c2w_s = np.eye(4)
+    c2w_s[0, 3] = 1e-3
+    labels = np.ones((6, 8), np.uint8)
+    moving = np.zeros((6, 8), np.uint8)
+    moving[0, 0] = 1  # 0/1: before, every pixel read as moving and the pair blamed "a turn"
+    with pytest.raises(ValueError, match=r"dynamic_t holds 0 and 1, not the 0/255"):
+        cross_view(depth, depth, np.eye(4), c2w_s, scaled_intrinsics((8, 6)), labels, labels,
+                   labels, labels, moving, None, num_classes=2)  # fmt: skip
