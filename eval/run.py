@@ -18,9 +18,13 @@ what they return. Merging and comparing saved reports is :mod:`claravid.eval.rep
 
 from __future__ import annotations
 
+import contextlib
+import functools
+import os
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 
@@ -37,7 +41,7 @@ from claravid.eval.settings import (
     check_type,
 )
 from claravid.infra.cli import UsageError
-from claravid.infra.files import check_output_dir
+from claravid.infra.files import check_output_dir, output_lock
 
 
 def resolve_data(
@@ -92,6 +96,26 @@ def resolve_data(
     }
 
 
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def _one_writer(function: Callable[P, R]) -> Callable[P, R]:
+    """Run ``function`` (whose first argument is the output folder) holding that folder, so two
+    evaluations writing one folder do not both finish with the second silently replacing the
+    first (`output_lock`). Under ``torchrun`` rank 0 alone holds it (the one that writes)."""
+
+    @functools.wraps(function)
+    def held(*args: P.args, **kwargs: P.kwargs) -> R:
+        output = args[0] if args else kwargs["output"]
+        main = os.environ.get("RANK", "0") == "0"
+        with output_lock(output) if main else contextlib.nullcontext():  # type: ignore[arg-type]
+            return function(*args, **kwargs)
+
+    return held
+
+
+@_one_writer
 def evaluate(
     output: str | Path,
     *,
