@@ -297,6 +297,11 @@ def _open(data: DataChoice, model: Any, run: Any, predictions: Any) -> Any:
                 selection=spec["selection"],
             )
     except FileNotFoundError as exc:
+        if data.split is not None and str(exc).startswith("split file not found"):
+            raise UsageError(  # the user's own path, not the checkpoint's
+                f"--split {data.split}: no such split file; pass train, val, test, all or the "
+                "path of an existing split file"
+            ) from None
         if data.root is not None or model is None or "data" not in model.defaults:
             raise
         raise UsageError(  # the data moved since training: say where the path came from

@@ -41,3 +41,17 @@ def test_compare_of_one_report_is_refused(tmp_path, capsys):
         "add the report(s) to set beside it"
     )
     assert not (tmp_path / "cmp").exists()
+
+
+def test_a_missing_split_file_the_user_typed_is_named_as_theirs(model_files, tmp_path, capsys):
+    # Before: "... (that path comes from the checkpoint ...; pass --data ...)".
+    split = tmp_path / "my_split.txt"
+    argv = ["--checkpoint", str(model_files["checkpoint"]), "--split", str(split),
+            "--output", str(tmp_path / "rep"), "--no-progress"]  # fmt: skip
+    assert eval_main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"claravid-eval: error: --split {split}: no such split file; pass train, val, test, all "
+        "or the path of an existing split file"
+    )
+    assert not (tmp_path / "rep").exists()
