@@ -67,6 +67,11 @@ def pairs_unavailable(data: EvalData) -> str | None:
         folder = MODALITIES[field].folder
         if not any((root / str(folder)).is_dir() for root in roots):
             return f"no {folder}/ folder in the evaluated missions (a partial download?)"
+    if raw.frames and not any(PassFrames(data).next_key[f.key] for f in raw.frames):
+        return (
+            "no evaluated frame has a next frame in its pass (each pass of the selection holds "
+            "one frame), so there is no pair of frames to compare"
+        )
     return None
 
 

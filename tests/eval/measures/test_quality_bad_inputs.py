@@ -164,3 +164,22 @@ def test_a_damaged_pose_or_depth_costs_only_that_frame_s_pairs(writable_root, tm
     reasons = " ".join(after["unavailable"])
     assert f"damaged file: cannot read {pose_file}" in reasons and "rigid" in reasons
     assert f"damaged file: cannot read {depth_file}" in reasons
+
+
+def test_passes_of_one_frame_have_no_pairs_and_say_so(tmp_path, capsys):
+    # Before: consistency "computed" from 0 pairs with no reason, and --consistency exited 0.
+    from claravid.data.segmentation import ClaraVidSegmentation
+    from claravid.synth import synthesize
+
+    root = tmp_path / "root"
+    synthesize(root, seed=1, frames_per_viewpoint=1, size=(32, 24), missions=["rural_1"])
+    ds = ClaraVidSegmentation(root, split="all", palette="uavid")
+    argv = _labels(tmp_path, root, ds)
+    assert main([*argv, "--output", str(tmp_path / "rep")]) == 0
+    summary = json.loads((tmp_path / "rep" / "report.json").read_text())["quality"]
+    assert summary["consistency"]["status"] == "unavailable"
+    assert "each pass of the selection holds one frame" in summary["consistency"]["reason"]
+    assert main([*argv, "--consistency", "--output", str(tmp_path / "asked")]) == 2
+    line = _one_line(capsys)
+    assert "--consistency cannot be computed: no evaluated frame has a next frame" in line
+    assert not (tmp_path / "asked").exists()
