@@ -19,6 +19,7 @@ from claravid.eval.cli.evaluate import main
 from claravid.eval.measures.confusion import tile_confusions
 from claravid.eval.report.markdown import bin_table
 from tests.claravid.dsp.reference import official_delentropy
+from tests.helpers.cli import exit_code
 
 K = 8  # uavid palette
 
@@ -299,8 +300,8 @@ def test_bad_tiles(tiled, extra, message, capsys):
 
 
 def test_tiles_do_nothing_with_merge(tiled, capsys):
-    assert main(["merge", str(tiled["out"]), "--tiles", "32",
-                 "--output", str(tiled["tmp"] / "m2")]) == 2  # fmt: skip
+    assert exit_code(main, ["merge", str(tiled["out"]), "--tiles", "32",
+                            "--output", str(tiled["tmp"] / "m2")]) == 2  # fmt: skip
     assert "unrecognized arguments: --tiles 32" in capsys.readouterr().err
 
 

@@ -15,6 +15,7 @@ from claravid.eval.cli.evaluate import main
 from claravid.eval.cli.predict import main as predict_main
 from claravid.eval.report.build import build_report
 from claravid.eval.report.files import load_result
+from tests.helpers.cli import exit_code
 from tests.tiny import WINDOW
 
 FRAMES = ["001_rural_1/45deg_low_h/000000", "003_urban_1/55deg_mid_v/000001"]
@@ -226,7 +227,7 @@ def test_edges_that_leave_images_outside_are_reported(uavid_case, tmp_path, caps
     ],
 )
 def test_options_that_do_nothing_in_a_mode_are_refused(argv, flag, capsys):
-    assert main(argv) == 2
+    assert exit_code(main, argv) == 2
     _one_line(capsys, flag, prog=f"claravid-eval {argv[0]}")
 
 

@@ -10,6 +10,7 @@ import pytest
 from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.dsp import image_complexity
 from claravid.eval.cli.evaluate import main
+from tests.helpers.cli import exit_code
 
 FRAMES = ["001_rural_1/45deg_low_h/000000", "003_urban_1/55deg_mid_v/000001",
           "003_urban_1/90deg_high_h/000002"]  # fmt: skip
@@ -206,12 +207,12 @@ def test_undecodable_prediction_files_are_named(case, tmp_path, capsys, corrupt,
     ],
 )
 def test_user_mistakes_exit_2_with_one_line(case, tmp_path, capsys, extra, expected):
-    assert main(_args(case, tmp_path / "rep", *extra)) == 2
+    assert exit_code(main, _args(case, tmp_path / "rep", *extra)) == 2
     assert expected in _error_line(capsys)
 
 
 def test_no_source_at_all(tmp_path, capsys):
-    assert main(["--data", str(tmp_path), "--output", str(tmp_path / "o")]) == 2
+    assert exit_code(main, ["--data", str(tmp_path), "--output", str(tmp_path / "o")]) == 2
     assert "one of the arguments --checkpoint --onnx --predictions is required" in _error_line(
         capsys
     )

@@ -12,6 +12,7 @@ import pytest
 
 from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.eval.cli.evaluate import main
+from tests.helpers.cli import exit_code
 from tests.helpers.files import write_noisy_predictions
 
 K = 8  # uavid palette
@@ -154,9 +155,9 @@ def test_options_that_do_nothing_are_refused(reps, tmp_path, capsys, extra, said
     names = {"P": reps["tmp"] / "pred_a", "A": reps["tmp"] / "a", "S.csv": tmp_path / "s.csv",
              "M": tmp_path}  # fmt: skip
     argv = [str(names.get(a, a)) for a in extra]
-    assert main([*argv, "--data", str(reps["root"]), "-o", str(tmp_path / "o")]
-                if extra[0] not in ("merge", "compare")
-                else [*argv, "-o", str(tmp_path / "o")]) == 2  # fmt: skip
+    assert exit_code(main, [*argv, "--data", str(reps["root"]), "-o", str(tmp_path / "o")]
+                     if extra[0] not in ("merge", "compare")
+                     else [*argv, "-o", str(tmp_path / "o")]) == 2  # fmt: skip
     _one_line(capsys, said)
 
 
