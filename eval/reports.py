@@ -25,6 +25,7 @@ from claravid.eval.analysis.bootstrap import Bootstrap
 from claravid.eval.analysis.table import EvalResult
 from claravid.eval.report.files import REPORT, check_report_kind
 from claravid.eval.settings import Evaluation, ReportSettings, check_type
+from claravid.infra.cli import UsageError
 from claravid.infra.files import check_output_dir
 
 
@@ -166,6 +167,11 @@ def compare(
     from claravid.eval.report.compare import compare_reports
 
     reports = report_list(reports, "compare", "compare(['a', 'b'], 'cmp')")
+    if len(reports) < 2:  # a comparison of one compares nothing
+        raise UsageError(
+            f"compare needs two or more reports, the first the baseline; got only "
+            f"{reports[0]}: add the report(s) to set beside it"
+        )
     check_type(bootstrap, Bootstrap, "bootstrap", "Bootstrap(resamples=1000)")
     if output is not None:
         check_output_dir(output, marker="compare.md", overwrite=overwrite)

@@ -18,10 +18,13 @@ what they return. Merging and comparing saved reports is :mod:`claravid.eval.rep
 
 from __future__ import annotations
 
+import contextlib
+import functools
+import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ParamSpec, TypeVar
 
 import numpy as np
 
@@ -38,7 +41,7 @@ from claravid.eval.settings import (
     check_type,
 )
 from claravid.infra.cli import UsageError
-from claravid.infra.files import check_output_dir
+from claravid.infra.files import check_output_dir, output_lock
 
 if TYPE_CHECKING:  # types only: the call imports torch's side when it runs
     from claravid.eval.analysis.bootstrap import Bootstrap
@@ -99,6 +102,26 @@ def resolve_data(
     }
 
 
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def _one_writer(function: Callable[P, R]) -> Callable[P, R]:
+    """Run ``function`` (whose first argument is the output folder) holding that folder, so two
+    evaluations writing one folder do not both finish with the second silently replacing the
+    first (`output_lock`). Under ``torchrun`` rank 0 alone holds it (the one that writes)."""
+
+    @functools.wraps(function)
+    def held(*args: P.args, **kwargs: P.kwargs) -> R:
+        output = args[0] if args else kwargs["output"]
+        main = os.environ.get("RANK", "0") == "0"
+        with output_lock(output) if main else contextlib.nullcontext():  # type: ignore[arg-type]
+            return function(*args, **kwargs)
+
+    return held
+
+
+@_one_writer
 def evaluate(
     output: str | Path,
     *,
@@ -339,6 +362,11 @@ def _open(data: DataChoice, model: Any, run: Any, predictions: Any) -> tuple[Any
                 selection=spec["selection"],
             )
     except FileNotFoundError as exc:
+        if data.split is not None and str(exc).startswith("split file not found"):
+            raise UsageError(  # the user's own path, not the checkpoint's
+                f"--split {data.split}: no such split file; pass train, val, test, all or the "
+                "path of an existing split file"
+            ) from None
         if data.root is not None or model is None or "data" not in model.defaults:
             raise
         raise UsageError(  # the data moved since training: say where the path came from

@@ -24,6 +24,8 @@ from claravid.models.heads.specs import (
     UPERNET_CHANNELS,
     HeadSpec,
     check_head_settings,
+    check_input_size,
+    check_norm_batch,
     default_layers,
 )
 from claravid.models.heads.upernet import UperNetHead
@@ -206,6 +208,15 @@ class Segmenter(nn.Module):
             )
             if x.is_floating_point() and not torch.compiler.is_compiling():
                 self._check_values(x)  # data-dependent: a compiled graph would break on it
+            if "head" in self.model_args:
+                head, p = self.model_args["head"], self.patch_size
+                check_input_size(head, int(x.shape[-2]), int(x.shape[-1]), p)
+                if self.training:
+                    fix = (
+                        "train on two or more images per batch (a DataLoader's drop_last=True "
+                        "drops a last batch of one), or call model.eval() to predict"
+                    )
+                    check_norm_batch(head, x.shape[0], x.shape[-2] // p, x.shape[-1] // p, fix)
         if x.dtype == torch.uint8:
             x = self.normalise(x)
         elif x.dtype != self.dtype:

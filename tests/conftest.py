@@ -7,6 +7,7 @@ import matplotlib
 import pytest
 
 from claravid.synth import synthesize
+from tests.helpers.files import use_hub_cache
 
 os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
 matplotlib.use("agg")
@@ -62,8 +63,8 @@ def _isolated_caches(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("CLARAVID_CACHE", str(cache / "claravid"))
     monkeypatch.setenv("XDG_CACHE_HOME", str(cache / "xdg"))
     # Hub ids read a prepared cache only: never the network, never the user's cache.
-    monkeypatch.setenv("HF_HUB_CACHE", str(cache / "huggingface"))
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    use_hub_cache(monkeypatch, cache / "huggingface")
 
 
 @pytest.fixture(scope="session")

@@ -21,7 +21,8 @@ from claravid.data.splits import SPLITS
 from claravid.data.targets import UAVidSegmentation
 from claravid.data.transforms import AugmentConfig, train_transforms
 from claravid.io import jpeg_region
-from claravid.models.heads.specs import head_spec
+from claravid.models.backbones.specs import backbone_spec
+from claravid.models.heads.specs import check_norm_batch, head_spec
 from claravid.train.config import to_plain
 from claravid.train.sampler import StepSampler
 
@@ -276,6 +277,13 @@ def check_batch(cfg: DictConfig, world_size: int) -> int:
             f"rank(s) × train.grad_accum={t.grad_accum} gives {micro}: raise train.batch_size or "
             "lower train.grad_accum"
         )
+    patch = (
+        int(cfg.model.backbone_kwargs.get("patch_size", 0))
+        or backbone_spec(cfg.model.backbone).patch_size
+    )
+    a = cfg.data.augment
+    fix = "raise train.batch_size or data.augment.crop_height/crop_width"
+    check_norm_batch(cfg.model.head, micro, a.crop_height // patch, a.crop_width // patch, fix)
     return t.batch_size // k
 
 

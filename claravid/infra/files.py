@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from claravid.infra.cli import UsageError
@@ -120,3 +120,43 @@ def atomic_save(path: str | os.PathLike, write: Callable[[Path], object]) -> Pat
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     return atomic_save(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+
+
+@contextlib.contextmanager
+def output_lock(folder: str | os.PathLike, what: str = "--output") -> Iterator[None]:
+    """Hold ``folder`` for one writer: a second command or call writing the same folder at the
+    same time is refused instead of silently replacing the first one's results.
+
+    The lock is an advisory ``flock`` on a hidden file beside the folder (the folder itself is
+    replaced whole when written), released by the system when the holder exits, even killed.
+
+    Raises:
+        UsageError: another process holds the folder (naming it and its process id).
+    """
+    import fcntl
+
+    folder = Path(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    path = folder.parent / f".{folder.name}.lock"
+    handle = open(path, "a+")  # noqa: SIM115  (held open while the lock is)
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "?"
+            raise UsageError(
+                f"{what} {folder} is being written by another run (process {holder}): wait for "
+                f"it to finish, or choose another {what}"
+            ) from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(str(os.getpid()))
+        handle.flush()
+        try:
+            yield
+        finally:
+            with contextlib.suppress(OSError):
+                path.unlink()
+    finally:
+        handle.close()

@@ -28,12 +28,34 @@ def reliability(
             f"count, conf_sum and correct must be 1-D arrays of one length, got {n.shape}, "
             f"{s.shape}, {k.shape}"
         )
+    _check_sums(n, s, k)
     total = n.sum()
     with np.errstate(invalid="ignore", divide="ignore"):
         confidence = np.where(n > 0, s / np.where(n > 0, n, 1), np.nan)
         accuracy = np.where(n > 0, k / np.where(n > 0, n, 1), np.nan)
         share = n / total if total > 0 else np.full_like(n, np.nan)
     return confidence, accuracy, share
+
+
+def _check_sums(n: np.ndarray, s: np.ndarray, k: np.ndarray) -> None:
+    """Sums that no image can give (a negative count, more correct pixels or a larger
+    confidence sum than pixels, NaN) are refused, not turned into a NaN error."""
+    problems = [
+        (name, bad)
+        for name, bad in (
+            ("not finite", ~(np.isfinite(n) & np.isfinite(s) & np.isfinite(k))),
+            ("negative", (n < 0) | (s < 0) | (k < 0)),
+            ("more correct pixels than pixels", k > n),
+            ("a confidence sum above the pixel count", s > n * (1 + 1e-9)),
+        )
+        if bad.any()
+    ]
+    if problems:
+        name, bad = problems[0]
+        raise ValueError(
+            f"calibration sums {name} in bin(s) {np.flatnonzero(bad)[:5].tolist()}: pass the "
+            "(count, conf_sum, correct) that calibration_bins gives, summed over images"
+        )
 
 
 def calibration_errors(

@@ -32,6 +32,7 @@ from claravid.models.export.metadata import (
     window_from_config,
 )
 from claravid.models.grid import PAPER_WINDOW, natural_size
+from claravid.models.heads.specs import HEADS, check_input_size
 
 DEFAULT_SCALE = 1.0
 DEFAULT_BATCH = 4
@@ -284,6 +285,10 @@ def resolve_settings(
     if source.patch_size:
         try:
             config.check_patch(source.patch_size)
+            head = (getattr(source.model, "model_args", None) or {}).get("head")
+            if head in HEADS:  # an ONNX file's graph would fail inside ONNX Runtime
+                height, width = size
+                check_input_size(head, int(height), int(width), source.patch_size, "a window")
         except ValueError as exc:
             raise UsageError(f"{exc} ({_where(origins['window'], kind)})") from None
     return RunSettings(config, name, info, normalisation, origins)

@@ -22,6 +22,7 @@ import numpy as np
 
 from claravid.data.index import Frame
 from claravid.eval.measures.cross_view import CrossViewSums, cross_view
+from claravid.infra.errors import CorruptFileError
 from claravid.io import modalities
 from claravid.io.layout import MISSIONS, frame_file, scaled_intrinsics
 
@@ -53,29 +54,30 @@ class FrameGeometry:
 
 
 class GeometryUnavailable(Exception):
-    """A frame lacks a file cross-view consistency needs; the message says which."""
+    """A frame lacks a file cross-view consistency needs, or one of them is damaged; the message
+    says which."""
 
 
 def read_geometry(root: str | Path, frame: Frame) -> FrameGeometry:
     """Read a frame's depth, extrinsics and dynamic mask from a ClaraVid tree.
 
     Raises:
-        GeometryUnavailable: a file is missing (a partial download): the message names it.
-        CorruptFileError: a file is there but unreadable, or its pose is not a rigid transform.
+        GeometryUnavailable: a file is missing (a partial download) or damaged (unreadable, a
+            pose that is not a rigid transform): the message names it.
     """
     mission_dir = Path(root) / MISSIONS[frame.mission]
     paths = {f: frame_file(mission_dir, frame.viewpoint, frame.stem, f) for f in _GEOMETRY}
     missing = [f"{f} ({p})" for f, p in paths.items() if not p.is_file()]
     if missing:
         raise GeometryUnavailable(f"{frame.key} has no {', '.join(missing)}")
-    depth = modalities.read_depth(paths["depth"])
+    try:
+        depth = modalities.read_depth(paths["depth"])
+        c2w = modalities.read_extrinsics(paths["extrinsics"])
+        dynamic = modalities.read_dynamic_mask(paths["dynamic_mask"])
+    except CorruptFileError as error:  # costs this frame's pairs, not the evaluation
+        raise GeometryUnavailable(f"{frame.key}: damaged file: {error}") from None
     height, width = depth.shape
-    return FrameGeometry(
-        depth,
-        modalities.read_extrinsics(paths["extrinsics"]),
-        modalities.read_dynamic_mask(paths["dynamic_mask"]),
-        scaled_intrinsics((width, height)),
-    )
+    return FrameGeometry(depth, c2w, dynamic, scaled_intrinsics((width, height)))
 
 
 _GEOMETRY = ("depth", "extrinsics", "dynamic_mask")

@@ -11,8 +11,8 @@ merge into exactly one run's sums.
 The pair's sums are :func:`claravid.eval.measures.cross_view.cross_view` of the two frames'
 depth, poses, intrinsics, predictions, ground truths and dynamic masks
 (:func:`claravid.eval.inputs.pairs.read_geometry`); a frame without its depth PNG,
-extrinsics or dynamic mask (a partial download) makes its pairs unavailable, with the reason,
-and nothing else changes.
+extrinsics or dynamic mask (a partial download), or with one of them damaged, makes its pairs
+unavailable, with the reason, and nothing else changes.
 """
 
 from __future__ import annotations
@@ -67,6 +67,11 @@ def pairs_unavailable(data: EvalData) -> str | None:
         folder = MODALITIES[field].folder
         if not any((root / str(folder)).is_dir() for root in roots):
             return f"no {folder}/ folder in the evaluated missions (a partial download?)"
+    if raw.frames and not any(PassFrames(data).next_key[f.key] for f in raw.frames):
+        return (
+            "no evaluated frame has a next frame in its pass (each pass of the selection holds "
+            "one frame), so there is no pair of frames to compare"
+        )
     return None
 
 
@@ -128,8 +133,8 @@ class PassFrames:
     def geometry(self, key: str) -> Any:
         """Frame ``key``'s depth, pose, dynamic mask and intrinsics
         (:class:`~claravid.eval.inputs.pairs.FrameGeometry`), or why they cannot be read (a
-        file missing). A damaged file (a pose that is not a rigid transform...) raises, naming
-        it."""
+        file missing, or damaged: a PNG that does not decode, a pose that is not a rigid
+        transform), naming the file: that frame's pairs are unavailable, nothing else."""
         from claravid.eval.inputs.pairs import GeometryUnavailable, read_geometry
 
         with self._lock:

@@ -81,8 +81,11 @@ def boundary_iou(
         raise ValueError(
             f"prediction {prediction.shape} and ground truth {truth.shape} differ in shape"
         )
-    if not dilation_ratio > 0:
-        raise ValueError(f"dilation_ratio must be positive, got {dilation_ratio}")
+    if not (0 < dilation_ratio < math.inf):  # inf: a width no image has (an OverflowError)
+        raise ValueError(
+            f"dilation_ratio must be a positive finite fraction of the diagonal (the paper's "
+            f"{DILATION_RATIO}), got {dilation_ratio}"
+        )
     valid = check_ids(truth, prediction, k, "")
     if truth.size == 0:
         return np.zeros(k, np.int64), np.zeros(k, np.int64)

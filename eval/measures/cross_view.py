@@ -28,12 +28,14 @@ Skipped and unavailable pairs say why.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
 import numpy as np
 
+from claravid.data.ignore import IGNORE_INDEX
 from claravid.eval.measures.joint_counts import joint_counts
 from claravid.eval.measures.label_ids import as_numpy, check_ids, check_num_classes, label_image
 from claravid.io.layout import (
@@ -168,6 +170,17 @@ def cross_view(
         raise ValueError(f"tolerance must be in (0, 1) and min_kept in [0, 1], got "
                          f"{tolerance}, {min_kept}")  # fmt: skip
     pixels = shape[0] * shape[1]
+    if pixels == 1:  # OpenCV reads a 1x1 array as a scalar: add a pixel that never counts
+        # No depth hit, ignored, moving: the second pixel is never kept, nor looked up.
+        d_t, d_s = _beside(depth_t, 0), _beside(depth_s, 0)
+        p_t, p_s = _beside(labels["pred_t"], 0), _beside(labels["pred_s"], 0)
+        g_t, g_s = _beside(labels["gt_t"], IGNORE_INDEX), _beside(labels["gt_s"], IGNORE_INDEX)
+        m_t = None if dynamic_t is None else _beside(as_numpy(dynamic_t), 0)
+        m_s = None if dynamic_s is None else _beside(as_numpy(dynamic_s), 0)
+        # Twice the pixels: half the kept fraction, so min_kept halves too.
+        padded = cross_view(d_t, d_s, c2w_t, c2w_s, intrinsics, p_t, p_s, g_t, g_s, m_t, m_s,
+                            num_classes=k, tolerance=tolerance, min_kept=min_kept / 2)  # fmt: skip
+        return dataclasses.replace(padded, pixels=1)
     zeros = np.zeros(k, np.int64)
     if np.abs(c2w_t - c2w_s).max() <= SAME_POSE:
         return CrossViewSums(
@@ -360,6 +373,11 @@ def _intrinsics(array: Any) -> np.ndarray:
     return k
 
 
+def _beside(array: np.ndarray, value: float) -> np.ndarray:
+    """A 1x1 frame with a second pixel of ``value`` to its right (1x2)."""
+    return np.concatenate([array, np.full_like(array, value)], axis=1)
+
+
 def _static(array: Any, name: str, shape: tuple[int, int]) -> np.ndarray | None:
     """255 where static, from a dynamic mask as read (uint8: 255 static, 0 dynamic)."""
     if array is None:
@@ -372,5 +390,13 @@ def _static(array: Any, name: str, shape: tuple[int, int]) -> np.ndarray | None:
         )
     if mask.shape != shape:
         raise ValueError(f"{name} is {mask.shape} but depth_t is {shape}: give one frame size")
+    if mask.size and int(mask.max()) == 1:  # 0/1: no file holds it; 1 would read as moving
+        raise ValueError(
+            f"{name} holds 0 and 1, not the 0/255 of the dynamic mask as read (255 static, 0 "
+            f"dynamic): pass np.where(mask == 1, 255, 0).astype(np.uint8) if 1 means static, "
+            f"np.where(mask == 1, 0, 255).astype(np.uint8) if 1 means moving"
+        )
+    if mask.size == 1:  # OpenCV reads a 1x1 array as a scalar
+        return np.where(mask == DYNAMIC_MASK_STATIC, 255, 0).astype(np.uint8)
     # OpenCV takes a scalar operand; its stubs want an array.
     return cv2.compare(mask, DYNAMIC_MASK_STATIC, cv2.CMP_EQ)  # type: ignore[call-overload]

@@ -66,6 +66,8 @@ def check_ids(
     prefix = f"{name} " if name else ""
     if truth.size == 0:  # OpenCV refuses empty arrays; nothing to check, nothing valid
         return np.zeros(truth.shape, np.uint8)
+    if truth.size == 1:  # OpenCV reads a 1x1 array as a scalar and refuses scalar op scalar
+        return _one_pixel(truth, prediction, num_classes, prefix)
     # OpenCV takes a scalar operand; its stubs want an array.
     valid = cv2.compare(truth, IGNORE_INDEX, cv2.CMP_NE)  # type: ignore[call-overload]
     # The largest id that counts first (one masked pass each); which ids are wrong is only
@@ -82,6 +84,18 @@ def check_ids(
         _raise_outside(
             f"{prefix}prediction", np.unique(prediction[outside > 0]).tolist(), num_classes
         )
+    return valid
+
+
+def _one_pixel(
+    truth: np.ndarray, prediction: np.ndarray | None, num_classes: int, prefix: str
+) -> np.ndarray:
+    """`check_ids` of a one-pixel image, in numpy."""
+    valid = np.where(truth != IGNORE_INDEX, 255, 0).astype(np.uint8)
+    if valid.any() and truth.item() >= num_classes:
+        _raise_outside(f"{prefix}ground truth", [truth.item()], num_classes)
+    if prediction is not None and valid.any() and prediction.item() >= num_classes:
+        _raise_outside(f"{prefix}prediction", [prediction.item()], num_classes)
     return valid
 
 

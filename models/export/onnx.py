@@ -39,6 +39,7 @@ from claravid.models.export.metadata import (
     normalisation_from_config,
 )
 from claravid.models.export.runtime import OnnxSegmenter
+from claravid.models.heads.specs import check_input_size
 from claravid.models.segmenter import Segmenter
 
 # Opset 23 has a fused Attention op (SDPA maps to it; onnxruntime runs it without materialising
@@ -236,6 +237,11 @@ def _check_settings(model: Segmenter, height: object, width: object, tolerance: 
             )
         sizes.append(int(value))
     model.backbone.check_input_size(*sizes)
+    if "head" in model.model_args:
+        height, width = sizes
+        check_input_size(
+            model.model_args["head"], height, width, model.patch_size, "an export size"
+        )
     if tolerance is not None and (
         not isinstance(tolerance, (int, float))
         or isinstance(tolerance, bool)

@@ -41,18 +41,27 @@ class HeadSpec:
         taps: How many backbone blocks it reads; None: one or more (concatenated).
         min_micro_batch: The fewest images one training forward pass may hold (UperNet's
             BatchNorm after pooling to one cell sees one value per image and channel).
+        min_patches: The fewest patches a side of its input (UperNet's coarsest level halves
+            the patch grid, so one patch leaves it nothing): `check_input_size`.
+        norm: Where its BatchNorm sees the fewest values per channel in training: ``"pooled"``
+            (one per image: UperNet's pooling to one cell), ``"grid"`` (one per image and patch:
+            the linear head), or None (no BatchNorm: DPT). `check_norm_batch`.
     """
 
     name: str
     settings: tuple[str, ...]
     taps: int | None
     min_micro_batch: int = 1
+    min_patches: int = 1
+    norm: str | None = None
 
 
 HEADS: dict[str, HeadSpec] = {
     "dpt": HeadSpec("dpt", ("layers", "features", "out_channels", "use_cls"), taps=4),
-    "linear": HeadSpec("linear", ("layers", "use_cls"), taps=None),
-    "upernet": HeadSpec("upernet", ("layers", "features"), taps=4, min_micro_batch=2),
+    "linear": HeadSpec("linear", ("layers", "use_cls"), taps=None, norm="grid"),
+    "upernet": HeadSpec(
+        "upernet", ("layers", "features"), taps=4, min_micro_batch=2, min_patches=2, norm="pooled"
+    ),
 }
 HEAD_NAMES: tuple[str, ...] = tuple(HEADS)
 #: Every head setting, with the value that means "not given".
@@ -110,7 +119,19 @@ def check_head_settings(name: str, settings: Mapping[str, Any], prefix: str = ""
     layers = settings.get("layers")
     if layers is not None:
         check_tap_count(spec, layers, f"{prefix}layers")
+    for key, what in (("features", "a positive integer"), ("out_channels", "positive integers")):
+        value = settings.get(key)
+        values = list(value) if isinstance(value, Sequence) else [value]
+        if value is not None and not all(_positive_int(v) for v in values):
+            raise ValueError(
+                f"{prefix}{key} must be {what} (channel widths), got {value!r}: leave it unset "
+                f"for the {name} head's default"
+            )
     return spec
+
+
+def _positive_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
 
 
 def check_tap_count(spec: HeadSpec, layers: Sequence[int], key: str = "layers") -> None:
@@ -126,6 +147,68 @@ def check_tap_count(spec: HeadSpec, layers: Sequence[int], key: str = "layers") 
         raise ValueError(
             f"{key} needs {spec.taps} block indices for the {spec.name} head, got {list(layers)}"
         )
+
+
+def check_input_size(
+    name: str, height: int, width: int, patch_size: int, what: str = "inputs", fix: str = ""
+) -> None:
+    """Refuse an input smaller than the head takes: the one check every entry point makes
+    (the forward pass, training crops and windows, evaluation and prediction windows of a
+    checkpoint or an ONNX file, export sizes), before any work.
+
+    Args:
+        name: The head.
+        height: Input height in pixels.
+        width: Input width in pixels.
+        patch_size: The backbone's patch size.
+        what: How the message names the input (``"--window"``, ``"val.window"``).
+        fix: What to do, when the default ("use a larger ...") is not what the caller offers.
+
+    Raises:
+        ValueError: one line naming the head, its smallest size in patches and pixels, the
+            size given and what to do.
+    """
+    spec = head_spec(name)
+    n = spec.min_patches
+    if min(height // patch_size, width // patch_size) >= n:
+        return
+    side = n * patch_size
+    raise ValueError(
+        f"the {spec.name} head needs {what} of at least {n} x {n} patches ({side}x{side} px at "
+        f"patch size {patch_size}; its coarsest level halves the patch grid), got {width}x"
+        f"{height} (WxH): {fix or f'use {what} of at least {side} px a side'}"
+    )
+
+
+def check_norm_batch(name: str, batch: int, grid_h: int, grid_w: int, fix: str) -> None:
+    """Refuse a training batch whose BatchNorm would see one value per channel (PyTorch's
+    "Expected more than 1 value per channel" after the work before it).
+
+    mmsegmentation does not handle it either: its configs train two or more images per GPU
+    and drop a last batch of one. Here it is refused up front, saying what to do.
+
+    Args:
+        name: The head.
+        batch: Images in the forward pass.
+        grid_h: Patch rows of each image.
+        grid_w: Patch columns of each image.
+        fix: What the caller can change (a config key, ``drop_last=True``).
+
+    Raises:
+        ValueError: one line naming the head, what its BatchNorm sees and ``fix``.
+    """
+    spec = head_spec(name)
+    if spec.norm is None:
+        return
+    per_image = 1 if spec.norm == "pooled" else grid_h * grid_w
+    if batch * per_image >= 2:
+        return
+    sees = "one value per image" if spec.norm == "pooled" else "one value per image and patch"
+    raise ValueError(
+        f"the {spec.name} head trains BatchNorm, which needs more than one value per channel, "
+        f"and sees {sees}: {batch} image(s) of {grid_w} x {grid_h} patches give "
+        f"{batch * per_image}; {fix}"
+    )
 
 
 def default_layers(spec: HeadSpec, n_blocks: int, four_taps: Sequence[int]) -> tuple[int, ...]:

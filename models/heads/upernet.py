@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from claravid.models.heads.specs import UPERNET_CHANNELS, classifier
+from claravid.models.heads.specs import HEADS, UPERNET_CHANNELS, classifier
 from claravid.models.layers.tracing import is_exporting
 
 POOL_SCALES = (1, 2, 3, 6)
@@ -172,10 +172,11 @@ class UperNetHead(nn.Module):
         Raises:
             ValueError: a grid under 2 patches a side (the coarsest level halves it).
         """
-        if not is_exporting() and min(grid_h, grid_w) < 2:
+        least = HEADS["upernet"].min_patches  # stated once, checked by every entry point
+        if not is_exporting() and min(grid_h, grid_w) < least:
             raise ValueError(
-                f"the upernet head needs inputs of at least 2 x 2 patches (its coarsest level "
-                f"halves the patch grid), got {grid_w} x {grid_h}: use a larger input or window"
+                f"the upernet head needs a patch grid of at least {least} x {least} (its "
+                f"coarsest level halves it), got {grid_w} x {grid_h}: use a larger input"
             )
         maps = [t.transpose(1, 2).reshape(t.shape[0], -1, grid_h, grid_w) for t, _ in feats]
         return _resize(self.decode(self.neck(maps)), out_size)

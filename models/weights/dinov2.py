@@ -121,6 +121,7 @@ DINOV2 = WeightsFamily(
         r"|blocks\.\d+\.mlp\.w12\..*)"
     ),
     formats=(HUGGING_FACE, TIMM),
+    model_types=("dinov2", "dinov2_with_registers"),
     # transformers' Dinov2Config / Dinov2WithRegistersConfig fields.
     hf_config={
         "hidden_size": lambda a: a["embed_dim"],

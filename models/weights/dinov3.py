@@ -154,6 +154,7 @@ DINOV3 = WeightsFamily(
         r"|blocks\.\d+\.gamma_1|blocks\.\d+\.attn\.[qv]_bias)"
     ),
     formats=(HUGGING_FACE, TIMM),
+    model_types=("dinov3_vit",),
     # transformers' DINOv3ViTConfig fields that must agree with the architecture.
     hf_config={
         "hidden_size": lambda a: a["embed_dim"],

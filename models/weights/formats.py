@@ -114,6 +114,8 @@ class WeightsFamily:
             ``config.json`` says otherwise is another model.
         check: Family checks of a state under official names (``state, model, source``), or
             None.
+        model_types: The transformers ``model_type`` values of this family's ViTs; a
+            ``config.json`` naming another is another model's.
     """
 
     family: str
@@ -121,6 +123,7 @@ class WeightsFamily:
     formats: tuple[KeyFormat, ...]
     hf_config: Mapping[str, Callable[[Mapping[str, Any]], Any]] = field(default_factory=dict)
     check: Callable[..., None] | None = None
+    model_types: tuple[str, ...] = ()
 
 
 @cache

@@ -85,20 +85,80 @@ def is_hub_id(weights: str) -> bool:
 
 
 def hub_cache_dir() -> Path:
-    """The Hugging Face hub cache, as ``huggingface_hub`` would resolve it now."""
-    if os.environ.get("HF_HUB_CACHE"):
-        return Path(os.environ["HF_HUB_CACHE"])
-    if os.environ.get("HF_HOME"):
-        return Path(os.environ["HF_HOME"]) / "hub"
-    return Path.home() / ".cache" / "huggingface" / "hub"
+    """The Hugging Face hub cache: ``huggingface_hub``'s own ``constants.HF_HUB_CACHE`` (from
+    ``HF_HUB_CACHE``, the legacy ``HUGGINGFACE_HUB_CACHE``, ``HF_HOME``, ``XDG_CACHE_HOME``, as
+    that version reads them), so the toolkit reads where ``hf download`` writes. Without
+    ``huggingface_hub`` (the message that says to install it still names the place), the same
+    order restated."""
+    try:
+        from huggingface_hub import constants
+    except ImportError:
+        env = os.environ
+        home = env.get("HF_HOME") or os.path.join(
+            env.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"),
+            "huggingface",
+        )
+        hub = env.get("HF_HUB_CACHE") or env.get("HUGGINGFACE_HUB_CACHE")
+        return Path(os.path.expandvars(os.path.expanduser(hub or os.path.join(home, "hub"))))
+    return Path(constants.HF_HUB_CACHE)
 
 
 def _holds(folder: Path, patterns: list[str]) -> bool:
-    return any(next(folder.glob(p), None) is not None for p in patterns)
+    return any(f.is_file() for p in patterns for f in folder.glob(p))
 
 
 def _offline() -> bool:
-    return os.environ.get("HF_HUB_OFFLINE", "").strip().lower() in {"1", "true", "yes", "on"}
+    """``HF_HUB_OFFLINE`` as set now, or as ``huggingface_hub`` read it at import."""
+    if os.environ.get("HF_HUB_OFFLINE", "").strip().lower() in {"1", "true", "yes", "on"}:
+        return True
+    try:
+        from huggingface_hub import constants
+    except ImportError:
+        return False
+    return bool(constants.HF_HUB_OFFLINE)
+
+
+def repo_folder_snapshot(folder: Path) -> Path | None:
+    """The snapshot a hub-cache repository folder (``models--org--name``, what the offline
+    message says to copy) points to through ``refs/main``; None for any other folder.
+
+    Raises:
+        WeightsError: ``refs/main`` names a snapshot the folder does not hold (a partial copy).
+    """
+    ref = folder / "refs" / "main"
+    if not folder.name.startswith("models--") or not ref.is_file():
+        return None
+    snapshot = folder / "snapshots" / ref.read_text().strip()
+    if not snapshot.is_dir():
+        repo = folder.name.removeprefix("models--").replace("--", "/")
+        raise WeightsError(
+            f"{folder}: refs/main names the snapshot {snapshot.name}, which is not in "
+            f"{folder / 'snapshots'}: the copy or download is incomplete; resume it with "
+            f"`hf download {repo}` and copy the whole folder again"
+        )
+    return snapshot
+
+
+def incomplete_download(folder: Path, repo_id: str | None) -> WeightsError | None:
+    """The error for a hub snapshot whose download stopped half-way: a weights link that points
+    to no file (the blob never arrived), or configs without any weights file; None otherwise."""
+    resume = (
+        f"resume it with `hf download {repo_id}` (it fetches only what is missing)"
+        if repo_id
+        else "resume the download (`hf download <repo id>` fetches only what is missing)"
+    )
+    dangling = sorted(f.name for f in folder.glob("*") if f.is_symlink() and not f.exists())
+    if dangling:
+        return WeightsError(
+            f"{folder}: {', '.join(dangling)} point(s) to a file that is not there: the download "
+            f"is incomplete; {resume}"
+        )
+    weights = [f for f in folder.iterdir() if f.is_file() and f.suffix in _WEIGHT_SUFFIXES]
+    if not weights and (folder / "config.json").is_file() and "snapshots" in folder.parts:
+        return WeightsError(
+            f"{folder} holds config.json but no weights file: the download is incomplete; {resume}"
+        )
+    return None
 
 
 def hub_snapshot(repo_id: str) -> Path:
@@ -124,15 +184,19 @@ def hub_snapshot(repo_id: str) -> Path:
             "huggingface_hub: pip install 'claravid[hub]', or download the repository and pass "
             "its folder"
         ) from None
+    cached = None
     for patterns in _PATTERNS:
         try:
-            folder = huggingface_hub.snapshot_download(
+            cached = huggingface_hub.snapshot_download(
                 repo_id, cache_dir=cache, local_files_only=True, allow_patterns=patterns
             )
         except LocalEntryNotFoundError:
             continue
-        if _holds(Path(folder), patterns[1:]):
-            return Path(folder)
+        if _holds(Path(cached), patterns[1:]):
+            return Path(cached)
+    incomplete = incomplete_download(Path(cached), repo_id) if cached else None
+    if incomplete is not None and _offline():
+        raise incomplete
     if _offline():
         raise WeightsError(
             f"weights={repo_id!r}: no such file or folder, and the Hugging Face cache ({cache}) "

@@ -289,10 +289,22 @@ def check_config(
     """Refuse weights whose transformers ``config.json`` describes another architecture."""
     if not config or "model_type" not in config:
         return
+    if family.model_types and config["model_type"] not in family.model_types:
+        raise WeightsError(
+            f"{source}: its config.json says model_type {config['model_type']!r}, not a "
+            f"{spec.family_name} ViT ({', '.join(family.model_types)}): these are another "
+            f"model's weights; pass {spec.family_name} weights for {spec.name}"
+        )
     wrong = []
     for key, expected in family.hf_config.items():
-        if key in config and not _same(config[key], expected(arch)):
-            wrong.append(f"{key} {config[key]!r} (the model: {expected(arch)!r})")
+        if key not in config:
+            continue
+        value, want = config[key], expected(arch)
+        if isinstance(value, str) and not isinstance(want, str):
+            wrong.append(f"{key} is the string {value!r}, where transformers reads a "
+                         f"{type(want).__name__} ({want!r} for the model)")  # fmt: skip
+        elif not _same(value, want):
+            wrong.append(f"{key} {value!r} (the model: {want!r})")
     if wrong:
         raise WeightsError(
             f"{source}: its config.json describes another model than {spec.name}: "

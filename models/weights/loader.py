@@ -34,9 +34,11 @@ from claravid.models.weights.formats import (
 from claravid.models.weights.hub import (  # noqa: F401  (official_url, official_checkpoint_path: API)
     download_official,
     hub_snapshot,
+    incomplete_download,
     is_hub_id,
     official_checkpoint_path,
     official_url,
+    repo_folder_snapshot,
 )
 from claravid.models.weights.identity import (
     WEIGHTS_FAMILIES,
@@ -124,8 +126,15 @@ def locate_weights(weights: str | os.PathLike, spec: BackboneSpec) -> WeightsSou
     given = str(weights)
     if given == "official":
         return WeightsSource(given, (download_official(spec.name),))
+    if not given.strip():  # Path("") is the current folder
+        hint = _missing_hint(spec).replace(";", ":", 1)
+        raise WeightsError(f"weights={given!r} names nothing{hint}")
     path = Path(weights)
     if path.is_dir():
+        snapshot = repo_folder_snapshot(path)
+        if snapshot is not None:  # a models--org--name folder of the hub cache
+            hub_id = path.name.removeprefix("models--").replace("--", "/")
+            return _from_folder(snapshot, given, hub_id=hub_id)
         return _from_folder(path, given)
     if path.is_file():
         if path.name.endswith(".index.json"):
@@ -159,6 +168,9 @@ def _from_folder(
             if first in names:
                 found = [f for f in found if f.name != second]
         if not found:
+            incomplete = incomplete_download(folder, hub_id)
+            if incomplete is not None:
+                raise incomplete
             raise WeightsError(
                 f"folder {folder} holds no weights file (*.safetensors, *.bin, *.pth, *.pt): "
                 "pass the folder a download or save_pretrained wrote, or the file itself"
@@ -181,6 +193,11 @@ def _shards(index: Path) -> tuple[Path, ...]:
         raise WeightsError(
             f"cannot read the shard index {index} ({exc}): download it again"
         ) from None
+    if not names:
+        raise WeightsError(
+            f"the shard index {index} lists no shards (its weight_map is empty): download it "
+            "again, or pass the weights file itself"
+        )
     missing = [n for n in names if not (index.parent / n).is_file()]
     if missing:
         raise WeightsError(
@@ -192,12 +209,26 @@ def _shards(index: Path) -> tuple[Path, ...]:
 
 
 def _read_config(folder: Path) -> dict[str, Any] | None:
+    """The ``config.json`` beside the weights (None when there is none): it is checked against
+    the backbone, so one that cannot be read is refused, not skipped."""
     path = folder / "config.json"
+    if not path.is_file():
+        return None
     try:
         config = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    return config if isinstance(config, dict) else None
+    except (OSError, ValueError) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise WeightsError(
+            f"{path} is not readable JSON ({reason}): it says which model the weights are "
+            "for, so it is not skipped; download it again, or move it away to load the weights "
+            "unchecked"
+        ) from None
+    if not isinstance(config, dict):
+        raise WeightsError(
+            f"{path} holds a JSON {type(config).__name__}, not an object: download it again, or "
+            "move it away to load the weights unchecked"
+        )
+    return config
 
 
 def read_weights(source: WeightsSource) -> State:
@@ -250,6 +281,13 @@ def _read_one(path: Path) -> State:
         raise WeightsError(
             f"{path} is not a state dict of tensors: entries {bad[:5]} are not name -> tensor; "
             "pass backbone weights (an official .pth, a Hugging Face or timm model.safetensors)"
+        )
+    empty = [k for k, v in obj.items() if v.is_meta]
+    if empty:
+        raise WeightsError(
+            f"{path} holds tensors without values (on the meta device: {', '.join(empty[:3])}"
+            f"{' ...' if len(empty) > 3 else ''}), as a model built empty and saved before its "
+            "weights were loaded: save the model after loading them, or download the file again"
         )
     return dict(obj)
 

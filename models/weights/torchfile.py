@@ -41,7 +41,7 @@ def read_tensor_file(
             f"cannot read {what} {path}: the file is empty (0 bytes); the copy or download did "
             "not finish, fetch it again"
         )
-    if path.suffix == ".safetensors":
+    if path.suffix == ".safetensors" or _is_safetensors(path):  # also a safetensors file renamed
         from safetensors import SafetensorError
         from safetensors.torch import load_file
 
@@ -56,6 +56,16 @@ def read_tensor_file(
         return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:
         raise error(f"cannot read {what} {path}: {_reason(path, exc)}") from None
+
+
+def _is_safetensors(path: Path) -> bool:
+    """Whether the file starts as safetensors does: an 8-byte little-endian header length, then
+    the JSON header (``{``)."""
+    with path.open("rb") as f:
+        head = f.read(9)
+    if len(head) < 9 or head[8:9] != b"{":
+        return False
+    return 2 <= int.from_bytes(head[:8], "little") <= path.stat().st_size - 8
 
 
 def _reason(path: Path, exc: Exception) -> str:

@@ -62,3 +62,15 @@ def sha256(data: bytes | Path) -> str:
     import hashlib
 
     return hashlib.sha256(data if isinstance(data, bytes) else Path(data).read_bytes()).hexdigest()
+
+
+def use_hub_cache(monkeypatch, folder: Path) -> Path:
+    """Point the Hugging Face hub cache at ``folder`` for one test: the variable, and the
+    constant ``huggingface_hub`` read from it at import (which the toolkit reads)."""
+    monkeypatch.setenv("HF_HUB_CACHE", str(folder))
+    try:
+        from huggingface_hub import constants
+    except ImportError:
+        return folder
+    monkeypatch.setattr(constants, "HF_HUB_CACHE", str(folder))
+    return folder

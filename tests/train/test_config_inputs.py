@@ -74,10 +74,17 @@ def test_a_wrong_weights_path_is_reported_before_any_data_is_read(tmp_path, caps
             f"model.weights={weights}"]  # fmt: skip
     assert train_main(argv) == 2
     err = capsys.readouterr().err.strip()
-    what = "no such file" if kind == "missing" else "a folder, not a file"
-    assert err == (
-        f"claravid-train: error: model.weights={weights}: {what}; pass the path of "
-        "dinov2_vits14's .pth or .safetensors weights file, model.weights=official or "
-        "model.weights=null (a random backbone)"
-    )
+    if kind == "missing":
+        assert err == (
+            f"claravid-train: error: model.weights={weights}: no such file or folder; pass the "
+            "path of dinov2_vits14's .pth or .safetensors weights file or of a folder holding "
+            "one, model.weights=official, a hub id such as "
+            "model.weights=timm/vit_small_patch14_dinov2.lvd142m or model.weights=null (a random "
+            "backbone)"
+        )
+    else:  # a folder is taken, as by the Python API: this one holds no weights
+        assert err.startswith(
+            f"claravid-train: error: model.weights={weights}: folder {weights} holds no weights "
+            "file (*.safetensors, *.bin, *.pth, *.pt)"
+        )
     assert not out.exists()  # no config.yaml, no label cache, no index

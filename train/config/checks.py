@@ -192,8 +192,9 @@ def resolve_backbone(cfg: DictConfig) -> None:
     if spec is None:
         _refuse("model.backbone", m.backbone, f"one of {', '.join(BACKBONE_NAMES)}")
     _check_weights(cfg, spec)
-    if _weights_path(m) is not None:
-        m.weights = os.path.abspath(os.path.expanduser(m.weights))
+    path = _weights_path(m)
+    if path is not None and not _names_hub_repo(path):
+        m.weights = os.path.abspath(os.path.expanduser(path))
     if m.init is not None:  # recorded absolute, as the weights: the run is read from anywhere
         m.init = os.path.abspath(os.path.expanduser(m.init))
     patch = int(m.backbone_kwargs.get("patch_size", spec.patch_size))
@@ -212,6 +213,15 @@ def resolve_backbone(cfg: DictConfig) -> None:
                 f"{key}={value} is not a multiple of the patch size {patch} of {m.backbone}: "
                 f"use {small} or {large}"
             )
+    from claravid.models.heads.specs import HEADS, check_input_size
+
+    if m.head in HEADS:  # an unknown head is named by the head settings' check
+        crops = ("data.augment.crop_height/crop_width", a.crop_height, a.crop_width)
+        for key, height, width in (crops, ("val.window", v.window, v.window)):
+            try:
+                check_input_size(m.head, height, width, patch, key)
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from None
 
 
 def _check_weights(cfg: DictConfig, spec: Any) -> None:
@@ -233,31 +243,51 @@ def _check_weights(cfg: DictConfig, spec: Any) -> None:
 
 
 def _weights_path(m: DictConfig) -> str | None:
-    """``model.weights`` when it names a file (not null, ``official`` or missing)."""
+    """``model.weights`` when it names a file, a folder or a hub id (not null, ``official`` or
+    missing)."""
     if OmegaConf.is_missing(m, "weights") or m.weights in (None, "official"):
         return None
     return str(m.weights)
 
 
+def _names_hub_repo(weights: str) -> bool:
+    """Whether ``weights`` is a hub id (``timm/...``) rather than a path: as the loader reads it,
+    an existing path first."""
+    from claravid.models.weights.hub import is_hub_id
+
+    return is_hub_id(weights) and not os.path.exists(os.path.expanduser(weights))
+
+
 def check_weights_file(cfg: DictConfig) -> None:
-    """Refuse a ``model.weights`` path that is no file, before any data is indexed or cached
-    and before the run folder is written.
+    """Find the files of ``model.weights`` (a file, a folder holding one, a hub id) as the model
+    will, before any data is indexed or cached and before the run folder is written; the
+    tensors themselves are read and checked when the model is built.
 
     Raises:
-        ConfigError: one line naming the path and what to pass instead.
+        ConfigError: one line naming what was given, what is wrong and what to pass instead.
     """
     path = _weights_path(cfg.model)
-    if path is None or os.path.isfile(path):
+    if path is None:
         return
     from claravid.models.backbones.specs import BACKBONES
+    from claravid.models.weights.loader import WeightsError, locate_weights
 
     spec = BACKBONES.get(cfg.model.backbone)
-    what = "a folder, not a file" if os.path.isdir(path) else "no such file"
-    instead = "" if spec is None or spec.weights.url is None else ", model.weights=official"
-    raise ConfigError(
-        f"model.weights={path}: {what}; pass the path of {cfg.model.backbone}'s .pth or "
-        f".safetensors weights file{instead} or model.weights=null (a random backbone)"
-    )
+    if spec is None:
+        return
+    try:
+        locate_weights(path, spec)
+    except FileNotFoundError:
+        hub = next((h for h in spec.weights.hub if h.startswith("timm/")), None)
+        instead = "" if spec.weights.url is None else ", model.weights=official"
+        instead += f", a hub id such as model.weights={hub}" if hub else ""
+        raise ConfigError(
+            f"model.weights={path}: no such file or folder; pass the path of "
+            f"{cfg.model.backbone}'s .pth or .safetensors weights file or of a folder holding "
+            f"one{instead} or model.weights=null (a random backbone)"
+        ) from None
+    except WeightsError as exc:
+        raise ConfigError(f"model.weights={path}: {exc}") from None
 
 
 def statistics_warning(cfg: DictConfig) -> str | None:

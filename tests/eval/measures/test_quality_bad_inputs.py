@@ -126,20 +126,6 @@ def test_partial_download_makes_pairs_unavailable_and_changes_nothing_else(writa
     assert none["overall"]["miou"] == full["overall"]["miou"]
 
 
-def test_a_pose_that_is_not_rigid_is_refused_naming_the_file(writable_root, tmp_path, capsys):
-    from claravid.data.segmentation import ClaraVidSegmentation
-
-    ds = ClaraVidSegmentation(writable_root, split="all", palette="uavid")
-    argv = _labels(tmp_path, writable_root, ds)
-    pose_file = writable_root / VIEW.format(m="extrinsics", stem="000001", ext="json")
-    pose = modalities.read_extrinsics(pose_file).astype(np.float64)
-    pose[:3, :3] *= 1.5  # scaled: not a rigid transform
-    pose_file.write_text(json.dumps(pose.tolist()))
-    assert main([*argv, "--output", str(tmp_path / "rep")]) == 2
-    line = _one_line(capsys)
-    assert str(pose_file) in line and "rigid" in line
-
-
 def test_identical_poses_are_flagged_and_left_out(writable_root, tmp_path):
     from claravid.data.segmentation import ClaraVidSegmentation
 
@@ -154,3 +140,47 @@ def test_identical_poses_are_flagged_and_left_out(writable_root, tmp_path):
     assert any("identical poses" in reason for reason in summary["unavailable"])
     text = (tmp_path / "rep" / "report.md").read_text()
     assert "1 identical poses" in text
+
+
+def test_a_damaged_pose_or_depth_costs_only_that_frame_s_pairs(writable_root, tmp_path):
+    # Before: one damaged geometry file stopped the whole evaluation (exit 2, no report).
+    from claravid.data.segmentation import ClaraVidSegmentation
+
+    ds = ClaraVidSegmentation(writable_root, split="all", palette="uavid")
+    argv = _labels(tmp_path, writable_root, ds)
+    assert main([*argv, "--output", str(tmp_path / "full")]) == 0
+    pose_file = writable_root / VIEW.format(m="extrinsics", stem="000001", ext="json")
+    pose = modalities.read_extrinsics(pose_file).astype(np.float64)
+    pose[:3, :3] *= 1.5  # scaled: not a rigid transform; a middle frame: two pairs
+    pose_file.write_text(json.dumps(pose.tolist()))
+    depth_file = sorted((writable_root / "001_rural_1" / "depth").rglob("000000.*"))[0]
+    depth_file.write_bytes(depth_file.read_bytes()[:60])  # truncated; a first frame: one pair
+    assert main([*argv, "--output", str(tmp_path / "rep")]) == 0
+    full = json.loads((tmp_path / "full" / "report.json").read_text())
+    report = json.loads((tmp_path / "rep" / "report.json").read_text())
+    assert report["overall"]["miou"] == full["overall"]["miou"]  # nothing else lost
+    before, after = full["quality"]["consistency"], report["quality"]["consistency"]
+    assert after["status"] == "computed"
+    assert after["pairs"]["unavailable"] == before["pairs"]["unavailable"] + 3
+    reasons = " ".join(after["unavailable"])
+    assert f"damaged file: cannot read {pose_file}" in reasons and "rigid" in reasons
+    assert f"damaged file: cannot read {depth_file}" in reasons
+
+
+def test_passes_of_one_frame_have_no_pairs_and_say_so(tmp_path, capsys):
+    # Before: consistency "computed" from 0 pairs with no reason, and --consistency exited 0.
+    from claravid.data.segmentation import ClaraVidSegmentation
+    from claravid.synth import synthesize
+
+    root = tmp_path / "root"
+    synthesize(root, seed=1, frames_per_viewpoint=1, size=(32, 24), missions=["rural_1"])
+    ds = ClaraVidSegmentation(root, split="all", palette="uavid")
+    argv = _labels(tmp_path, root, ds)
+    assert main([*argv, "--output", str(tmp_path / "rep")]) == 0
+    summary = json.loads((tmp_path / "rep" / "report.json").read_text())["quality"]
+    assert summary["consistency"]["status"] == "unavailable"
+    assert "each pass of the selection holds one frame" in summary["consistency"]["reason"]
+    assert main([*argv, "--consistency", "--output", str(tmp_path / "asked")]) == 2
+    line = _one_line(capsys)
+    assert "--consistency cannot be computed: no evaluated frame has a next frame" in line
+    assert not (tmp_path / "asked").exists()

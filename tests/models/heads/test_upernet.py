@@ -151,5 +151,7 @@ def test_an_input_under_two_patches_a_side_is_refused_in_one_line():
     model = build_model("dinov3_vits16", 3, head="upernet", layers=[0, 1, 2, 3], features=8,
                         backbone_kwargs=tiny).eval()  # fmt: skip
     assert model(torch.randn(1, 3, 32, 48)).shape == (1, 3, 32, 48)  # 2 x 3 patches: the least
-    with pytest.raises(ValueError, match=r"at least 2 x 2 patches .* got 3 x 1"):
+    with pytest.raises(
+        ValueError, match=r"at least 2 x 2 patches \(32x32 px at patch size 16.* got 48x16"
+    ):
         model(torch.randn(1, 3, 16, 48))

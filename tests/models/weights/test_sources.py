@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from claravid.models import WeightsError, build_backbone, build_model, save_checkpoint
+from tests.helpers.files import use_hub_cache
 from tests.helpers.weights import released_state, saved
 from tests.models.weights.official_v3 import to_hugging_face, to_timm
 from tests.tiny import TINY_V3
@@ -58,7 +59,7 @@ TIMM_SAT = "timm/vit_large_patch16_dinov3.sat493m"
 
 
 def test_a_hub_id_reads_the_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path / "hub"))
+    use_hub_cache(monkeypatch, tmp_path / "hub")
     state = released_state(SAT, seed=3)
     timm_config = {
         "architecture": "vit_large_patch16_dinov3",
@@ -85,7 +86,7 @@ def test_a_hub_id_reads_the_cache(tmp_path, monkeypatch):
 
 
 def test_a_hub_id_offline_and_not_cached_says_what_to_download(tmp_path, monkeypatch):
-    monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path / "hub"))
+    use_hub_cache(monkeypatch, tmp_path / "hub")
     repo = "timm/vit_large_patch16_dinov3.lvd1689m"
     with pytest.raises(WeightsError) as err:
         build_backbone("dinov3_vitl16", weights=repo, **TINY_V3)
