@@ -3,7 +3,8 @@
 A model's image goes through the sliding windows once (:mod:`claravid.eval.inference.windows`);
 its logits give the prediction (argmax) and, for calibration, each pixel's confidence, the
 largest softmax probability ``1 / Σ_k exp(l_k − max_l)`` (one reduction on the model's device;
-the class probabilities are never copied off it). The sums themselves are
+the class probabilities are never copied off it, and a PyTorch model's confidences are binned
+there too: only the per-bin integers come back). The sums themselves are
 :func:`claravid.eval.measures.boundary.boundary_iou` and
 :func:`claravid.eval.measures.calibration_sums.calibration_sums`.
 """

@@ -104,6 +104,8 @@ def evaluate_model(
         prediction, confidence = predict_with_confidence(
             model, sample["image"].to(device), config, measures.calibration
         )
+        if confidence is not None and not isinstance(model, torch.nn.Module):
+            confidence = confidence.cpu().numpy()  # ONNX Runtime's scores, on the CPU: numpy counts
         target = torch.as_tensor(sample["mask"]).to(device)
         if prediction.device.type == "cpu" and num_classes <= 255:
             # Byte ids take metrics' fast CPU path (an int64 map would be checked and cast).
