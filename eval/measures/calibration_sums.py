@@ -217,8 +217,8 @@ def _torch_parts(
     sums = torch.zeros(bins * EXPONENTS + 1, dtype=torch.int64, device=device)
     sums.scatter_add_(0, index, torch.where(small, significand, 0).ravel().to(torch.int64))
     parts = torch.cat([count, correct, fixed[:bins], sums[:-1]]).cpu().numpy()
-    count, correct, fixed_sums, rest = np.split(parts, [bins, 2 * bins, 3 * bins])
-    return count, correct, fixed_sums, rest.reshape(bins, EXPONENTS)
+    counts, corrects, fixed_sums, rest = np.split(parts, [bins, 2 * bins, 3 * bins])
+    return counts, corrects, fixed_sums, rest.reshape(bins, EXPONENTS)
 
 
 def _device_labels(labels: Any, name: str, device: torch.device) -> torch.Tensor:
