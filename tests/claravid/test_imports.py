@@ -163,7 +163,7 @@ def test_every_name_the_docs_show_imports():
     from claravid.models.export.metadata import metadata_props
 
     # The readable ONNX metadata keys are spelled like module paths; they are not imports.
-    document = {"patch_size": 14, "num_classes": 2, "model_args": {}, "precision": "fp32"}
+    document = {"patch_size": 14, "num_classes": 2, "model_args": {}, "dtype": "fp32"}
     document |= {"input_size": [2, 4], "palette": {"name": "p"}, "window": {"size": [2, 4]}}
     keys = set(metadata_props(document)) - {"claravid"}
     names = documented_names() - keys

@@ -10,6 +10,7 @@ import pytest
 from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.dsp import image_complexity
 from claravid.eval.cli.evaluate import main
+from tests.helpers.cli import exit_code
 
 FRAMES = ["001_rural_1/45deg_low_h/000000", "003_urban_1/55deg_mid_v/000001",
           "003_urban_1/90deg_high_h/000002"]  # fmt: skip
@@ -200,19 +201,21 @@ def test_undecodable_prediction_files_are_named(case, tmp_path, capsys, corrupt,
     [
         (["--bins", "4"], "4 bins for 3 images"),
         (["--edges", "5,4.5,6"], "strictly increasing"),
-        (["--onnx", "x.onnx"], "exactly one of"),
+        (["--onnx", "x.onnx"], "argument --onnx: not allowed with argument --predictions"),
         (["--bins", "2", "--edges", "1,2"], "--bins or --edges"),
         (["--measures", "delent,nope"], "unknown measure"),
     ],
 )
 def test_user_mistakes_exit_2_with_one_line(case, tmp_path, capsys, extra, expected):
-    assert main(_args(case, tmp_path / "rep", *extra)) == 2
+    assert exit_code(main, _args(case, tmp_path / "rep", *extra)) == 2
     assert expected in _error_line(capsys)
 
 
 def test_no_source_at_all(tmp_path, capsys):
-    assert main(["--data", str(tmp_path), "--output", str(tmp_path / "o")]) == 2
-    assert "exactly one of --checkpoint, --onnx, --predictions" in _error_line(capsys)
+    assert exit_code(main, ["--data", str(tmp_path), "--output", str(tmp_path / "o")]) == 2
+    assert "one of the arguments --checkpoint --onnx --predictions is required" in _error_line(
+        capsys
+    )
 
 
 def test_output_folder_of_someone_else_is_refused(case, tmp_path, capsys):
