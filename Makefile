@@ -11,8 +11,7 @@ export NO_ALBUMENTATIONS_UPDATE := 1
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml constraints.txt claravid/dsp/_deldensity.c claravid/io/_jpeg_region.c \
-		eval/measures/_calibration.c eval/measures/_joint_counts.c
+$(STAMP): pyproject.toml constraints.txt claravid/dsp/_deldensity.c claravid/io/_jpeg_region.c
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[dev]"
 	touch $(STAMP)

@@ -1,9 +1,9 @@
 """CPU work beside the model: the measures of an image run in threads while the next image is
 predicted.
 
-Boundary IoU, the calibration sums and a pair's cross-view sums are OpenCV and numpy passes that
-release the GIL; run in threads they overlap the model's forward passes (on a GPU, the whole of
-them). At most ``2 × threads`` jobs wait at a time, so the full-size label images and
+Boundary IoU, the calibration sums and a pair's cross-view sums are OpenCV, numpy and torch
+passes that release the GIL; run in threads they overlap the model's forward passes (on a GPU,
+the whole of them). At most ``2 × threads`` jobs wait at a time, so the full-size label images and
 confidences they hold stay a bounded handful.
 """
 

@@ -3,7 +3,8 @@
 A model's image goes through the sliding windows once (:mod:`claravid.eval.inference.windows`);
 its logits give the prediction (argmax) and, for calibration, each pixel's confidence, the
 largest softmax probability ``1 / Σ_k exp(l_k − max_l)`` (one reduction on the model's device;
-the class probabilities are never copied off it). With test-time augmentation the prediction
+the class probabilities are never copied off it, and a PyTorch model's confidences are binned
+there too: only the per-bin integers come back). With test-time augmentation the prediction
 and the confidence are the argmax and the largest of the probabilities averaged over the
 copies (:mod:`claravid.eval.inference.augment`), so calibration and Boundary IoU score what
 the augmented model predicts. The sums themselves are

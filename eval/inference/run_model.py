@@ -106,9 +106,12 @@ def evaluate_model(
     for sample in tqdm(loader, total=total, desc="evaluate", unit="img", disable=not progress):
         if "mask" not in sample:
             raise ValueError(f"{sample['path']} has no ground truth: evaluation needs labels")
-        prediction, confidence = predict_with_confidence(
+        prediction, scores = predict_with_confidence(
             model, sample["image"].to(device), config, measures.calibration, fold
         )
+        confidence: torch.Tensor | np.ndarray | None = scores
+        if scores is not None and not isinstance(model, torch.nn.Module):
+            confidence = scores.cpu().numpy()  # ONNX Runtime's scores, on the CPU: numpy counts
         target = torch.as_tensor(sample["mask"]).to(device)
         if prediction.device.type == "cpu" and num_classes <= 255:
             # Byte ids take metrics' fast CPU path (an int64 map would be checked and cast).

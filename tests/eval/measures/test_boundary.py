@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 import torch
 
-from claravid.eval.measures import joint_counts
 from claravid.eval.measures.boundary import boundary_iou, boundary_width
 from tests.helpers.scoring import boundary_iou_by_hand
 
@@ -66,10 +65,7 @@ def test_hand_counted_ignore_region():
         ((50, 1), 2, 0.1),  # one column
     ],
 )
-@pytest.mark.parametrize("native", [True, False], ids=["C", "OpenCV"])
-def test_random_masks_match_the_iterated_erosions(monkeypatch, native, shape, num_classes, ratio):
-    if not native:  # the pair counts without the optional C module
-        monkeypatch.setattr(joint_counts, "_native", None)
+def test_random_masks_match_the_iterated_erosions(shape, num_classes, ratio):
     rng = np.random.default_rng(sum(shape) + num_classes)
     for _ in range(4):
         gt = blobs(rng, shape, num_classes)

@@ -1,9 +1,8 @@
-"""Joint counts of two byte images against numpy's bincount, with and without the C module."""
+"""Joint counts of two byte images against numpy's bincount."""
 
 import numpy as np
 import pytest
 
-from claravid.eval.measures import joint_counts
 from claravid.eval.measures.joint_counts import joint_counts as count_pairs
 
 
@@ -20,11 +19,8 @@ def runs(rng, shape, values):
     return flat[: shape[0] * shape[1]].reshape(shape).astype(np.uint8)
 
 
-@pytest.mark.parametrize("native", [True, False], ids=["C", "OpenCV"])
 @pytest.mark.parametrize("shape", [(1, 1), (3, 7), (17, 45), (64, 129)])
-def test_counts_match_bincount_on_runs_and_noise(monkeypatch, native, shape):
-    if not native:
-        monkeypatch.setattr(joint_counts, "_native", None)
+def test_counts_match_bincount_on_runs_and_noise(shape):
     rng = np.random.default_rng(shape[1])
     for first, second in (
         (runs(rng, shape, 4), runs(rng, shape, 3)),  # runs that break in one image only
@@ -36,11 +32,8 @@ def test_counts_match_bincount_on_runs_and_noise(monkeypatch, native, shape):
         np.testing.assert_array_equal(got, plain_counts(first, second))
 
 
-@pytest.mark.parametrize("native", [True, False], ids=["C", "OpenCV"])
 @pytest.mark.parametrize("shape", [(1, 1), (5, 9), (33, 70)])
-def test_one_channel_of_an_interleaved_pair_is_counted_in_place(monkeypatch, native, shape):
-    if not native:
-        monkeypatch.setattr(joint_counts, "_native", None)
+def test_one_channel_of_an_interleaved_pair_is_counted_in_place(shape):
     rng = np.random.default_rng(shape[0])
     first = runs(rng, shape, 3)
     for second in (
@@ -53,10 +46,7 @@ def test_one_channel_of_an_interleaved_pair_is_counted_in_place(monkeypatch, nat
             np.testing.assert_array_equal(count_pairs(first, second, channel), expected)
 
 
-@pytest.mark.parametrize("native", [True, False], ids=["C", "OpenCV"])
-def test_an_image_counted_in_bands_adds_up(monkeypatch, native):
-    if not native:
-        monkeypatch.setattr(joint_counts, "_native", None)
+def test_an_image_counted_in_bands_adds_up():
     rng = np.random.default_rng(4)
     first, second = runs(rng, (30, 41), 5), np.stack([runs(rng, (30, 41), 3)] * 2, -1)
     total = np.zeros((256, 256), np.int64)
@@ -65,10 +55,6 @@ def test_an_image_counted_in_bands_adds_up(monkeypatch, native):
     np.testing.assert_array_equal(total, plain_counts(first, second[..., 1]))
     with pytest.raises(ValueError, match="C-contiguous int64 256×256"):
         count_pairs(first, second, 1, out=np.zeros((256, 256), np.int32))
-
-
-def test_the_c_module_is_built_here():
-    assert joint_counts._native is not None, "reinstall with a C compiler to build _joint_counts"
 
 
 def test_a_strided_view_is_counted_as_its_pixels():
