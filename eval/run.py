@@ -174,13 +174,7 @@ def evaluate(
     model, run, source = _model_and_source(checkpoint, onnx, predictions, data, inference, info)
     opened, fold = _open(data, model, run, predictions)
     plan, intervals = _plan_before_inference(opened, report, has_scores=model is not None)
-    source.update(opened.describe)
-    if fold is not None:  # the report says the model was scored through another palette
-        source["fold"] = fold.describe()
-    source["predictable"] = predictable_classes(opened.palette, fold)
-    source["measures"] = list(report.measures)
-    if report.tiles is not None:
-        source["tiles"] = report.tiles
+    _describe_run(source, opened, fold, report)
     settings = CollectSettings(
         window=run.window if run is not None else None,
         measures=report.measures,
@@ -205,6 +199,18 @@ def evaluate(
     finally:
         distributed.barrier()  # the other ranks wait for the report, even when it failed
     return Evaluation(output, numbers, collected.result, collected.skipped)
+
+
+def _describe_run(source: dict[str, Any], opened: Any, fold: Any, report: ReportSettings) -> None:
+    """What the report's ``source`` says beside the model: the data, the fold through which a
+    fine model is scored (another palette), the classes it can predict, measures and tiles."""
+    source.update(opened.describe)
+    if fold is not None:
+        source["fold"] = fold.describe()
+    source["predictable"] = predictable_classes(opened.palette, fold)
+    source["measures"] = list(report.measures)
+    if report.tiles is not None:
+        source["tiles"] = report.tiles
 
 
 def _checked_arguments(

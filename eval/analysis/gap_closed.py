@@ -120,6 +120,29 @@ def _entry(
     }
 
 
+def _closed_figures(
+    rows: np.ndarray,
+    ids: np.ndarray,
+    members: list[int],
+    settings: Bootstrap,
+    shape: tuple[int, list[int] | None, bool],
+    counts: np.ndarray | None,
+    stream: str,
+) -> tuple[Any, dict[str, Any], list[str]]:
+    """One row's (overall or a bin's) closed fractions: the point values, their intervals and
+    the labels naming them; ``shape`` is (classes, the predictable subset, per class)."""
+    k, subset, per_class = shape
+    statistic = closed_statistic(k, subset, per_class)
+    labels = ["closed0", "oracle_gap0"] + (["closed1"] if subset is not None else [])
+    if per_class:
+        labels += [f"closed{2 + c}" for c in range(k)]
+        labels += [f"oracle_gap{2 + c}" for c in range(k)]
+    values = point_values(rows, members, statistic)
+    found = sums_interval(rows, ids, members, settings, statistic, labels, counts=counts,
+                          stream=stream)  # fmt: skip
+    return values, found, labels
+
+
 def gap_closed(
     source: EvalResult,
     adapted: Sequence[EvalResult],
@@ -171,40 +194,28 @@ def gap_closed(
             ],
             axis=1,
         )
-        entry: dict[str, Any] = {"report": name}
+        entry: dict[str, Any] = {"report": name, "bins": []}
         for where, members, per_class in [
             ("overall", list(range(len(ids))), True),
             *((b.name, list(b.indices), False) for b in bins),
         ]:
-            statistic = closed_statistic(k, subset, per_class)
-            labels = ["closed0", "oracle_gap0"] + (["closed1"] if subset is not None else [])
-            if per_class:
-                labels += [f"closed{2 + c}" for c in range(k)]
-                labels += [f"oracle_gap{2 + c}" for c in range(k)]
-            stream = f"closed:{j}:{where}"
-            values = point_values(rows, members, statistic)
             local = None if counts is None or where != "overall" else counts
-            found = sums_interval(
-                rows, ids, members, settings, statistic, labels, counts=local, stream=stream
+            values, found, labels = _closed_figures(
+                rows, ids, members, settings, (k, subset, per_class), local, f"closed:{j}:{where}"
             )
             figure = _entry(values, found, labels, 0)
-            if where == "overall":
-                entry["overall"] = figure
-                entry["classes"] = {
-                    c: _entry(values, found, labels, 2 + i) for i, c in enumerate(classes)
-                }
-                entry["predictable"] = (
-                    None
-                    if subset is None
-                    else {
-                        "classes": [classes[i] for i in subset],
-                        "closed": _entry(values, found, labels, 1)["closed"],
-                        "closed_ci": found.get("closed1_ci"),
-                    }
-                )
-            else:
-                entry.setdefault("bins", []).append({"name": where, **figure})
-        entry.setdefault("bins", [])
+            if where != "overall":
+                entry["bins"].append({"name": where, **figure})
+                continue
+            entry["overall"] = figure
+            entry["classes"] = {
+                c: _entry(values, found, labels, 2 + i) for i, c in enumerate(classes)
+            }
+            entry["predictable"] = None if subset is None else {
+                "classes": [classes[i] for i in subset],
+                "closed": _entry(values, found, labels, 1)["closed"],
+                "closed_ci": found.get("closed1_ci"),
+            }  # fmt: skip
         out["adapted"].append(entry)
     out["notes"] = _notes(out["adapted"][:1], names)
     out["uncertainty"] = settings.describe(count_clusters(ids))

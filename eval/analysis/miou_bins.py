@@ -122,20 +122,9 @@ def stratify(
         bin_list, outside, binning = choose_bins(values, paths, measure, bins=bins, edges=edges)
         binning["outside"] = [paths[i] for i in outside]
         report["binning"] = binning
-    report["bins"] = []
-    for b in bin_list:
-        row = _group_row(b.name, b.indices, confusions, classes, values)
-        if edges is not None:  # a fixed bin's range is its edges, even when empty
-            row["lo"], row["hi"] = b.lo, b.hi
-        report["bins"].append(row)
-
-    report["groups"] = []
-    for name, members in (groups or {}).items():
-        row = _group_row(name, members, confusions, classes, values)
-        if values is not None and len(members):
-            row["profile"] = group_profile(values[list(members)])
-        report["groups"].append(row)
-
+    report["bins"], report["groups"] = _bin_and_group_rows(
+        bin_list, groups or {}, confusions, classes, values, fixed=edges is not None
+    )
     per_image_miou = np.array([mean_iou(c) for c in confusions])
     report["images"] = _image_rows(paths, confusions, measures, per_image_miou, quality)
     report["correlation"] = {m: correlation(v, per_image_miou) for m, v in measures.items()}
@@ -150,6 +139,32 @@ def stratify(
     add_predictable(report, confusions, subset_mask(classes, subset), bin_list, groups or {},
                     labels, bootstrap, key="classes")  # fmt: skip
     return report
+
+
+def _bin_and_group_rows(
+    bin_list: Sequence[Bin],
+    groups: Mapping[str, Sequence[int]],
+    confusions: np.ndarray,
+    classes: Sequence[str],
+    values: np.ndarray | None,
+    *,
+    fixed: bool,
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """The rows of the bins (a fixed bin's range is its edges, even when empty) and of the
+    groups (each with the DSP profile of its complexity values)."""
+    bin_rows = []
+    for b in bin_list:
+        row = _group_row(b.name, b.indices, confusions, classes, values)
+        if fixed:
+            row["lo"], row["hi"] = b.lo, b.hi
+        bin_rows.append(row)
+    group_rows = []
+    for name, members in groups.items():
+        row = _group_row(name, members, confusions, classes, values)
+        if values is not None and len(members):
+            row["profile"] = group_profile(values[list(members)])
+        group_rows.append(row)
+    return bin_rows, group_rows
 
 
 def _checked_inputs(

@@ -219,26 +219,7 @@ def resolve_settings(
     recorded = source.defaults
     kind = source.kind
     fixed = getattr(source.model, "input_size", None)
-    foreign = kind == "onnx" and getattr(source.model, "metadata", None) is None
-    if foreign:
-        given = (("palette", palette), ("window", window or fixed), ("statistics", statistics))
-        missing = [f"--{n}" for n, v in given if v is None]
-        if missing:
-            listed = ", ".join(missing[:-1]) + (" and " if len(missing) > 1 else "") + missing[-1]
-            raise UsageError(
-                f"{source.path} carries no claravid metadata (exported elsewhere): pass "
-                f"{listed} to say how to run it (--statistics: "
-                f"{' or '.join(NAMED_STATISTICS)}, the statistics its backbone was trained with)"
-            )
-    if statistics is not None and not foreign:
-        raise UsageError(
-            f"--statistics is for an ONNX file exported elsewhere: {source.path} records the "
-            f"statistics its model was trained with; drop --statistics"
-        )
-    if statistics is not None and statistics not in NAMED_STATISTICS:
-        raise UsageError(
-            f"unknown --statistics {statistics!r}: use {' or '.join(NAMED_STATISTICS)}"
-        )
+    _check_foreign(source, palette, window or fixed, statistics)
     origins: dict[str, str] = {}
 
     def pick(name: str, flag: Any, record: Any, default: Any) -> Any:
@@ -292,6 +273,35 @@ def resolve_settings(
         except ValueError as exc:
             raise UsageError(f"{exc} ({_where(origins['window'], kind)})") from None
     return RunSettings(config, name, info, normalisation, origins)
+
+
+def _check_foreign(source: ModelSource, palette: Any, window: Any, statistics: Any) -> None:
+    """An ONNX file exported elsewhere needs the palette, window and statistics it records
+    nowhere; ``statistics`` is for such a file only, and a known name.
+
+    Raises:
+        UsageError: what is missing, or a ``statistics`` given where it does not belong.
+    """
+    foreign = source.kind == "onnx" and getattr(source.model, "metadata", None) is None
+    if foreign:
+        given = (("palette", palette), ("window", window), ("statistics", statistics))
+        missing = [f"--{n}" for n, v in given if v is None]
+        if missing:
+            listed = ", ".join(missing[:-1]) + (" and " if len(missing) > 1 else "") + missing[-1]
+            raise UsageError(
+                f"{source.path} carries no claravid metadata (exported elsewhere): pass "
+                f"{listed} to say how to run it (--statistics: "
+                f"{' or '.join(NAMED_STATISTICS)}, the statistics its backbone was trained with)"
+            )
+    if statistics is not None and not foreign:
+        raise UsageError(
+            f"--statistics is for an ONNX file exported elsewhere: {source.path} records the "
+            f"statistics its model was trained with; drop --statistics"
+        )
+    if statistics is not None and statistics not in NAMED_STATISTICS:
+        raise UsageError(
+            f"unknown --statistics {statistics!r}: use {' or '.join(NAMED_STATISTICS)}"
+        )
 
 
 def _where(origin: str, kind: str) -> str:

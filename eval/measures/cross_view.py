@@ -111,6 +111,43 @@ class CrossViewSums:
         return cls("unavailable", reason, 0, 0, 0, zeros, zeros, 0, zeros, zeros)
 
 
+def _one_pixel(
+    frames: tuple[Any, ...],
+    labels: dict[str, np.ndarray],
+    k: int,
+    tolerance: float,
+    min_kept: float,
+) -> CrossViewSums:
+    """A 1x1 pair measured as 1x2: the added pixel has no depth hit, is ignored and moving, so
+    it is never kept nor looked up; twice the pixels halve the kept fraction, so ``min_kept``
+    halves too."""
+    depth_t, depth_s, c2w_t, c2w_s, intrinsics, dynamic_t, dynamic_s = frames
+    d_t, d_s = _beside(depth_t, 0), _beside(depth_s, 0)
+    p_t, p_s = _beside(labels["pred_t"], 0), _beside(labels["pred_s"], 0)
+    g_t, g_s = _beside(labels["gt_t"], IGNORE_INDEX), _beside(labels["gt_s"], IGNORE_INDEX)
+    m_t = None if dynamic_t is None else _beside(as_numpy(dynamic_t), 0)
+    m_s = None if dynamic_s is None else _beside(as_numpy(dynamic_s), 0)
+    padded = cross_view(d_t, d_s, c2w_t, c2w_s, intrinsics, p_t, p_s, g_t, g_s, m_t, m_s,
+                        num_classes=k, tolerance=tolerance, min_kept=min_kept / 2)  # fmt: skip
+    return dataclasses.replace(padded, pixels=1)
+
+
+def _joint_sums(pred_joint: np.ndarray, gt_joint: np.ndarray, pixels: int) -> dict[str, Any]:
+    """The pair's sums from the K×K counts of (t, s) predictions and ground truths over the kept
+    pixels: agreement and per-class intersection and union of each."""
+    inter, gt_inter = np.diagonal(pred_joint).copy(), np.diagonal(gt_joint).copy()
+    return dict(
+        pixels=pixels,
+        kept=int(gt_joint.sum()),
+        agree=int(inter.sum()),
+        intersection=inter,
+        union=pred_joint.sum(axis=1) + pred_joint.sum(axis=0) - inter,
+        gt_agree=int(gt_inter.sum()),
+        gt_intersection=gt_inter,
+        gt_union=gt_joint.sum(axis=1) + gt_joint.sum(axis=0) - gt_inter,
+    )
+
+
 def cross_view(
     depth_t: Any,
     depth_s: Any,
@@ -171,16 +208,8 @@ def cross_view(
                          f"{tolerance}, {min_kept}")  # fmt: skip
     pixels = shape[0] * shape[1]
     if pixels == 1:  # OpenCV reads a 1x1 array as a scalar: add a pixel that never counts
-        # No depth hit, ignored, moving: the second pixel is never kept, nor looked up.
-        d_t, d_s = _beside(depth_t, 0), _beside(depth_s, 0)
-        p_t, p_s = _beside(labels["pred_t"], 0), _beside(labels["pred_s"], 0)
-        g_t, g_s = _beside(labels["gt_t"], IGNORE_INDEX), _beside(labels["gt_s"], IGNORE_INDEX)
-        m_t = None if dynamic_t is None else _beside(as_numpy(dynamic_t), 0)
-        m_s = None if dynamic_s is None else _beside(as_numpy(dynamic_s), 0)
-        # Twice the pixels: half the kept fraction, so min_kept halves too.
-        padded = cross_view(d_t, d_s, c2w_t, c2w_s, intrinsics, p_t, p_s, g_t, g_s, m_t, m_s,
-                            num_classes=k, tolerance=tolerance, min_kept=min_kept / 2)  # fmt: skip
-        return dataclasses.replace(padded, pixels=1)
+        frames = (depth_t, depth_s, c2w_t, c2w_s, intrinsics, dynamic_t, dynamic_s)
+        return _one_pixel(frames, labels, k, tolerance, min_kept)
     zeros = np.zeros(k, np.int64)
     if np.abs(c2w_t - c2w_s).max() <= SAME_POSE:
         return CrossViewSums(
@@ -206,18 +235,8 @@ def cross_view(
         _transfer(c2w_t, c2w_s, intrinsics), depth_t, valid_t, depth_s, labels_s,
         labels["pred_t"], labels["gt_t"], np.float32(tolerance), k,
     )  # fmt: skip
-    kept = int(gt_joint.sum())
-    inter, gt_inter = np.diagonal(pred_joint).copy(), np.diagonal(gt_joint).copy()
-    sums = dict(
-        pixels=pixels,
-        kept=kept,
-        agree=int(inter.sum()),
-        intersection=inter,
-        union=pred_joint.sum(axis=1) + pred_joint.sum(axis=0) - inter,
-        gt_agree=int(gt_inter.sum()),
-        gt_intersection=gt_inter,
-        gt_union=gt_joint.sum(axis=1) + gt_joint.sum(axis=0) - gt_inter,
-    )
+    sums = _joint_sums(pred_joint, gt_joint, pixels)
+    kept = sums["kept"]
     if kept < min_kept * pixels:
         reason = (
             f"{kept} pixels kept, {100 * kept / pixels:.1f}% of the frame, under the "
