@@ -61,7 +61,7 @@ def merge(
     from claravid.eval.report.build import build_report
     from claravid.eval.report.files import load_result
     from claravid.eval.report.folder import write_outputs
-    from claravid.eval.run import check_classes
+    from claravid.eval.settings import check_classes
 
     parts = report_list(parts, "merge", "merge(['part0', 'part1'], 'all')")
     check_type(settings, ReportSettings, "settings", "ReportSettings(bins=5)")
@@ -167,7 +167,8 @@ def compare(
     from claravid.eval.report.compare import compare_reports
 
     reports = report_list(reports, "compare", "compare(['a', 'b'], 'cmp')")
-    if len(reports) < 2:  # a comparison of one compares nothing
+    # A comparison of one compares nothing (with an oracle, compare_reports says what it needs).
+    if len(reports) < 2 and oracle is None:
         raise UsageError(
             f"compare needs two or more reports, the first the baseline; got only "
             f"{reports[0]}: add the report(s) to set beside it"

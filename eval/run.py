@@ -38,6 +38,7 @@ from claravid.eval.settings import (
     Evaluation,
     InferenceSettings,
     ReportSettings,
+    check_classes,
     check_type,
 )
 from claravid.infra.cli import UsageError
@@ -385,20 +386,6 @@ def _open(data: DataChoice, model: Any, run: Any, predictions: Any) -> tuple[Any
     else:
         fold = scoring_fold(defaults.get("model_classes"), None, opened.palette, None)
     return opened, fold
-
-
-def check_classes(classes: Sequence[str] | None, names: Sequence[str]) -> None:
-    """Refuse a ``--classes`` subset that names a class the palette does not have.
-
-    Raises:
-        UsageError: one line naming the unknown classes and the palette's.
-    """
-    from claravid.eval.analysis.predictable import subset_mask
-
-    try:
-        subset_mask(list(names), classes)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
 
 
 def predictable_classes(palette: Any, fold: Any) -> list[str]:

@@ -296,3 +296,17 @@ class Evaluation:
     result: EvalResult | None = None
     skipped: list[str] = field(default_factory=list)
     text: str = ""
+
+
+def check_classes(classes: Sequence[str] | None, names: Sequence[str]) -> None:
+    """Refuse a ``--classes`` subset that names a class the palette does not have.
+
+    Raises:
+        UsageError: one line naming the unknown classes and the palette's.
+    """
+    from claravid.eval.analysis.predictable import subset_mask
+
+    try:
+        subset_mask(list(names), classes)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None

@@ -219,6 +219,10 @@ def _fitting_datasets(labels: list[np.ndarray], but: str) -> list[str]:
     ]
 
 
+#: Label files a folder must offer before a missing Roof is taken as a sign of UDD5.
+FOLDER_EVIDENCE = 3
+
+
 def check_udd_version(label_files: list[Path], dataset: str, strict: bool = True) -> None:
     """Stop when a UDD6 read sees UDD5's index masks, or a UDD5 read UDD6's.
 
@@ -227,7 +231,7 @@ def check_udd_version(label_files: list[Path], dataset: str, strict: bool = True
     and no value is unknown. What tells them apart is Roof (id 5), in every urban UDD6 image.
 
     ``strict=False`` (a folder read with the ``udd6`` palette, whose masks may be anyone's ids
-    0..5) warns instead.
+    0..5) warns instead, and only from `FOLDER_EVIDENCE` files or more.
 
     Raises:
         ValueError: the sampled index masks hold no id 5 (read as ``udd6``) or some (``udd5``).
@@ -251,7 +255,8 @@ def check_udd_version(label_files: list[Path], dataset: str, strict: bool = True
         )
     if message is not None and strict:
         raise ValueError(message)
-    if message is not None:
+    # A folder's few label maps may lack Roof by chance: only a sample of several says so.
+    if message is not None and len(files) >= FOLDER_EVIDENCE:
         warnings.warn(message.replace("this is", "this may be"), DatasetMismatchWarning, 2)
 
 

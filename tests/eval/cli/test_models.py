@@ -158,10 +158,10 @@ def test_windows_come_from_the_checkpoint_unless_given(model_files, splits, tmp_
             "--no-progress", "--bins", "1"]  # fmt: skip
     assert main([*argv, "--output", str(tmp_path / "a")]) == 0
     source = json.loads((tmp_path / "a" / "report.json").read_text())["source"]
-    assert source["window"] == {"size": [28, 28], "stride": [18, 18], "scale": 1.0}
+    assert source["window"] == {"size": [28, 28], "stride": [18, 18], "scale": 1.0, "tta": None}
     assert main([*argv, "--output", str(tmp_path / "b"), "--window", "42", "--scale", "0.5"]) == 0
     source = json.loads((tmp_path / "b" / "report.json").read_text())["source"]
-    assert source["window"] == {"size": [42, 42], "stride": [28, 28], "scale": 0.5}
+    assert source["window"] == {"size": [42, 42], "stride": [28, 28], "scale": 0.5, "tta": None}
 
 
 def test_checkpoint_defaults_read_a_training_config():
