@@ -75,6 +75,10 @@ class DataConfig:
     val_dataset: str = "claravid"  # claravid | uavid (synthetic-to-real validation)
     val_root: str | None = None  # null: data.root
     val_limit: int | None = None  # validate on the first N images only (null: all)
+    # Metres per pixel of the training images, recorded in checkpoints and ONNX files (predict
+    # --gsd auto matches rasters to it). null: ClaraVid measures it (depth at the frame centre /
+    # fx, median over training frames); other datasets then record none.
+    gsd: float | None = None
     label_cache: bool = (
         True  # label codes kept as tiled TIFFs under $CLARAVID_CACHE, read by region
     )
@@ -389,6 +393,10 @@ def check_config(cfg: DictConfig) -> None:
     _require(d.num_workers >= 0, "data.num_workers", d.num_workers, ">= 0")
     _require(d.crops_per_frame >= 1, "data.crops_per_frame", d.crops_per_frame, ">= 1")
     _require(d.val_limit is None or d.val_limit >= 1, "data.val_limit", d.val_limit, ">= 1 or null")
+    _require(
+        d.gsd is None or (math.isfinite(d.gsd) and d.gsd > 0), "data.gsd", d.gsd,
+        "metres per pixel > 0, or null",
+    )  # fmt: skip
     _require(
         t.schedule in SCHEDULES, "train.schedule", t.schedule, f"one of {', '.join(SCHEDULES)}"
     )

@@ -41,9 +41,11 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from claravid import models
+from claravid.data.gsd import claravid_gsd, gsd_record
 from claravid.data.masks import check_palette_fit
 from claravid.data.palettes import load_palette
 from claravid.data.samples import normalise
+from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.data.targets import UAVidSegmentation
 from claravid.eval import IGNORE_INDEX, WindowConfig
 from claravid.infra.cli import check_device
@@ -144,6 +146,7 @@ class Run:
     best_miou: float | None = None
     best_step: int | None = None
     last_val: dict[str, Any] = field(default_factory=dict)
+    gsd: dict[str, Any] | None = None  # the training images' GSD record (claravid.data.gsd)
     images: int = 0  # images since the last log row (for images/s)
     tick: float = 0.0  # when the last log row was written
 
@@ -160,7 +163,7 @@ class Run:
             path, self.model, step=step, config=C.to_plain(self.cfg), optimizer=self.optimizer,
             scheduler=self.scheduler, scaler=self.scaler, frames_per_step=self.frames_per_step,
             best_miou=self.best_miou, best_step=self.best_step, metrics=self.last_val,
-            backbone_trained=not self.cfg.model.freeze_backbone,
+            backbone_trained=not self.cfg.model.freeze_backbone, gsd=self.gsd,
         )  # fmt: skip
 
 
@@ -264,7 +267,7 @@ def build_run(
         weights=weights, validator=validator, batches=batches,
         log=RunLog(out, start, cfg.log.tensorboard) if main else None,
         frames_per_step=frames_per_step, say=say, best_miou=best_miou, best_step=best_step,
-        last_val=last_val,
+        last_val=last_val, gsd=ckpt.get("gsd") if ckpt else training_gsd(cfg, train_set),
     )  # fmt: skip
 
 
@@ -286,6 +289,16 @@ def _training_data(cfg: DictConfig) -> Any:
         check_palette_fit([train_set.label_path(p) for p in train_set.images],
                           load_palette(cfg.data.palette), "data.palette")  # fmt: skip
     return train_set
+
+
+def training_gsd(cfg: DictConfig, train_set: Any) -> dict[str, Any] | None:
+    """The GSD record a run's checkpoints carry: ``data.gsd`` when stated, else ClaraVid's
+    measured one (``claravid.data.gsd``), else None."""
+    if cfg.data.gsd is not None:
+        return gsd_record(float(cfg.data.gsd), "data.gsd")
+    if isinstance(train_set, ClaraVidSegmentation):
+        return claravid_gsd(train_set.root, train_set.frames)
+    return None
 
 
 def _claim_out_dir(

@@ -122,7 +122,19 @@ def checkpoint_defaults(checkpoint: Mapping[str, Any]) -> dict[str, Any]:
         # for a SAT backbone).
         stats = backbone_statistics(checkpoint.get("model_args"))
         out["normalisation"] = normalisation_from_config(config, stats)
+    gsd = model_gsd(checkpoint.get("gsd"))
+    if gsd is not None:
+        out["gsd"] = gsd
     return out
+
+
+def model_gsd(record: Any) -> float | None:
+    """Metres per pixel of a checkpoint's or ONNX file's ``gsd`` record; None when absent or
+    unusable."""
+    value = record.get("metres_per_pixel") if isinstance(record, Mapping) else None
+    if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
+        return float(value)
+    return None
 
 
 def onnx_defaults(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -144,6 +156,7 @@ def onnx_defaults(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
         out["palette_info"] = palette
     if metadata.get("normalisation"):
         out["normalisation"] = metadata["normalisation"]
+    out["gsd"] = model_gsd(metadata.get("gsd"))
     return {k: v for k, v in out.items() if v is not None}
 
 

@@ -113,11 +113,13 @@ class Provenance:
         config: the checkpoint's resolved training config (windows, normalisation, hash).
         step: the training step of the checkpoint.
         palette: ``{"name", "names", "colors", "ignore_index"}`` as plain lists.
+        gsd: the checkpoint's ground sampling distance record (``{"metres_per_pixel", ...}``).
     """
 
     config: dict[str, Any] | None = None
     step: int | None = None
     palette: dict[str, Any] | None = None
+    gsd: dict[str, Any] | None = None
 
 
 def export_onnx(
@@ -205,6 +207,7 @@ def export_onnx(
             step=record.step,
             palette=record.palette,
             statistics=(model.mean, model.std),
+            gsd=record.gsd,
         )
         _write_metadata(staged, document)
         result.update(max_abs_diff=None, agreement=None, check_shape=None)
