@@ -195,14 +195,28 @@ def predict_raster(
 def write_band(
     writer: ClassMapWriter, reader: RasterReader, top: int, logits: torch.Tensor, confidence: bool
 ) -> None:
-    """Classes (argmax of the logits, as the in-memory path) and confidence of rows ``top..``,
-    nodata where the input has none."""
+    """Classes and confidence of rows ``top..``, nodata where the input has none."""
     valid = reader.read_mask(top, logits.shape[1])
-    labels = logits.argmax(0).to(torch.uint8).numpy()
+    labels, best = classes(logits)
     labels[~valid] = NODATA
     conf = None
     if confidence:
-        best = torch.softmax(logits, 0).amax(0)
-        conf = torch.round(best * CONFIDENCE_MAX).to(torch.uint8).numpy()
+        # The winning class's softmax probability: 1 / sum_k exp(logit_k - max).
+        total = torch.zeros_like(best)
+        for plane in logits:
+            total += torch.exp(plane - best)
+        conf = torch.round(CONFIDENCE_MAX / total).to(torch.uint8).numpy()
         conf[~valid] = NODATA
     writer.write_rows(labels, conf)
+
+
+def classes(logits: torch.Tensor) -> tuple[np.ndarray, torch.Tensor]:
+    """uint8 argmax over the classes of [K, h, w] logits (the first of equal maxima, as
+    ``argmax``) and the maxima; one pass per class over contiguous planes (``argmax(0)``
+    strides across them, several times slower)."""
+    best = logits[0].clone()
+    labels = torch.zeros(best.shape, dtype=torch.uint8)
+    for k in range(1, logits.shape[0]):
+        labels.masked_fill_(logits[k] > best, k)
+        torch.maximum(best, logits[k], out=best)
+    return labels.numpy(), best

@@ -14,6 +14,7 @@ line gives ``--data`` and ``--palette``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -169,7 +170,9 @@ class RunSettings:
         palette: a palette name or YAML path (None: the data's default, or none at all).
         palette_info: the palette recorded in an ONNX file (names, colours), when any.
         normalisation: ``{"mean", "std", ...}`` of the input.
-        origins: ``{setting: "flag" | "checkpoint" | "onnx" | "default"}``.
+        origins: ``{setting: "flag" | "checkpoint" | "onnx" | "default" | "gsd"}``.
+        gsd: metres per pixel of the model's training images (``model``, None: not recorded)
+            and of the evaluated data (``data``: stated with ``--gsd``, else None).
     """
 
     window: WindowConfig
@@ -177,6 +180,7 @@ class RunSettings:
     palette_info: dict[str, Any] | None
     normalisation: dict[str, Any]
     origins: dict[str, str]
+    gsd: dict[str, float | None] = field(default_factory=lambda: {"model": None, "data": None})
 
     def describe(self) -> dict[str, Any]:
         """The report's ``source["settings"]``: every value used and where it came from."""
@@ -189,6 +193,7 @@ class RunSettings:
             "batch_size": w.batch_size,
             "palette": self.palette,
             "normalisation": {k: self.normalisation[k] for k in ("mean", "std")},
+            "gsd": dict(self.gsd),
             "from": dict(self.origins),
         }
 
@@ -209,6 +214,7 @@ def resolve_settings(
     palette: str | Path | None = None,
     precision: str = "auto",
     statistics: str | None = None,
+    gsd: float | None = None,
 ) -> RunSettings:
     """Window, stride, scale, batch size, palette and normalisation: flag, else the model
     file's record, else the default. A ``--stride`` recorded for another window is dropped
@@ -217,13 +223,15 @@ def resolve_settings(
     normalisation is the model's own (a checkpoint's backbone statistics, an export's record).
     An ONNX file exported elsewhere records none of these: it needs ``palette``, ``window``
     (unless its input size is fixed) and ``statistics`` (a name of `NAMED_STATISTICS`), which
-    no other source takes.
+    no other source takes. ``gsd`` states the data's ground sampling distance (metres per
+    pixel): the images are then resized to the model's (scale = gsd / the model's recorded GSD).
 
     Raises:
         UsageError: a window other than a fixed-size ONNX file's input size; an ONNX file
             without claravid metadata and no ``--palette``/``--window``/``--statistics`` (the
             message names what is missing); ``--statistics`` for a file that records its own;
-            an unknown statistics name; a window that is not a multiple of the patch size.
+            an unknown statistics name; a window that is not a multiple of the patch size;
+            ``gsd`` with ``scale``, or for a model that records no GSD.
     """
     recorded = source.defaults
     kind = source.kind
@@ -279,6 +287,9 @@ def resolve_settings(
     if statistics is not None:  # a foreign ONNX file: the user's word, never a guess
         named = normalisation_from_config(None, default=NAMED_STATISTICS[statistics])
     normalisation = pick("normalisation", named, recorded.get("normalisation"), default_norm)
+    model_gsd = recorded.get("gsd")
+    if gsd is not None:
+        scale = _gsd_scale(gsd, model_gsd, scale, source.path)
     config = WindowConfig(
         size=size,
         stride=step,
@@ -293,7 +304,27 @@ def resolve_settings(
             config.check_patch(source.patch_size)
         except ValueError as exc:
             raise UsageError(f"{exc} ({_where(origins['window'], kind)})") from None
-    return RunSettings(config, name, info, normalisation, origins)
+    if gsd is not None:
+        origins["scale"] = "gsd"
+    return RunSettings(
+        config, name, info, normalisation, origins, {"model": model_gsd, "data": gsd}
+    )
+
+
+def _gsd_scale(gsd: float, model_gsd: float | None, scale: float | None, path: str) -> float:
+    """The resize that brings data of ``gsd`` metres per pixel to the model's GSD."""
+    if scale is not None:
+        raise UsageError(
+            "give --gsd or --scale, not both (--gsd sets the scale to match the model)"
+        )
+    if model_gsd is None:
+        raise UsageError(
+            f"{path} records no ground sampling distance (trained on data without one: set "
+            "data.gsd when training), so --gsd cannot match it; use --scale instead"
+        )
+    if not (gsd > 0 and math.isfinite(gsd)):
+        raise UsageError(f"--gsd must be metres per pixel > 0, got {gsd}")
+    return gsd / model_gsd
 
 
 def _where(origin: str, kind: str) -> str:
