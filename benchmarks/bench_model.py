@@ -106,10 +106,10 @@ def bench_cpu(size: int, reps: int) -> None:
 #: The precisions compared, as ``claravid-export`` flags (fp32 first: the base of the ratios).
 EXPORTS: dict[str, list[str]] = {
     "ORT fp32": [],
-    "ORT fp16": ["--precision", "fp16"],
-    "ORT int8 dynamic": ["--precision", "int8"],
-    "ORT int8 dynamic per-channel": ["--precision", "int8", "--per-channel"],
-    "ORT int8 static QDQ": ["--precision", "int8", "--calibration", "{calibration}"],
+    "ORT fp16": ["--dtype", "fp16"],
+    "ORT int8 dynamic": ["--dtype", "int8"],
+    "ORT int8 dynamic per-channel": ["--dtype", "int8", "--per-channel"],
+    "ORT int8 static QDQ": ["--dtype", "int8", "--calibration", "{calibration}"],
 }
 CALIBRATION_IMAGES = 8
 
@@ -154,7 +154,7 @@ def _export_like_users(
             status = claravid_export([*argv, *flags, "--no-check"])
         if status != 0:
             raise RuntimeError(f"claravid-export {' '.join(argv + flags)} failed ({status})")
-        shown = " ".join(flags).replace(str(calibration), "CALIBRATION") or "--precision fp32"
+        shown = " ".join(flags).replace(str(calibration), "CALIBRATION") or "--dtype fp32"
         print(f"{name:30s} written in {time.perf_counter() - t:5.1f} s  (claravid-export {shown})")
         out[name] = path
     return out

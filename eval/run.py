@@ -48,7 +48,7 @@ def resolve_data(
     default_split: dict[str, str] | None = None,
 ) -> dict[str, Any]:
     """The data to open: ``choice`` first, then what the model recorded, then the defaults
-    (the one rule of evaluations and ``--scores``).
+    (the one rule of evaluations and ``scores``).
 
     Args:
         choice: the call's choice.
@@ -239,8 +239,9 @@ def _model_and_source(
     source = model.describe()
     source["window"] = {"size": list(window.size), "stride": list(window.stride),
                         "scale": window.scale}  # fmt: skip
-    if model.kind == "onnx":  # runs as exported: the file's metadata, None when foreign
-        source["precision"] = getattr(model.model, "precision", None)
+    if model.kind == "onnx":  # runs as exported: the file's number format, None when foreign
+        source["dtype"] = getattr(model.model, "dtype", None)
+        source["precision"] = None  # no autocast: ONNX Runtime runs the file's own types
     else:
         source["precision"] = precision_name(autocast_dtype(window.precision, info.device))
     source["settings"] = run.describe()
@@ -326,7 +327,7 @@ def score_metrics(
     check_type(report, ReportSettings, "report", "ReportSettings(bins=5)")
     report = report or ReportSettings()
     if data.root is None:
-        raise UsageError("--scores needs --data: the dataset root the CSV's paths belong to")
+        raise UsageError("scores needs --data: the dataset root the CSV's paths belong to")
     # The rule of every evaluation, without a model's record; ClaraVid defaults to all frames.
     spec = resolve_data(data, {}, default_split={"claravid": "all"})
     output = Path(output)

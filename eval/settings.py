@@ -265,9 +265,9 @@ class Evaluation:
     Attributes:
         output: the report folder.
         report: the report (``report.json``); None on a ``torchrun`` rank other than 0.
-        result: the per-image table (None for ``--scores`` and on the other ranks).
+        result: the per-image table (None for ``scores`` and on the other ranks).
         skipped: images left out for want of a prediction (``allow_missing``).
-        text: the report's Markdown (``--scores``).
+        text: the report's Markdown (``scores``).
     """
 
     output: Path

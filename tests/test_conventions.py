@@ -25,7 +25,7 @@ MODULES = {
     "claravid-demo": (demo, []),
     "claravid-dsp": (dsp, []),
     "claravid-export": (export_cli, ["--checkpoint", "m.pt"]),
-    "claravid-eval": (evaluate, []),
+    "claravid-eval": (evaluate, ["--checkpoint", "m.pt", "-o", "r"]),
     "claravid-predict": (predict, ["a.jpg"]),
     "claravid-train": (train, ["--config", "demo"]),
 }
@@ -36,7 +36,7 @@ SHARED = {
     "claravid-cache": ("--data", "--missions", "--altitude", "--direction"),
     "claravid-demo": (),
     "claravid-dsp": ("--data",),
-    "claravid-export": ("--checkpoint",),  # its --precision is the file's, not an autocast
+    "claravid-export": ("--checkpoint",),  # no --precision: the file's number format is --dtype
     "claravid-eval": ("--data", "--checkpoint", "--missions", "--altitude", "--direction",
                       "--window", "--stride", "--scale", "--batch-size", "--statistics",
                       "--device", "--precision"),
@@ -151,8 +151,6 @@ def test_the_shared_flags_have_one_help_text_everywhere(command):
     """Each command has the shared flags it should, each with the one help text, and its
     ``--help`` shows that text."""
     helps = _shared_flags(command)
-    if command == "claravid-export":  # the same name, another concept: the file's precision
-        assert helps.pop("--precision").startswith("the file's precision: fp32 (default)")
     assert sorted(helps) == sorted([*EVERYWHERE, *SHARED[command]])
     text = " ".join(COMMANDS[command][0]().format_help().split())
     for flag, help in helps.items():

@@ -45,7 +45,7 @@ COMMAND_PAGES = {
     "claravid-predict": "evaluation.md",
 }
 
-#: Markdown files the tools write (``claravid-eval``'s report, ``--compare``'s table): names of
+#: Markdown files the tools write (``claravid-eval``'s report, ``compare``'s table): names of
 #: outputs, not references to the repository's documents.
 OUTPUTS = {"report.md", "compare.md"}
 #: A Markdown file's name in any text: a relative path ending in ``.md``, an optional anchor.

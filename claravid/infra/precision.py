@@ -17,8 +17,8 @@ if TYPE_CHECKING:
     import torch
 
 # torch is imported where a device or a dtype is needed, not at import: the argument check of
-# every command line reads this module (`flag_precision`), and ``claravid-eval --merge`` and
-# ``--compare`` must never pay for loading torch.
+# every command line reads this module (`flag_precision`), and ``claravid-eval merge`` and
+# ``compare`` must never pay for loading torch.
 
 #: The precision names: ``train.precision``, ``WindowConfig.precision``, every ``--precision``
 #: of a PyTorch model.

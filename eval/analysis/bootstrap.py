@@ -105,7 +105,7 @@ class Bootstrap:
 
     def check_memory(self, clusters: Sequence[Any] | int) -> None:
         """Refuse, before anything is allocated, intervals that would not fit in memory: the
-        one check of every path that resamples (evaluation, merge, comparison, ``--scores``,
+        one check of every path that resamples (evaluation, merge, comparison, ``scores``,
         tiles), called first by each and by :func:`draw_counts`.
 
         Args:

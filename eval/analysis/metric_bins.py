@@ -1,4 +1,4 @@
-"""Complexity analysis of any per-image metric (``claravid-eval --scores FILE.csv``).
+"""Complexity analysis of any per-image metric (``claravid-eval scores FILE.csv``).
 
 Per-image values of a metric (the PSNR/SSIM/LPIPS of a reconstruction's test views, a depth
 error, a detector's AP) need no model and no labels. The report gives, per complexity bin and
@@ -62,7 +62,7 @@ def metric_report(
     edges: Sequence[float] | None = None,
     groups: Mapping[str, Sequence[int]] | None = None,
 ) -> dict[str, Any]:
-    """The numbers of a ``--scores`` report (without ``source``).
+    """The numbers of a ``scores`` report (without ``source``).
 
     Returns:
         ``{"overall", "bins", "groups", "images", "correlation", "metrics", "convention",

@@ -124,7 +124,7 @@ def merge_results(results: Sequence[EvalResult], names: Sequence[str]) -> EvalRe
     source = dict(sources[0]) if len(results) == 1 else {"kind": "merge", "parts": sources}
     source["merged_from"] = [str(n) for n in names]
     # The reports this one is made of, theirs included: a re-binning or a merge is the same
-    # run as each of them (--compare calls them not comparable), whatever its own new id.
+    # run as each of them (a comparison calls them not comparable), whatever its own new id.
     lineage = tuple(sorted({i for r in results for i in r.lineage}))
     source["derived_from"] = list(lineage)
     return EvalResult(

@@ -1,15 +1,20 @@
 """``claravid-eval``: mIoU per delentropy bin, correlations and a readable report, from any model.
 
+Four jobs, each with the flags it takes: evaluating a model or its saved label maps (the
+command itself), and three subcommands that need no model: ``merge`` (report folders into one,
+or re-binned), ``compare`` (reports side by side, with the gaps and their intervals) and
+``scores`` (any per-image metric of a CSV against complexity).
+
 ::
 
     claravid-eval --checkpoint runs/exp/best.pt --split val --output runs/exp/report
     claravid-eval --onnx model.onnx --data /data/claravid --palette uavid --output rep
     claravid-eval --predictions preds/ --data /data/claravid --palette uavid --output rep
     claravid-eval --predictions preds/ --data /data/claravid --tiles 630 --output rep  # + tiles
-    claravid-eval --merge part0/ part1/ --output all/            # job-array parts -> one report
-    claravid-eval --merge rep/ --edges 4,4.5,5,5.5 --output rep-fixed   # re-bin, no model
-    claravid-eval --compare a/report.json b/report.json --output cmp/   # gaps with intervals
-    claravid-eval --scores psnr.csv --data /data/uavid --dataset uavid --split test \
+    claravid-eval merge part0/ part1/ --output all/            # job-array parts -> one report
+    claravid-eval merge rep/ --edges 4,4.5,5,5.5 --output rep-fixed   # re-bin, no model
+    claravid-eval compare a/report.json b/report.json --output cmp/   # gaps with intervals
+    claravid-eval scores psnr.csv --data /data/uavid --dataset uavid --split test \
         --group-by sequence --measures delent,glcment,pixent --output psnr-rep   # any metric
     torchrun --nproc_per_node=8 -m claravid.eval --checkpoint best.pt --output rep   # many GPUs
 
@@ -21,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -55,44 +61,39 @@ from claravid.models.backbones.specs import NAMED_STATISTICS
 from claravid.models.export.runtime import PROVIDERS
 
 PROG = "claravid-eval"
-SOURCES = ("checkpoint", "onnx", "predictions", "merge", "compare", "scores")
+#: The model sources of the command itself (exactly one).
+SOURCES = ("checkpoint", "onnx", "predictions")
+#: The measures beyond mIoU: --name and --no-name (None: not given).
+QUALITY_FLAGS = ("boundary", "calibration", "consistency")
+#: Model flags a source has no use for: label maps are read, not predicted, and a checkpoint
+#: runs in PyTorch (the ONNX file's --precision is refused where the precision is resolved).
+_IDLE_FOR_SOURCE = {"checkpoint": ("provider",),
+                    "predictions": ("provider", "precision", "statistics")}  # fmt: skip
+
+
+def _epilog() -> str:
+    return __doc__.split("::", 1)[1].split("Exit 0")[0]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``claravid-eval`` arguments (also ``python -m claravid.eval``)."""
+    """The arguments of ``claravid-eval`` itself: evaluating a model or saved label maps (also
+    ``python -m claravid.eval``). The subcommands have their own (`build_merge_parser`,
+    `build_compare_parser`, `build_scores_parser`)."""
     p = argparse.ArgumentParser(
         prog=PROG,
-        description="Evaluate semantic segmentation per scene-complexity (delentropy) bin.",
+        description="Evaluate semantic segmentation per scene-complexity (delentropy) bin. "
+        "Subcommands without a model: merge, compare, scores (claravid-eval merge --help).",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog=__doc__.split("::", 1)[1].split("Exit 0")[0],
+        epilog=_epilog(),
     )
-    src = p.add_argument_group("what to evaluate (exactly one)")
+    group = p.add_argument_group("what to evaluate (exactly one)")
+    src = group.add_mutually_exclusive_group(required=True)
     add_checkpoint_flag(src)
     src.add_argument("--onnx", type=Path, help="ONNX model (claravid-export), run by onnxruntime")
     src.add_argument(
         "--predictions", type=Path, metavar="DIR", help="saved label maps DIR/<key>.png"
     )
-    src.add_argument(
-        "--merge", nargs="+", type=Path, metavar="REPORT", help="report folders to merge/re-bin"
-    )
-    src.add_argument(
-        "--compare", nargs="+", type=Path, metavar="REPORT", help="reports to show side by side"
-    )
-    src.add_argument(
-        "--scores", type=Path, metavar="CSV", help="per-image metrics (path + numeric columns)"
-    )
-    data = p.add_argument_group(
-        "data", "Unset, the root, split, palette and selection are the checkpoint's."
-    )
-    add_data_flag(data)
-    # Choices shown, checked by DataChoice (the Python API's check and message).
-    data.add_argument(
-        "--dataset", metavar=_choices(DATASETS), help="kind of data (default claravid)"
-    )
-    data.add_argument("--split", help="train, val, test or all (default val)")
-    data.add_argument("--palette", help="palette name or YAML (default: the checkpoint's)")
-    data.add_argument("--masks", type=Path, help="label folder mirroring --data (folder only)")
-    add_selection_flags(data)
+    _add_data(p, labels=True)
     infer = p.add_argument_group("inference")
     add_window_flags(infer)
     add_statistics_flag(infer, NAMED_STATISTICS)
@@ -101,17 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
     infer.add_argument(
         "--provider", metavar=_choices(PROVIDERS), help="ONNX Runtime provider (--onnx)"
     )
-    rep = p.add_argument_group("report", "-o/--output is the report folder (--compare: the "
-                               "comparison's).")  # fmt: skip
-    add_output_flag(rep)
-    rep.add_argument("--bins", type=positive_int, help="quantile bins of delentropy (default 3)")
-    rep.add_argument("--edges", help="fixed delentropy edges e1,e2,... instead of --bins")
-    rep.add_argument(
-        "--group-by",
-        metavar=_choices(GROUP_BY),
-        help="rows per mission, viewpoint, UAVid sequence or folder",
-    )
-    rep.add_argument("--measures", help="delent,glcment,pixent (default delent)")
+    rep = p.add_argument_group("report", "-o/--output is the report folder.")
+    add_output_flag(rep, required=True)
+    _add_binning(rep, measures=True)
     rep.add_argument(
         "--tiles",
         type=positive_int,
@@ -129,11 +122,100 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--save-predictions", type=Path, metavar="DIR", help="write label maps")
     rep.add_argument("--allow-missing", action="store_true", help="skip images w/o prediction")
     add_workers_flag(rep, "complexity and image decoding")
+    _add_common(p, rep)
+    return p
+
+
+def build_merge_parser() -> argparse.ArgumentParser:
+    """``claravid-eval merge REPORT... -o DIR``: report folders into one report, or one re-binned
+    (no model, no images)."""
+    p = _subparser("merge", "Merge report folders (job-array parts, or one to re-bin) into one "
+                   "report, without a model or the images.")  # fmt: skip
+    p.add_argument("reports", nargs="+", type=Path, metavar="REPORT", help="report folders")
+    rep = p.add_argument_group("report", "-o/--output is the merged report's folder.")
+    add_output_flag(rep, required=True)
+    _add_binning(rep, measures=False)
+    _add_common(p, rep)
+    return p
+
+
+def build_compare_parser() -> argparse.ArgumentParser:
+    """``claravid-eval compare A B...``: reports side by side, and each one's gaps against the
+    first with cluster bootstrap intervals."""
+    p = _subparser("compare", "Show reports side by side: the bin tables, and each report's "
+                   "gaps against the first with cluster bootstrap intervals.")  # fmt: skip
+    p.add_argument(
+        "reports",
+        nargs="+",
+        type=Path,
+        metavar="REPORT",
+        help="report folders or report.json files; the first is the baseline",
+    )
+    rep = p.add_argument_group("output", "Unset, the comparison is only printed.")
+    add_output_flag(rep)
+    _add_common(p, rep)
+    return p
+
+
+def build_scores_parser() -> argparse.ArgumentParser:
+    """``claravid-eval scores CSV --data ROOT -o DIR``: any per-image metric against complexity
+    (no model, no labels)."""
+    p = _subparser("scores", "The complexity analysis of any per-image metric: a CSV of a path "
+                   "column and numeric columns, against the images' delentropy.")  # fmt: skip
+    p.add_argument("scores", type=Path, metavar="CSV", help="per-image metrics (path + numeric "
+                   "columns)")  # fmt: skip
+    _add_data(p, labels=False)
+    rep = p.add_argument_group("report", "-o/--output is the report folder.")
+    add_output_flag(rep, required=True)
+    _add_binning(rep, measures=True)
+    add_workers_flag(rep, "complexity and image decoding")
+    _add_common(p, rep)
+    return p
+
+
+def _subparser(name: str, description: str) -> argparse.ArgumentParser:
+    return argparse.ArgumentParser(
+        prog=f"{PROG} {name}",
+        description=description,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=_epilog(),
+    )
+
+
+def _add_data(p: argparse.ArgumentParser, *, labels: bool) -> None:
+    data = p.add_argument_group(
+        "data",
+        "Unset, the root, split, palette and selection are the checkpoint's." if labels else None,
+    )
+    add_data_flag(data)
+    # Choices shown, checked by DataChoice (the Python API's check and message).
+    data.add_argument(
+        "--dataset", metavar=_choices(DATASETS), help="kind of data (default claravid)"
+    )
+    data.add_argument("--split", help="train, val, test or all (default val)")
+    if labels:  # scores reads images only: no labels, no label palette
+        data.add_argument("--palette", help="palette name or YAML (default: the checkpoint's)")
+        data.add_argument("--masks", type=Path, help="label folder mirroring --data (folder only)")
+    add_selection_flags(data)
+
+
+def _add_binning(rep: Any, *, measures: bool) -> None:
+    rep.add_argument("--bins", type=positive_int, help="quantile bins of delentropy (default 3)")
+    rep.add_argument("--edges", help="fixed delentropy edges e1,e2,... instead of --bins")
+    rep.add_argument(
+        "--group-by",
+        metavar=_choices(GROUP_BY),
+        help="rows per mission, viewpoint, UAVid sequence or folder",
+    )
+    if measures:  # a merge keeps the measures its reports carry
+        rep.add_argument("--measures", help="delent,glcment,pixent (default delent)")
+
+
+def _add_common(p: argparse.ArgumentParser, rep: Any) -> None:
     rep.add_argument("--overwrite", action="store_true", help="replace a foreign output folder")
     add_progress_flag(rep)
     _add_uncertainty(p)
     add_debug_flag(p)
-    return p
 
 
 def _choices(values: Any) -> str:
@@ -152,68 +234,26 @@ def _add_uncertainty(p: argparse.ArgumentParser) -> None:
     unc.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
 
 
-def _check_args(args: argparse.Namespace) -> str:
-    given = [name for name in SOURCES if getattr(args, name) is not None]
-    if len(given) != 1:
-        which = " and ".join(f"--{g}" for g in given) if given else "none"
-        raise UsageError(
-            f"give exactly one of --checkpoint, --onnx, --predictions, --merge, --compare, "
-            f"--scores (got {which})"
-        )
-    if args.bins is not None and args.edges is not None:
+def _check_bins(args: argparse.Namespace) -> None:
+    if getattr(args, "bins", None) is not None and getattr(args, "edges", None) is not None:
         raise UsageError("give --bins or --edges, not both")
-    source = given[0]
-    _refuse_idle_options(args, source)
+
+
+def _source(args: argparse.Namespace) -> str:
+    """The model source given (argparse made it exactly one), its idle flags refused, and the
+    settings made: they check themselves with the messages the Python API gives, so a mistake
+    stops here, before any work."""
+    _check_bins(args)
+    source = next(name for name in SOURCES if getattr(args, name) is not None)
+    for name in _IDLE_FOR_SOURCE.get(source, ()):
+        if getattr(args, name) is not None:
+            raise UsageError(f"--{name} does nothing with --{source}; drop it")
     from claravid.infra.precision import flag_precision
 
     args.precision = flag_precision(args.precision, pytorch=source == "checkpoint")
-    # The settings check themselves as they are made, with the messages the Python API gives
-    # (one validation for both): a mistake stops here, before any work.
     args.settings = {"data": _data_choice(args), "inference": _inference(args),
                      "report": _report_settings(args)}  # fmt: skip
-    if source != "compare" and args.output is None:
-        raise UsageError("--output is required: the folder the report is written to")
     return source
-
-
-#: Options that change nothing in a mode: given there, they are a user's misunderstanding.
-_MODEL_ONLY = (
-    "window",
-    "stride",
-    "scale",
-    "batch_size",
-    "device",
-    "precision",
-    "statistics",
-    "save_predictions",
-)
-_DATA = ("data", "dataset", "split", "palette", "masks", "allow_missing", *SELECTION)
-#: The measures beyond mIoU: --name and --no-name (None: not given).
-QUALITY_FLAGS = ("boundary", "calibration", "consistency")
-IDLE = {
-    "compare": (*_MODEL_ONLY, *_DATA, "bins", "edges", "group_by", "measures", "tiles",
-                "hardest", "provider", "workers", *QUALITY_FLAGS),
-    "merge": (*_MODEL_ONLY, *_DATA, "measures", "tiles", "hardest", "provider", "workers",
-              *QUALITY_FLAGS),
-    # --scores reads images only: no labels (--masks), no label palette (--palette).
-    "scores": (*_MODEL_ONLY, "allow_missing", "tiles", "hardest", "provider", "masks", "palette",
-               *QUALITY_FLAGS),
-    "checkpoint": ("provider",),
-    # Label maps are read, not predicted: no precision (an ONNX file is refused it below).
-    "predictions": ("provider", "precision", "statistics"),
-}  # fmt: skip
-
-
-def _refuse_idle_options(args: argparse.Namespace, source: str) -> None:
-    """Refuse an option that would silently do nothing with this source."""
-    for name in IDLE.get(source, ()):
-        value = getattr(args, name)
-        # 0 or False is a flag's default, except --no-boundary and the like (None is theirs).
-        if value is None or (value in (0, False) and name not in QUALITY_FLAGS):
-            continue
-        flag = ("--" if value is not False else "--no-") + name.replace("_", "-")
-        what = " (the reports carry their own measures)" if name in QUALITY_FLAGS else ""
-        raise UsageError(f"{flag} does nothing with --{source}{what}; drop it")
 
 
 def _data_choice(args: argparse.Namespace) -> DataChoice:
@@ -221,8 +261,8 @@ def _data_choice(args: argparse.Namespace) -> DataChoice:
         root=args.data,
         dataset=args.dataset,
         split=args.split,
-        palette=args.palette,
-        masks=args.masks,
+        palette=getattr(args, "palette", None),
+        masks=getattr(args, "masks", None),
         # --missions/--altitude/--direction as given: DataChoice splits them into lists.
         selection={n: getattr(args, n) for n in SELECTION if getattr(args, n) is not None},
     )
@@ -237,12 +277,15 @@ def _inference(args: argparse.Namespace) -> InferenceSettings:
 
 def _report_settings(args: argparse.Namespace) -> ReportSettings:
     intervals = Bootstrap(resamples=args.bootstrap, level=args.ci_level, seed=args.seed)
-    return ReportSettings(bins=args.bins or 3, edges=args.edges, group_by=args.group_by,
-                          measures=args.measures or "delent", tiles=args.tiles,
-                          hardest=4 if args.hardest is None else args.hardest,
-                          bootstrap=intervals, cluster=args.cluster, boundary=args.boundary,
-                          calibration=args.calibration,
-                          consistency=args.consistency)  # fmt: skip
+    hardest = getattr(args, "hardest", None)
+    quality = {name: getattr(args, name, None) for name in QUALITY_FLAGS}
+    return ReportSettings(bins=getattr(args, "bins", None) or 3,
+                          edges=getattr(args, "edges", None),
+                          group_by=getattr(args, "group_by", None),
+                          measures=getattr(args, "measures", None) or "delent",
+                          tiles=getattr(args, "tiles", None),
+                          hardest=4 if hardest is None else hardest,
+                          bootstrap=intervals, cluster=args.cluster, **quality)  # fmt: skip
 
 
 def _print_done(out: Path, report: dict[str, Any], what: str = "plots and confusions") -> None:
@@ -261,8 +304,8 @@ def _print_done(out: Path, report: dict[str, Any], what: str = "plots and confus
 def _run_compare(args: argparse.Namespace) -> int:
     from claravid.eval.reports import compare
 
-    report = args.settings["report"]
-    print(compare(args.compare, args.output, report.bootstrap, report.cluster,
+    report = _report_settings(args)
+    print(compare(args.reports, args.output, report.bootstrap, report.cluster,
                   overwrite=args.overwrite))  # fmt: skip
     if args.output is not None:
         print(f"comparison: {args.output / 'compare.md'} and {args.output / 'compare.png'}")
@@ -272,15 +315,17 @@ def _run_compare(args: argparse.Namespace) -> int:
 def _run_merge(args: argparse.Namespace) -> int:
     from claravid.eval.reports import merge
 
-    done = merge(args.merge, args.output, args.settings["report"], overwrite=args.overwrite)
+    _check_bins(args)
+    done = merge(args.reports, args.output, _report_settings(args), overwrite=args.overwrite)
     assert done.report is not None  # only a torchrun rank other than 0 has none
     _print_done(done.output, done.report)
     return 0
 
 
-def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
+def _run_evaluation(args: argparse.Namespace) -> int:
     from claravid.eval.run import evaluate
 
+    _source(args)
     done = evaluate(
         args.output,
         checkpoint=args.checkpoint,
@@ -309,11 +354,12 @@ def _run_evaluation(args: argparse.Namespace, source_kind: str) -> int:
 
 
 def _run_scores(args: argparse.Namespace) -> int:
-    """``--scores CSV``: the complexity analysis of any per-image metric (no model, no labels)."""
+    """``scores CSV``: the complexity analysis of any per-image metric (no model, no labels)."""
     from claravid.eval.run import score_metrics
 
-    done = score_metrics(args.scores, args.output, data=args.settings["data"],
-                         report=args.settings["report"], workers=args.workers,
+    _check_bins(args)
+    done = score_metrics(args.scores, args.output, data=_data_choice(args),
+                         report=_report_settings(args), workers=args.workers,
                          overwrite=args.overwrite)  # fmt: skip
     # The bins and groups as report.md has them, less its warning lines: printed once, below.
     assert done.report is not None  # only a torchrun rank other than 0 has none
@@ -325,21 +371,22 @@ def _run_scores(args: argparse.Namespace) -> int:
     return 0
 
 
-def run(args: argparse.Namespace) -> int:
-    """Dispatch on the source: evaluate, merge/re-bin, or compare."""
-    source = _check_args(args)
-    if source == "compare":
-        return _run_compare(args)
-    if source == "scores":
-        return _run_scores(args)
-    if source == "merge":
-        return _run_merge(args)
-    return _run_evaluation(args, source)
+#: The subcommands: each one's parser and what it runs.
+SUBCOMMANDS: dict[str, tuple[Callable[[], argparse.ArgumentParser], Callable[..., int]]] = {
+    "merge": (build_merge_parser, _run_merge),
+    "compare": (build_compare_parser, _run_compare),
+    "scores": (build_scores_parser, _run_scores),
+}
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``claravid-eval``."""
-    return run_cli(PROG, run, build_parser(), argv)
+    """``claravid-eval`` (evaluate a model or label maps), ``claravid-eval merge``,
+    ``claravid-eval compare`` and ``claravid-eval scores``."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in SUBCOMMANDS:
+        build, run = SUBCOMMANDS[argv[0]]
+        return run_cli(PROG, run, build(), argv[1:])
+    return run_cli(PROG, _run_evaluation, build_parser(), argv)
 
 
 if __name__ == "__main__":

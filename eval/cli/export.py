@@ -1,7 +1,7 @@
 """The ``claravid-export`` console script: parses, exports (`claravid.models.export.onnx`), prints.
 
     claravid-export --checkpoint runs/exp/best.pt --output model.onnx --size 630x630
-    claravid-export --checkpoint runs/exp/best.pt --output model-int8.onnx --precision int8
+    claravid-export --checkpoint runs/exp/best.pt --output model-int8.onnx --dtype int8
 
 The export itself lives in ``models/``, which never imports the data layer; but the file it
 writes should carry the palette's class names and colours (not only its name) and, for static
@@ -34,7 +34,7 @@ from claravid.infra.cli import (
     run_cli,
 )
 from claravid.infra.files import check_output_file
-from claravid.models.export.metadata import KEY, PRECISIONS, PREFIX, normalisation_from_config
+from claravid.models.export.metadata import DTYPES, KEY, PREFIX, normalisation_from_config
 from claravid.models.export.onnx import (
     ExportCheckError,
     ExportSettings,
@@ -113,8 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG,
         description="Export a claravid segmenter checkpoint to ONNX, checked with ONNX Runtime, "
-        "into the -o/--output .onnx file. --precision here is the file's number format, not "
-        "an autocast.",
+        "into the -o/--output .onnx file, in the number format --dtype names.",
         epilog="Exit status: 0 ok; 1 the export differs from PyTorch beyond --tolerance or "
         "--min-agreement (nothing written); 2 a bad argument, an unreadable checkpoint or an "
         "unusable --output.",
@@ -126,8 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: the model's natural size, 630 for patches of 14, 640 for "
                         "16)")  # fmt: skip
     parser.add_argument("--dynamic", action="store_true", help="dynamic height and width")
-    parser.add_argument("--precision", choices=PRECISIONS, default="fp32",
-                        help="the file's precision: fp32 (default), fp16 (GPUs) or int8 "
+    parser.add_argument("--dtype", choices=DTYPES, default="fp32",
+                        help="the file's number format: fp32 (default), fp16 (GPUs) or int8 "
                         "(CPUs)")  # fmt: skip
     parser.add_argument("--no-check", action="store_true", help="skip the ONNX Runtime check")
     parser.add_argument("--tolerance", type=positive_float, default=None,
@@ -194,8 +193,8 @@ def _run(args: argparse.Namespace) -> int:
         raise UsageError(f"--output {output} must end in .onnx")
     # Our own earlier export may be replaced; anyone else's file only with --overwrite.
     check_output_file(output, overwrite=args.overwrite or _exported(output), what="--output")
-    if args.precision != "int8" and (args.calibration is not None or args.per_channel):
-        raise UsageError("--calibration and --per-channel apply to --precision int8 only")
+    if args.dtype != "int8" and (args.calibration is not None or args.per_channel):
+        raise UsageError("--calibration and --per-channel apply to --dtype int8 only")
     if args.calibration_images is not None and args.calibration is None:
         raise UsageError("--calibration-images does nothing without --calibration DATA; drop it")
     if args.calibration is not None and not Path(args.calibration).is_dir():
@@ -226,7 +225,7 @@ def _run(args: argparse.Namespace) -> int:
             height=height,
             width=width,
             dynamic=args.dynamic,
-            precision=args.precision,
+            dtype=args.dtype,
             check=not args.no_check,
             tolerance=args.tolerance,
             min_agreement=args.min_agreement,
@@ -243,7 +242,7 @@ def _run(args: argparse.Namespace) -> int:
             f"logits {result['max_abs_diff']:.3g}, argmax agreement "
             f"{100 * result['agreement']:.2f} %"
         )
-    print(f"wrote {result['path']} ({args.precision})")
+    print(f"wrote {result['path']} ({args.dtype})")
     return 0
 
 

@@ -220,7 +220,7 @@ def open_data(
         masks: the folder of label images mirroring ``root`` (``folder`` only).
         selection: ClaraVid ``missions``, ``altitude``, ``direction`` and ``split_config``
             (e.g. what a training checkpoint used).
-        labels: False opens the images alone (``--scores``: no labels, no masks needed).
+        labels: False opens the images alone (``scores``: no labels, no masks needed).
 
     Raises:
         ValueError: an unknown dataset kind, or a combination that cannot work.

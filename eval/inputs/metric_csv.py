@@ -1,4 +1,4 @@
-"""Per-image metrics from a CSV file: the input of ``claravid-eval --scores FILE.csv``.
+"""Per-image metrics from a CSV file: the input of ``claravid-eval scores FILE.csv``.
 
 The CSV holds a ``path`` column (relative to the data root, or absolute) and one or more numeric
 columns (PSNR, SSIM, a depth error, or the ``images.csv`` of a report: mIoU, mBoundaryIoU, ECE,

@@ -1,4 +1,4 @@
-"""``claravid-eval --compare A B ...``: bin tables side by side, and the gaps with intervals.
+"""``claravid-eval compare A B ...``: bin tables side by side, and the gaps with intervals.
 
 Typical use: a ClaraVid-trained and a UAVid-trained model evaluated on UAVid val with the same
 fixed ``--edges``; the table and the plot show the synthetic-to-real gap per complexity bin.

@@ -110,7 +110,7 @@ def load_result(path: str | Path) -> EvalResult:
     folder = path.parent if path.name == REPORT or path.suffix == ".json" else path
     report_file, npz_file = folder / REPORT, folder / CONFUSIONS
     if report_file.is_file() and not npz_file.is_file():
-        read_report(report_file)  # a --scores report (no confusions) is named as one
+        read_report(report_file)  # a scores report (no confusions) is named as one
     if not report_file.is_file() or not npz_file.is_file():
         raise UsageError(
             f"{path} is not a claravid-eval report folder (needs {REPORT} and {CONFUSIONS})"
@@ -278,9 +278,10 @@ def read_report(path: str | Path) -> dict[str, Any]:
     if isinstance(source, dict) and source.get("kind") == "scores":
         metrics = ", ".join(report.get("metrics") or []) or "?"
         raise UsageError(
-            f"{path} is a --scores report (per-image metrics {metrics}, no mIoU or confusions): "
-            "--merge and --compare take mIoU reports; run --scores again on the merged CSV, or "
-            "with the other's --edges, and read the metric means side by side"
+            f"{path} is a scores report (per-image metrics {metrics}, no mIoU or confusions): "
+            "claravid-eval merge and compare take mIoU reports; run claravid-eval scores again "
+            "on the merged CSV, or with the other's --edges, and read the metric means side by "
+            "side"
         )
     if not isinstance(report, dict) or not set(REQUIRED_KEYS) <= set(report):
         raise UsageError(
@@ -291,7 +292,7 @@ def read_report(path: str | Path) -> dict[str, Any]:
 
 
 def check_report_kind(folder: str | Path, scores: bool, overwrite: bool = False) -> None:
-    """Refuse to replace a ``--scores`` report with an mIoU report, or the other way round,
+    """Refuse to replace a ``scores`` report with an mIoU report, or the other way round,
     without ``overwrite``: a folder of one kind is not the other's to replace.
 
     Raises:
@@ -306,8 +307,8 @@ def check_report_kind(folder: str | Path, scores: bool, overwrite: bool = False)
     except (OSError, ValueError, KeyError, TypeError):
         return  # not readable as a report: check_output_dir's marker rule applies
     if (kind == "scores") != scores:
-        held = "a --scores report" if kind == "scores" else "an mIoU report"
-        new = "a --scores report" if scores else "an mIoU report"
+        held = "a scores report" if kind == "scores" else "an mIoU report"
+        new = "a scores report" if scores else "an mIoU report"
         raise UsageError(
             f"output {folder} holds {held}; writing {new} there would replace it: choose a new "
             "folder or pass --overwrite"

@@ -38,7 +38,7 @@ from claravid.eval.report.quality_plots import QUALITY_PLOTS, plot_consistency, 
 from claravid.infra.files import atomic_write_text, current_umask
 
 #: The per-image table as CSV: path, mIoU, pixel accuracy and the measures beyond mIoU, the
-#: columns ``claravid-eval --scores`` correlates with scene complexity.
+#: columns ``claravid-eval scores`` correlates with scene complexity.
 IMAGES_CSV = "images.csv"
 #: Files every report folder of this tool may hold: replaced with the folder.
 _OURS = frozenset(
@@ -48,7 +48,7 @@ _OURS = frozenset(
 
 def report_files(folder: str | Path) -> set[str]:
     """The names of the files the report in ``folder`` wrote: the fixed ones, and for a
-    ``--scores`` report ``<metric>_per_bin.png`` and ``<metric>_vs_delent.png`` of each metric
+    ``scores`` report ``<metric>_per_bin.png`` and ``<metric>_vs_delent.png`` of each metric
     its ``report.json`` lists. Anything else there (a user's ``baseline_per_bin.png``, notes, a
     predictions folder) is not the report's, and moves into the folder that replaces it."""
     names = set(_OURS)
@@ -63,7 +63,7 @@ def report_files(folder: str | Path) -> set[str]:
 
 
 def metric_plot_names(metric: str) -> tuple[str, str]:
-    """The two plot files of a ``--scores`` metric: per bin, and against delentropy."""
+    """The two plot files of a ``scores`` metric: per bin, and against delentropy."""
     slug = _slug(metric)
     return f"{slug}_per_bin.png", f"{slug}_vs_delent.png"
 
@@ -157,7 +157,7 @@ def _write_report(
 def images_csv(report: dict[str, Any]) -> str:
     """``images.csv``: one row per image, its path and every per-image score of the report
     (mIoU, pixel accuracy, mBoundaryIoU, ECE, consistency of its pair; not the complexity,
-    which ``--scores`` measures itself); an empty cell where an image has no value (no pair,
+    which ``scores`` measures itself); an empty cell where an image has no value (no pair,
     no class present)."""
     rows = report["images"]
     skip = {"path", *METRICS}
@@ -182,7 +182,7 @@ def _slug(name: str) -> str:
 
 
 def write_metric_outputs(out: str | Path, report: dict[str, Any]) -> str:
-    """Write a ``--scores`` report folder: per metric its bins and scatter plots, ``report.md``
+    """Write a ``scores`` report folder: per metric its bins and scatter plots, ``report.md``
     and ``report.json`` (last: it marks the folder complete). Returns the Markdown text."""
     with staged_folder(out) as folder:
         plots = {}

@@ -327,7 +327,7 @@ def _gap_tables(analysis: dict[str, Any]) -> list[str]:
 
 
 def metric_markdown(report: dict[str, Any], plots: dict[str, str]) -> str:
-    """``report.md`` of a ``--scores`` report: bins, groups (paper Table 5 layout: DSP μ, σ,
+    """``report.md`` of a ``scores`` report: bins, groups (paper Table 5 layout: DSP μ, σ,
     α, β next to the metric means, rows sorted by μ), correlations (Fig. 6), plots."""
     source, metrics = report["source"], report["metrics"]
     binning = source.get("binning", {})

@@ -9,9 +9,9 @@
   predictions of t and s agree, red: they disagree) | frame s | the prediction of t;
 - ``tiles.png`` (``--tiles``): the same images, image | delentropy per tile (one colour scale
   for all) | error pixels: where the model fails next to where the scene is complex;
-- ``compare.png`` (``--compare``): the mIoU per bin of several reports side by side, with
+- ``compare.png`` (``compare``): the mIoU per bin of several reports side by side, with
   their intervals;
-- ``--scores`` reports: ``<metric>_per_bin.png`` (mean per bin with intervals) and
+- ``scores`` reports: ``<metric>_per_bin.png`` (mean per bin with intervals) and
   ``<metric>_vs_delent.png`` (per image, with the fitted line).
 """
 
@@ -302,7 +302,7 @@ def _plot_gaps(ax: Any, analysis: dict[str, Any], labels: Sequence[str]) -> None
 
 
 def plot_metric_bins(report: dict[str, Any], metric: str, path: str | Path) -> Path:
-    """A ``--scores`` metric's mean per complexity bin, with interval bars."""
+    """A ``scores`` metric's mean per complexity bin, with interval bars."""
     rows = report["bins"]
     entries = [r["scores"][metric] for r in rows]
     values = [np.nan if e["mean"] is None else e["mean"] for e in entries]
@@ -325,7 +325,7 @@ def plot_metric_bins(report: dict[str, Any], metric: str, path: str | Path) -> P
 def plot_metric_scatter(
     report: dict[str, Any], metric: str, path: str | Path, measure: str = "delent"
 ) -> Path:
-    """A ``--scores`` metric per image against ``measure``, with the least-squares line."""
+    """A ``scores`` metric per image against ``measure``, with the least-squares line."""
     x = np.array([np.nan if r.get(measure) is None else r[measure] for r in report["images"]])
     y = np.array([np.nan if r.get(metric) is None else r[metric] for r in report["images"]])
     corr = report["correlation"].get(measure, {}).get(metric, {})

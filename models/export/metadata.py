@@ -2,10 +2,11 @@
 
 ``claravid-export`` writes one versioned JSON document under the ``metadata_props`` key
 ``claravid`` (plus a few readable ``claravid.*`` keys for tools that list the metadata), so the
-file alone says how the model was evaluated::
+file alone says how the model was evaluated (version 3 names the number format `dtype`; 2
+named it `precision`)::
 
-    {"format": "claravid-onnx", "version": 2,
-     "precision": "fp32" | "fp16" | "int8",
+    {"format": "claravid-onnx", "version": 3,
+     "dtype": "fp32" | "fp16" | "int8",
      "patch_size": 14, "num_classes": 8, "input_size": [630, 630] | null,
      "model_args": {... build_model arguments ...},
      "palette": {"name", "names", "colors" (K x [R, G, B]), "ignore_index"} | null,
@@ -33,12 +34,12 @@ from typing import Any
 from claravid.models.backbones import specs as backbones
 
 FORMAT = "claravid-onnx"
-VERSION = 2
+VERSION = 3
 #: The first version whose readable ``claravid.input_size`` is WxH (version 1 wrote HxW).
 WXH_SINCE = 2
 KEY = "claravid"  # the metadata_props key holding the JSON document
 PREFIX = "claravid."  # readable keys: claravid.patch_size, claravid.palette, ...
-PRECISIONS = ("fp32", "fp16", "int8")
+DTYPES = ("fp32", "fp16", "int8")
 
 #: The input normalisation a training config without ``data.augment.mean/std`` used (the same
 #: numbers as ``claravid.data.transforms.IMAGENET_MEAN/STD``; a test checks). Defined once, with the
@@ -141,7 +142,7 @@ def build_metadata(
     patch_size: int,
     num_classes: int,
     input_size: tuple[int, int] | None = None,
-    precision: str = "fp32",
+    dtype: str = "fp32",
     config: Mapping[str, Any] | None = None,
     step: int | None = None,
     palette: Mapping[str, Any] | None = None,
@@ -155,7 +156,7 @@ def build_metadata(
         patch_size: The backbone's patch size.
         num_classes: K, the logits' channels.
         input_size: (H, W) of a fixed-size export; None when H and W are dynamic.
-        precision: ``fp32``, ``fp16`` or ``int8``.
+        dtype: the file's number format, ``fp32``, ``fp16`` or ``int8``.
         config: The checkpoint's resolved training config (windows, normalisation, hash); a
             config without ``data.augment.mean/std`` records the backbone's statistics.
         step: The training step the checkpoint was written at.
@@ -165,8 +166,8 @@ def build_metadata(
         gsd: the checkpoint's ground sampling distance record (metres per pixel of the training
             images, ``claravid.data.gsd``), or None when training recorded none.
     """
-    if precision not in PRECISIONS:
-        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if dtype not in DTYPES:
+        raise ValueError(f"dtype must be one of {', '.join(DTYPES)}, got {dtype!r}")
     training: dict[str, Any] = {}
     if _positive_int(step) or step == 0:
         training["step"] = int(step)  # type: ignore[arg-type]  # an int, checked just above
@@ -176,7 +177,7 @@ def build_metadata(
     return {
         "format": FORMAT,
         "version": VERSION,
-        "precision": precision,
+        "dtype": dtype,
         "patch_size": int(patch_size),
         "num_classes": int(num_classes),
         "input_size": list(input_size) if input_size is not None else None,
@@ -212,7 +213,7 @@ def metadata_props(document: Mapping[str, Any]) -> dict[str, str]:
         PREFIX + "patch_size": str(document["patch_size"]),
         PREFIX + "num_classes": str(document["num_classes"]),
         PREFIX + "model_args": json.dumps(document["model_args"]),
-        PREFIX + "precision": document["precision"],
+        PREFIX + "dtype": document["dtype"],
     }
     if document.get("input_size"):
         height, width = document["input_size"]

@@ -6,7 +6,7 @@ through onnxscript): it handles SDPA, bicubic and symbolic H/W. The batch is alw
 example batch is 2 because a batch of 1 lets the exporter freeze that dimension.
 
     claravid-export --checkpoint runs/exp/best.pt --output model.onnx --size 630x630
-    claravid-export --checkpoint runs/exp/best.pt --output model-int8.onnx --precision int8
+    claravid-export --checkpoint runs/exp/best.pt --output model-int8.onnx --dtype int8
 
 The file carries what it takes to run the model as evaluated (`claravid.models.export.metadata`).
 The palette's colours come from the data layer, which ``models/`` never imports: the console
@@ -33,7 +33,7 @@ import torch.nn.functional as F
 
 from claravid.models.export.graph_grid import guard_patch_grid
 from claravid.models.export.metadata import (
-    PRECISIONS,
+    DTYPES,
     build_metadata,
     metadata_props,
     normalisation_from_config,
@@ -85,8 +85,8 @@ class ExportSettings:
         width: example input width.
         dynamic: also make H and W dynamic (multiples of the patch size: other sizes fail in
             ONNX Runtime itself, see `claravid.models.export.graph_grid`).
-        precision: ``fp32``, ``fp16`` (float16 graph, float32 input and output) or ``int8``
-            (`claravid.models.export.int8`).
+        dtype: the file's number format: ``fp32``, ``fp16`` (float16 graph, float32 input and
+            output) or ``int8`` (`claravid.models.export.int8`).
         check: run ``onnx.checker`` and compare ONNX Runtime with PyTorch after export.
         tolerance: largest allowed max-abs difference of logits between ORT and PyTorch
             (default 1e-3 for fp32, 0.05 for fp16; int8 is judged by ``min_agreement``).
@@ -98,7 +98,7 @@ class ExportSettings:
     height: int = DEFAULT_SIZE
     width: int = DEFAULT_SIZE
     dynamic: bool = False
-    precision: str = "fp32"
+    dtype: str = "fp32"
     check: bool = True
     tolerance: float | None = None
     min_agreement: float | None = None
@@ -139,36 +139,36 @@ def export_onnx(
         model: A `Segmenter`.
         path: Output ``.onnx`` (large models also write ``<path>.data`` next to it), written
             atomically: only a complete (and, when checked, checked) export replaces it.
-        settings: size, precision and checks (default: fixed 630 x 630, fp32, checked).
+        settings: size, number format (dtype) and checks (default: fixed 630 x 630, fp32, checked).
         provenance: the training config, step and palette the file records.
         calibration: int8 only: batches of normalised images for static QDQ quantisation.
 
     Returns:
-        ``{"path", "max_abs_diff", "agreement", "check_shape", "precision", ...}`` (the
+        ``{"path", "max_abs_diff", "agreement", "check_shape", "dtype", ...}`` (the
         check's entries None when not checked).
 
     Raises:
         ValueError: a size that is not a positive multiple of the patch size, or a tolerance,
-            agreement or precision out of range.
+            agreement or dtype out of range.
         ExportCheckError: ORT's logits differ from PyTorch's beyond ``tolerance`` or
             ``min_agreement`` (nothing is written then).
     """
     s = settings or ExportSettings()
     record = provenance or Provenance()
-    height, width, dynamic, precision = s.height, s.width, s.dynamic, s.precision
+    height, width, dynamic, dtype = s.height, s.width, s.dynamic, s.dtype
     tolerance, min_agreement, per_channel = s.tolerance, s.min_agreement, s.per_channel
-    if precision not in PRECISIONS:
-        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if dtype not in DTYPES:
+        raise ValueError(f"dtype must be one of {', '.join(DTYPES)}, got {dtype!r}")
     if tolerance is None:
-        tolerance = DEFAULT_TOLERANCE[precision]
-    if min_agreement is None and precision == "int8":
+        tolerance = DEFAULT_TOLERANCE[dtype]
+    if min_agreement is None and dtype == "int8":
         min_agreement = DEFAULT_MIN_AGREEMENT
     _check_settings(model, height, width, tolerance)
     if min_agreement is not None and not (
         isinstance(min_agreement, (int, float)) and 0 <= min_agreement <= 1
     ):
         raise ValueError(f"min_agreement must be a fraction in [0, 1], got {min_agreement!r}")
-    if precision != "int8" and (calibration is not None or per_channel):
+    if dtype != "int8" and (calibration is not None or per_channel):
         raise ValueError("calibration and per_channel apply to int8 exports only")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -178,14 +178,14 @@ def export_onnx(
     staging = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
     try:
         staged = staging / path.name
-        result: dict[str, Any] = {"path": path, "precision": precision}
-        if precision == "fp32":
+        result: dict[str, Any] = {"path": path, "dtype": dtype}
+        if dtype == "fp32":
             _export(model, staged, height, width, dynamic)
         else:
             (staging / "fp32").mkdir()
             plain = staging / "fp32" / path.name
             _export(model, plain, height, width, dynamic)
-            if precision == "fp16":
+            if dtype == "fp16":
                 from claravid.models.export.fp16 import convert_to_fp16
 
                 result["conversion"] = convert_to_fp16(str(plain), str(staged))
@@ -202,7 +202,7 @@ def export_onnx(
             patch_size=model.patch_size,
             num_classes=model.num_classes,
             input_size=size,
-            precision=precision,
+            dtype=dtype,
             config=record.config,
             step=record.step,
             palette=record.palette,

@@ -141,9 +141,9 @@ class OnnxSegmenter:
         return value
 
     @property
-    def precision(self) -> str | None:
+    def dtype(self) -> str | None:
         """``fp32``, ``fp16`` or ``int8``."""
-        return self._meta("precision")
+        return self._meta("dtype")
 
     @property
     def palette(self) -> dict[str, Any] | None:

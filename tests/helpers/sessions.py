@@ -107,8 +107,8 @@ def trained_sat(claravid_root, tmp_path_factory):
 SAT_EXPORT_FLAGS = {
     "fixed": ["--size", "32"],
     "dynamic": ["--dynamic", "--size", "32"],  # the example size; any patch multiple runs
-    "fp16": ["--size", "32", "--precision", "fp16"],
-    "int8": ["--size", "32", "--precision", "int8"],
+    "fp16": ["--size", "32", "--dtype", "fp16"],
+    "int8": ["--size", "32", "--dtype", "int8"],
 }
 
 

@@ -32,7 +32,7 @@ def test_a_dinov2_and_a_dinov3_model_compare_paired_per_bin(
     assert [r["source"]["settings"]["window"] for r in (a, b)] == [[28, 28], [32, 32]]
     assert [i["path"] for i in a["images"]] == [i["path"] for i in b["images"]]
     cmp = tmp_path / "cmp"
-    argv = ["--compare", str(tmp_path / "report_dinov2" / "report.json"),
+    argv = ["compare", str(tmp_path / "report_dinov2" / "report.json"),
             str(tmp_path / "report_dinov3" / "report.json"), "--bootstrap", "200",
             "--output", str(cmp)]  # fmt: skip
     assert eval_main(argv) == 0

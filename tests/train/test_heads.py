@@ -147,7 +147,7 @@ def test_two_heads_on_one_split_compare_paired_per_bin(claravid_root, tmp_path, 
     a, b = reports["linear"], reports["upernet"]
     assert [i["path"] for i in a["images"]] == [i["path"] for i in b["images"]]
     assert a["overall"]["miou"] != b["overall"]["miou"]  # two different models
-    argv = ["--compare", str(tmp_path / "report_linear" / "report.json"),
+    argv = ["compare", str(tmp_path / "report_linear" / "report.json"),
             str(tmp_path / "report_upernet" / "report.json"), "--bootstrap", "100",
             "--output", str(tmp_path / "cmp")]  # fmt: skip
     assert eval_main(argv) == 0

@@ -1,4 +1,4 @@
-"""``claravid-eval --compare`` and ``claravid-predict``."""
+"""``claravid-eval compare`` and ``claravid-predict``."""
 
 import json
 
@@ -35,7 +35,7 @@ def test_compare_side_by_side_with_gap(tmp_path, capsys):
     a = _report(tmp_path / "synthetic", "uavid", [("[4, 5)", 4, 5, 0.6), ("[5, 6]", 5, 6, 0.4)])
     b = _report(tmp_path / "real", "uavid", [("[4, 5)", 4, 5, 0.7), ("[5, 6]", 5, 6, 0.65)])
     out = tmp_path / "cmp"
-    assert main(["--compare", str(a), str(b), "--output", str(out)]) == 0
+    assert main(["compare", str(a), str(b), "--output", str(out)]) == 0
     captured = capsys.readouterr()
     assert "warning" not in captured.err
     table = captured.out
@@ -53,7 +53,7 @@ def test_compare_side_by_side_with_gap(tmp_path, capsys):
 def test_compare_warns_when_edges_or_palettes_differ(tmp_path, capsys):
     a = _report(tmp_path / "a", "uavid", [("[4, 5)", 4, 5, 0.6), ("[5, 6]", 5, 6, 0.4)])
     b = _report(tmp_path / "b", "claravid", [("[4, 4.5)", 4, 4.5, 0.7), ("[4.5, 6]", 4.5, 6, 0.6)])
-    assert main(["--compare", str(a), str(b)]) == 0
+    assert main(["compare", str(a), str(b)]) == 0
     err = capsys.readouterr().err
     assert "claravid-eval: warning: palettes differ" in err
     assert "claravid-eval: warning: bin edges differ" in err
@@ -63,12 +63,12 @@ def test_compare_refuses_foreign_json_in_one_line(tmp_path, capsys):
     a = _report(tmp_path / "a", "uavid", [("[4, 5)", 4, 5, 0.6)])
     foreign = tmp_path / "other.json"
     foreign.write_text(json.dumps({"metric": "delent", "results": []}))
-    assert main(["--compare", str(a), str(foreign)]) == 2
+    assert main(["compare", str(a), str(foreign)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "other.json is not a claravid-eval report.json" in err[0]
     broken = tmp_path / "broken.json"
     broken.write_text("{not json")
-    assert main(["--compare", str(a), str(broken)]) == 2
+    assert main(["compare", str(a), str(broken)]) == 2
     assert "cannot read" in capsys.readouterr().err
 
 

@@ -1,5 +1,5 @@
-"""Fixes that must hold on every path that reaches them (issue 24 §1 items 2 and 3): ``--merge``
-and ``--compare`` never load torch, and a bootstrap that cannot fit in memory is refused before
+"""Fixes that must hold on every path that reaches them (issue 24 §1 items 2 and 3): ``merge``
+and ``compare`` never load torch, and a bootstrap that cannot fit in memory is refused before
 anything is allocated, in every mode of ``claravid-eval`` and every function of the API."""
 
 import json
@@ -34,9 +34,9 @@ def _console_script(*argv):
 def test_merge_and_compare_never_load_torch(label_map_reports, tmp_path, mode):
     tmp = label_map_reports["tmp"]
     if mode == "merge":
-        argv = ["--merge", tmp / "a", "--bins", "2", "-o", tmp_path / "m"]
+        argv = ["merge", tmp / "a", "--bins", "2", "-o", tmp_path / "m"]
     else:
-        argv = ["--compare", tmp / "a", tmp / "b", "-o", tmp_path / "c"]
+        argv = ["compare", tmp / "a", tmp / "b", "-o", tmp_path / "c"]
     done = _console_script(*argv, "--bootstrap", "100", "--no-progress")
     assert done == {"code": 0, "torch": False}
     assert (tmp_path / ("m" if mode == "merge" else "c")).is_dir()  # the work was done
@@ -88,16 +88,16 @@ def test_a_bootstrap_too_large_is_one_line_in_every_mode(
     argv = {
         "predictions": ["--predictions", tmp / "pred_a", *reps["common"][:-2]],
         "tiles": ["--predictions", tmp / "pred_a", *reps["common"][:-2], "--tiles", "32"],
-        "merge": ["--merge", tmp / "a"],
-        "compare": ["--compare", tmp / "a", tmp / "b"],
-        "unpaired": ["--compare", tmp / "a", tmp / "half"],
-        "scores": ["--scores", _scores_csv(reps, tmp_path), "--data", reps["root"],
+        "merge": ["merge", tmp / "a"],
+        "compare": ["compare", tmp / "a", tmp / "b"],
+        "unpaired": ["compare", tmp / "a", tmp / "half"],
+        "scores": ["scores", _scores_csv(reps, tmp_path), "--data", reps["root"],
                    "--split", "all"],
     }[mode]  # fmt: skip
     if mode == "unpaired":  # A over half the frames: compared with B unpaired
         common = [str(half) if a == "all" else a for a in reps["common"]]
         assert main(["--predictions", str(tmp / "pred_b"), *common, "-o", str(tmp_path / "h")]) == 0
-        argv = ["--compare", tmp / "a", tmp_path / "h"]
+        argv = ["compare", tmp / "a", tmp_path / "h"]
         capsys.readouterr()
     assert main([*map(str, argv), "--bootstrap", HUGE, "-o", str(out)]) == 2
     _refused(capsys)

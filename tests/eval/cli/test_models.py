@@ -244,7 +244,7 @@ def test_merge_of_parts_and_rebinning_equal_one_run(model_files, splits, tmp_pat
     whole = _run(tmp_path / "all", *ckpt, "--split", str(splits["both"]), "--bins", "2",
                  "--group-by", "viewpoint")  # fmt: skip
     merged = tmp_path / "merged"
-    argv = ["--merge", str(tmp_path / "p2"), str(tmp_path / "p1" / "report.json"),
+    argv = ["merge", str(tmp_path / "p2"), str(tmp_path / "p1" / "report.json"),
             "--bins", "2", "--group-by", "viewpoint", "--output", str(merged)]  # fmt: skip
     assert main(argv) == 0
     report = json.loads((merged / "report.json").read_text())
@@ -256,13 +256,13 @@ def test_merge_of_parts_and_rebinning_equal_one_run(model_files, splits, tmp_pat
     edges = f"{values[0]!r},{values[2]!r},{values[-1]!r}"
     direct = _run(tmp_path / "edges", *ckpt, "--split", str(splits["both"]), "--edges", edges)
     rebinned = tmp_path / "rebinned"
-    assert main(["--merge", str(merged), "--edges", edges, "--output", str(rebinned)]) == 0
+    assert main(["merge", str(merged), "--edges", edges, "--output", str(rebinned)]) == 0
     again = json.loads((rebinned / "report.json").read_text())
     assert _without_source(again) == _without_source(direct)
     assert [b["num_images"] for b in again["bins"]] == [2, 4]
 
     # The same image twice, or a foreign file, is refused in one line.
-    assert main(["--merge", str(tmp_path / "p1"), str(tmp_path / "all"),
+    assert main(["merge", str(tmp_path / "p1"), str(tmp_path / "all"),
                  "--output", str(tmp_path / "x")]) == 2  # fmt: skip
     assert "is in both" in capsys.readouterr().err
 

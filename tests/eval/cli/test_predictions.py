@@ -200,7 +200,7 @@ def test_undecodable_prediction_files_are_named(case, tmp_path, capsys, corrupt,
     [
         (["--bins", "4"], "4 bins for 3 images"),
         (["--edges", "5,4.5,6"], "strictly increasing"),
-        (["--onnx", "x.onnx"], "exactly one of"),
+        (["--onnx", "x.onnx"], "argument --onnx: not allowed with argument --predictions"),
         (["--bins", "2", "--edges", "1,2"], "--bins or --edges"),
         (["--measures", "delent,nope"], "unknown measure"),
     ],
@@ -212,7 +212,9 @@ def test_user_mistakes_exit_2_with_one_line(case, tmp_path, capsys, extra, expec
 
 def test_no_source_at_all(tmp_path, capsys):
     assert main(["--data", str(tmp_path), "--output", str(tmp_path / "o")]) == 2
-    assert "exactly one of --checkpoint, --onnx, --predictions" in _error_line(capsys)
+    assert "one of the arguments --checkpoint --onnx --predictions is required" in _error_line(
+        capsys
+    )
 
 
 def test_output_folder_of_someone_else_is_refused(case, tmp_path, capsys):

@@ -1,4 +1,4 @@
-"""Intervals, comparisons with a verdict and ``--scores`` through the command line (issue 14).
+"""Intervals, comparisons with a verdict and ``scores`` through the command line (issue 14).
 
 One tiny ClaraVid tree (36 frames of 64×48), hand-made label maps: A (10 % of pixels shifted
 by one class), B identical to A, C with 40 % shifted (an injected error).
@@ -114,7 +114,7 @@ def test_intervals_everywhere_with_block_clusters(runs, claravid_root):
 def test_merge_rebins_and_bootstraps_without_the_data(runs, tmp_path):
     copy = shutil.copytree(runs["tmp"] / "a", tmp_path / "a")  # no data, no predictions needed
     out = tmp_path / "m"
-    argv = ["--merge", str(copy), "--bins", "2", "--cluster", "viewpoint", "--seed", "3",
+    argv = ["merge", str(copy), "--bins", "2", "--cluster", "viewpoint", "--seed", "3",
             "--bootstrap", "200", "--output", str(out)]  # fmt: skip
     assert main(argv) == 0
     report = _report(out)
@@ -125,7 +125,7 @@ def test_merge_rebins_and_bootstraps_without_the_data(runs, tmp_path):
     assert main([*argv[:-1], str(again)]) == 0
     assert _report(again)["bins"] == report["bins"]  # same seed, same numbers
     off = tmp_path / "off"
-    assert main(["--merge", str(copy), "--bootstrap", "0", "--output", str(off)]) == 0
+    assert main(["merge", str(copy), "--bootstrap", "0", "--output", str(off)]) == 0
     overall = _report(off)["overall"]
     assert overall["miou_ci"] is None and "off" in overall["ci_note"]
 
@@ -133,7 +133,7 @@ def test_merge_rebins_and_bootstraps_without_the_data(runs, tmp_path):
 def test_compare_identical_and_injected_error(runs, tmp_path, capsys):
     tmp = runs["tmp"]
     out = tmp_path / "cmp"
-    argv = ["--compare", str(tmp / "a"), str(tmp / "b"), str(tmp / "c"), "--bootstrap", "300",
+    argv = ["compare", str(tmp / "a"), str(tmp / "b"), str(tmp / "c"), "--bootstrap", "300",
             "--output", str(out)]  # fmt: skip
     assert main(argv) == 0
     result = json.loads((out / "compare.json").read_text())
@@ -174,7 +174,7 @@ def _check_compare_png(path, bins, reports):
 def test_compare_different_images_is_unpaired(runs, tmp_path):
     tmp = runs["tmp"]
     out = tmp_path / "cmp"
-    assert main(["--compare", str(tmp / "a"), str(tmp / "half"), "--bootstrap", "100",
+    assert main(["compare", str(tmp / "a"), str(tmp / "half"), "--bootstrap", "100",
                  "--output", str(out)]) == 0  # fmt: skip
     comp = json.loads((out / "compare.json").read_text())["comparisons"][0]
     assert comp["paired"] is False and "unpaired" in comp["note"]

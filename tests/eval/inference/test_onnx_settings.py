@@ -73,7 +73,7 @@ def test_metadata_round_trip(files):
     # The training run's statistics, not ImageNet's (a writer that records the defaults fails).
     assert runner.normalisation["mean"] == MEAN and runner.normalisation["std"] == STD
     assert list(IMAGENET_MEAN) != MEAN and list(IMAGENET_STD) != STD
-    assert runner.normalisation["channels"] == "RGB" and runner.precision == "fp32"
+    assert runner.normalisation["channels"] == "RGB" and runner.dtype == "fp32"
     text = json.dumps(files["config"], sort_keys=True, separators=(",", ":"))
     digest = hashlib.sha256(text.encode()).hexdigest()
     assert runner.training == {"step": 7, "config_sha256": digest}
@@ -202,9 +202,10 @@ def test_provider_flag(files, tmp_path, capsys):
     assert predict_main([*argv[:-1], "cpu", "--no-progress"]) == 0
 
 
-def test_eval_report_gives_the_onnx_files_precision(files, sat_exports, claravid_root, tmp_path):
-    # An ONNX file runs at the precision it was exported in; the report said "fp32" (PyTorch's
-    # autocast setting on a CPU) for an int8 file (the session's, of the tiny SAT model).
+def test_eval_report_gives_the_onnx_files_dtype(files, sat_exports, claravid_root, tmp_path):
+    # An ONNX file runs in the number format it was exported in (source.dtype), with no autocast
+    # (source.precision null); the report once said "fp32" (PyTorch's autocast setting on a CPU)
+    # for an int8 file (the session's, of the tiny SAT model).
     int8 = sat_exports["int8"]
     _eval.split = files["split"]
     foreign = ["--palette", "uavid", "--window", "14", "--statistics", "imagenet"]
@@ -212,7 +213,8 @@ def test_eval_report_gives_the_onnx_files_precision(files, sat_exports, claravid
                                   (files["foreign"], foreign, None)):  # fmt: skip
         report, _ = _eval(tmp_path / path.stem, "--onnx", str(path), "--data",
                           str(claravid_root), *flags)  # fmt: skip
-        assert report["source"]["precision"] == expected, path.name
+        assert report["source"]["dtype"] == expected, path.name
+        assert report["source"]["precision"] is None, path.name
 
 
 def test_a_fixed_size_onnx_file_names_its_size_as_a_window_flag():

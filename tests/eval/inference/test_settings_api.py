@@ -164,8 +164,8 @@ def test_a_tampered_negative_count_is_refused(label_map_reports, tmp_path, capsy
     with pytest.raises(UsageError, match="negative"):
         ev.load_result(folder)
     capsys.readouterr()
-    for argv in (["--merge", str(folder), "-o", str(tmp_path / "m")],
-                 ["--compare", str(folder), str(tmp / "b")]):  # fmt: skip
+    for argv in (["merge", str(folder), "-o", str(tmp_path / "m")],
+                 ["compare", str(folder), str(tmp / "b")]):  # fmt: skip
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("claravid-eval: error:"), err
@@ -204,7 +204,7 @@ def test_merge_warns_of_different_data_roots_only_when_they_differ(
         other = shutil.copytree(root, tmp_path / "copy")
     parts = _parts(reps, tmp_path, [root, other])
     capsys.readouterr()
-    assert main(["--merge", *map(str, parts), "--bootstrap", "0", "-o", str(tmp_path / "m")]) == 0
+    assert main(["merge", *map(str, parts), "--bootstrap", "0", "-o", str(tmp_path / "m")]) == 0
     cli = "different data roots" in capsys.readouterr().err
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

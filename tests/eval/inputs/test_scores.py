@@ -1,4 +1,4 @@
-"""``claravid-eval --scores``: any per-image metric against complexity, checked by hand."""
+"""``claravid-eval scores``: any per-image metric against complexity, checked by hand."""
 
 import json
 from pathlib import Path
@@ -47,7 +47,7 @@ def uavid_test(tmp_path_factory):
 
 
 def _args(case, out, *extra, csv=None):
-    return ["--scores", str(csv or case["csv"]), "--data", str(case["root"]), "--dataset",
+    return ["scores", str(csv or case["csv"]), "--data", str(case["root"]), "--dataset",
             "uavid", "--split", "test", "--output", str(out), *extra]  # fmt: skip
 
 
@@ -120,7 +120,7 @@ def test_folder_group_by_on_a_folder_dataset(tmp_path):
             rows.append(f"{sub}/{i}.png,{v}")
     (tmp_path / "s.csv").write_text("path,err\n" + "\n".join(rows) + "\n")
     out = tmp_path / "rep"
-    argv = ["--scores", str(tmp_path / "s.csv"), "--data", str(tmp_path / "img"), "--dataset",
+    argv = ["scores", str(tmp_path / "s.csv"), "--data", str(tmp_path / "img"), "--dataset",
             "folder", "--group-by", "folder", "--bins", "1", "--output", str(out)]  # fmt: skip
     assert main(argv) == 0
     report = json.loads((out / "report.json").read_text())
@@ -191,7 +191,7 @@ def test_group_by_viewpoint_follows_the_one_rule(claravid_root, tmp_path):
     csv = tmp_path / "m.csv"
     csv.write_text("path,err\n" + "".join(f"{p},{i}\n" for i, p in enumerate(data.paths)))
     out = tmp_path / "rep"
-    argv = ["--scores", str(csv), "--data", str(claravid_root), "--split", "all",
+    argv = ["scores", str(csv), "--data", str(claravid_root), "--split", "all",
             "--group-by", "viewpoint", "--bootstrap", "0", "--output", str(out)]  # fmt: skip
     assert main(argv) == 0
     report = json.loads((out / "report.json").read_text())
@@ -205,7 +205,7 @@ def test_group_by_viewpoint_follows_the_one_rule(claravid_root, tmp_path):
 
 
 def test_scores_report_prints_once_refuses_compare_and_says_beta_na(uavid_test, tmp_path, capsys):
-    """Each order warning printed once; --compare/--merge of a --scores report say what it is;
+    """Each order warning printed once; --compare/--merge of a scores report say what it is;
     groups of 2 images get α, β "n/a" with a note, not 0.000."""
     out = tmp_path / "rep"
     argv = _args(uavid_test, out, "--group-by", "sequence", "--bins", "3", "--bootstrap", "200")
@@ -222,9 +222,9 @@ def test_scores_report_prints_once_refuses_compare_and_says_beta_na(uavid_test, 
     assert "| n/a | n/a |" in text and "seq2: α, β n/a (a Beta fit needs" in text
     assert "0.000 | 0.000" not in text
     for mode in (
-        ["--compare", str(out), str(out)],
-        ["--merge", str(out), "-o", str(tmp_path / "m")],
+        ["compare", str(out), str(out)],
+        ["merge", str(out), "-o", str(tmp_path / "m")],
     ):
         assert main(mode) == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and "is a --scores report" in err[0], err
+        assert len(err) == 1 and "is a scores report" in err[0], err

@@ -1,4 +1,4 @@
-"""``--compare``: "not comparable" is one run against itself, never two runs that agree (issue 24
+"""``compare``: "not comparable" is one run against itself, never two runs that agree (issue 24
 §1 item 1), through the command line, :func:`claravid.eval.compare` and ``compare_reports``.
 
 One run seen twice is a report and its own re-binning or merge: the same ``report_id`` lineage.
@@ -19,7 +19,7 @@ from claravid.eval.report.compare import compare_reports
 
 
 def _cli(reports, out):
-    assert main(["--compare", *map(str, reports), "--bootstrap", "100", "-o", str(out)]) == 0
+    assert main(["compare", *map(str, reports), "--bootstrap", "100", "-o", str(out)]) == 0
     return json.loads((out / "compare.json").read_text())["comparisons"]
 
 
@@ -72,8 +72,8 @@ def lineage(label_map_reports, tmp_path_factory):
     reps, tmp = label_map_reports, label_map_reports["tmp"]
     out = tmp_path_factory.mktemp("lineage")
     rebinned, twice = out / "a5", out / "a2"
-    assert main(["--merge", str(tmp / "a"), "--bins", "5", "-o", str(rebinned)]) == 0
-    assert main(["--merge", str(rebinned), "--bins", "2", "-o", str(twice)]) == 0
+    assert main(["merge", str(tmp / "a"), "--bins", "5", "-o", str(rebinned)]) == 0
+    assert main(["merge", str(rebinned), "--bins", "2", "-o", str(twice)]) == 0
     copy = shutil.copytree(tmp / "a", out / "copy")  # the same report_id
     # Parts of one split evaluated apart and merged: the merge is one run with each part.
     parts = []
@@ -86,7 +86,7 @@ def lineage(label_map_reports, tmp_path_factory):
         assert main(argv) == 0
         parts.append(out / f"p{k}")
     merged = out / "merged"
-    assert main(["--merge", *map(str, parts), "--cluster", "image", "-o", str(merged)]) == 0
+    assert main(["merge", *map(str, parts), "--cluster", "image", "-o", str(merged)]) == 0
     # The same 12 frames evaluated in one run: another run than the merge of its parts.
     listing = out / "twelve.txt"
     listing.write_text("\n".join(f.key for f in reps["ds"].frames[:12]) + "\n")

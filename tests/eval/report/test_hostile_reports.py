@@ -33,7 +33,9 @@ def reps(claravid_root, tmp_path_factory):
 
 def _one_line(capsys, *words):
     err = capsys.readouterr().err
-    lines = [ln for ln in err.splitlines() if ln.startswith("claravid-eval: error:")]
+    # "claravid-eval: error:", or "claravid-eval merge: error:" from a subcommand's parser
+    lines = [ln for ln in err.splitlines()
+             if ln.startswith("claravid-eval") and ": error:" in ln]  # fmt: skip
     assert len(lines) == 1 and "Traceback" not in err, err
     for word in words:
         assert word in lines[0], lines[0]
@@ -71,9 +73,9 @@ def test_an_interrupted_rewrite_leaves_the_old_folder_whole(reps, tmp_path, monk
 def test_confusions_of_another_report_are_refused(reps, tmp_path, capsys):
     out = shutil.copytree(reps["tmp"] / "a", tmp_path / "a")
     shutil.copy(reps["tmp"] / "b" / "confusions.npz", out / "confusions.npz")
-    assert main(["--merge", str(out), "-o", str(tmp_path / "m")]) == 2
+    assert main(["merge", str(out), "-o", str(tmp_path / "m")]) == 2
     _one_line(capsys, "does not belong to", "report ids differ")
-    assert main(["--compare", str(out), str(reps["tmp"] / "b")]) == 2
+    assert main(["compare", str(out), str(reps["tmp"] / "b")]) == 2
     _one_line(capsys, "does not belong to")
 
 
@@ -81,7 +83,7 @@ def test_a_truncated_npz_is_one_line(reps, tmp_path, capsys):
     out = shutil.copytree(reps["tmp"] / "a", tmp_path / "a")
     data = (out / "confusions.npz").read_bytes()
     (out / "confusions.npz").write_bytes(data[: len(data) // 2])
-    assert main(["--merge", str(out), "-o", str(tmp_path / "m")]) == 2
+    assert main(["merge", str(out), "-o", str(tmp_path / "m")]) == 2
     _one_line(capsys, "confusions.npz is damaged", "evaluate again")
 
 
@@ -94,10 +96,10 @@ def test_the_same_images_through_two_spellings_of_the_root(reps, tmp_path, capsy
     linked = tmp_path / "b_linked"
     argv = ["--predictions", str(reps["tmp"] / "pred_b"), *common, "-o", str(linked)]
     assert main(argv) == 0
-    assert main(["--merge", str(reps["tmp"] / "a"), str(linked), "-o", str(tmp_path / "m")]) == 2
+    assert main(["merge", str(reps["tmp"] / "a"), str(linked), "-o", str(tmp_path / "m")]) == 2
     _one_line(capsys, "is in both", "merge disjoint runs")
     out = tmp_path / "cmp"
-    assert main(["--compare", str(reps["tmp"] / "a"), str(linked), "-o", str(out)]) == 0
+    assert main(["compare", str(reps["tmp"] / "a"), str(linked), "-o", str(out)]) == 0
     comp = json.loads((out / "compare.json").read_text())["comparisons"][0]
     assert comp["paired"] is True
 
@@ -121,46 +123,47 @@ def test_scores_csv_columns_that_would_overwrite(reps, tmp_path, capsys, header,
     image = next(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)
     csv = tmp_path / "m.csv"
     csv.write_text(header + "\n" + ",".join([str(image), *["1"] * header.count(",")]) + "\n")
-    argv = ["--scores", str(csv), "--data", str(reps["root"]), "-o", str(tmp_path / "o")]
+    argv = ["scores", str(csv), "--data", str(reps["root"]), "-o", str(tmp_path / "o")]
     assert main(argv) == 2
     _one_line(capsys, message)
 
 
 def test_huge_bootstrap_is_one_line(reps, tmp_path, capsys):
-    argv = ["--merge", str(reps["tmp"] / "a"), "--bootstrap", "100000000000", "-o",
+    argv = ["merge", str(reps["tmp"] / "a"), "--bootstrap", "100000000000", "-o",
             str(tmp_path / "m")]  # fmt: skip
     assert main(argv) == 2
     _one_line(capsys, "GiB", "lower --bootstrap")
 
 
 @pytest.mark.parametrize(
-    ("extra", "flag"),
+    ("extra", "said"),
     [
-        (["--predictions", "P", "--provider", "cpu"], "--provider"),
-        (["--merge", "A", "--provider", "cpu"], "--provider"),
-        (["--compare", "A", "A", "--hardest", "2"], "--hardest"),
-        (["--scores", "S.csv", "--palette", "uavid"], "--palette"),
-        (["--scores", "S.csv", "--masks", "M"], "--masks"),
-        (["--compare", "A", "A", "--workers", "2"], "--workers"),
-        (["--merge", "A", "--workers", "2"], "--workers"),
-        (["--predictions", "P", "--precision", "fp32"], "--precision"),
-        (["--onnx", "m.onnx", "--precision", "fp32"], "--precision"),  # runs as exported
+        (["--predictions", "P", "--provider", "cpu"], "--provider does nothing"),
+        (["--predictions", "P", "--precision", "fp32"], "--precision does nothing"),
+        (["--onnx", "m.onnx", "--precision", "fp32"], "--precision does nothing"),  # as exported
+        # A subcommand's parser has no such flag at all.
+        (["merge", "A", "--provider", "cpu"], "merge: error: unrecognized arguments: --provider"),
+        (["compare", "A", "A", "--hardest", "2"], "unrecognized arguments: --hardest 2"),
+        (["scores", "S.csv", "--palette", "uavid"], "unrecognized arguments: --palette uavid"),
+        (["scores", "S.csv", "--masks", "M"], "unrecognized arguments: --masks"),
+        (["compare", "A", "A", "--workers", "2"], "unrecognized arguments: --workers 2"),
+        (["merge", "A", "--workers", "2"], "unrecognized arguments: --workers 2"),
     ],
 )
-def test_options_that_do_nothing_are_refused(reps, tmp_path, capsys, extra, flag):
+def test_options_that_do_nothing_are_refused(reps, tmp_path, capsys, extra, said):
     names = {"P": reps["tmp"] / "pred_a", "A": reps["tmp"] / "a", "S.csv": tmp_path / "s.csv",
              "M": tmp_path}  # fmt: skip
     argv = [str(names.get(a, a)) for a in extra]
     assert main([*argv, "--data", str(reps["root"]), "-o", str(tmp_path / "o")]
-                if "--merge" not in extra and "--compare" not in extra
+                if extra[0] not in ("merge", "compare")
                 else [*argv, "-o", str(tmp_path / "o")]) == 2  # fmt: skip
-    _one_line(capsys, f"{flag} does nothing")
+    _one_line(capsys, said)
 
 
 def test_compare_without_intervals_excludes_nothing(reps, tmp_path):
     """--bootstrap 0: no interval, so the "interval excludes 0" column says "–", not "no"."""
     out = tmp_path / "cmp"
-    argv = ["--compare", str(reps["tmp"] / "a"), str(reps["tmp"] / "b"), "--bootstrap", "0",
+    argv = ["compare", str(reps["tmp"] / "a"), str(reps["tmp"] / "b"), "--bootstrap", "0",
             "-o", str(out)]  # fmt: skip
     assert main(argv) == 0
     lines = (out / "compare.md").read_text().splitlines()
@@ -174,13 +177,13 @@ def test_compare_without_intervals_excludes_nothing(reps, tmp_path):
 
 
 def test_a_scores_report_is_not_replaced_by_an_evaluation(reps, tmp_path, capsys, saved_figures):
-    """Evaluating into a --scores report folder needs --overwrite, and leaves none of its plots."""
+    """Evaluating into a scores report folder needs --overwrite, and leaves none of its plots."""
     images = sorted(p for p in reps["root"].rglob("*.jpg") if "left_rgb" in p.parts)[:5]
     err = dict(zip(images, [0.5, 4.0, 1.5, 9.0, 2.0], strict=True))
     csv = tmp_path / "m.csv"
     csv.write_text("path,err\n" + "".join(f"{p},{v}\n" for p, v in err.items()))
     out = tmp_path / "rep"
-    argv = ["--scores", str(csv), "--data", str(reps["root"]), "--split", "all", "--bins", "1",
+    argv = ["scores", str(csv), "--data", str(reps["root"]), "--split", "all", "--bins", "1",
             "--bootstrap", "0", "-o", str(out)]  # fmt: skip
     assert main(argv) == 0 and (out / "err_per_bin.png").is_file()
     # What the plots show: one bar at the mean error (17 / 5), the overall mean dashed at the
@@ -194,7 +197,7 @@ def test_a_scores_report_is_not_replaced_by_an_evaluation(reps, tmp_path, capsys
     np.testing.assert_allclose(sorted(map(tuple, np.asarray(points))), sorted(expected))
     evaluation = ["--predictions", str(reps["tmp"] / "pred_a"), *reps["common"], "-o", str(out)]
     assert main(evaluation) == 2
-    _one_line(capsys, "holds a --scores report", "--overwrite")
+    _one_line(capsys, "holds a scores report", "--overwrite")
     assert _json(out)["source"]["kind"] == "scores"
     assert main([*evaluation, "--overwrite"]) == 0
     assert _json(out)["source"]["kind"] == "predictions"
@@ -207,16 +210,16 @@ def test_a_report_and_its_own_rebinning_are_not_comparable(reps, tmp_path):
     """--merge A --bins 5 holds A's predictions: no paired gaps between a model and itself;
     other class sets are not comparable either."""
     rebinned = tmp_path / "a5"
-    assert main(["--merge", str(reps["tmp"] / "a"), "--bins", "5", "-o", str(rebinned)]) == 0
+    assert main(["merge", str(reps["tmp"] / "a"), "--bins", "5", "-o", str(rebinned)]) == 0
     out = tmp_path / "cmp"
-    assert main(["--compare", str(reps["tmp"] / "a"), str(rebinned), "-o", str(out)]) == 0
+    assert main(["compare", str(reps["tmp"] / "a"), str(rebinned), "-o", str(out)]) == 0
     comp = json.loads((out / "compare.json").read_text())["comparisons"][0]
     assert comp["comparable"] is False and "one run seen twice" in comp["reason"]
     assert comp["overall"] is None and comp["bins"] == []
     text = (out / "compare.md").read_text()
     assert "**not comparable**" in text and "**yes**" not in text and "paired (" not in text
     # B, a different model on the same images, stays comparable.
-    assert main(["--compare", str(reps["tmp"] / "a"), str(reps["tmp"] / "b"), "-o",
+    assert main(["compare", str(reps["tmp"] / "a"), str(reps["tmp"] / "b"), "-o",
                  str(tmp_path / "ab")]) == 0  # fmt: skip
     ab = json.loads((tmp_path / "ab" / "compare.json").read_text())["comparisons"][0]
     assert ab.get("comparable", True) and ab["paired"] is True
@@ -243,9 +246,9 @@ def test_a_users_plots_in_a_report_folder_are_kept(reps, tmp_path, mode):
     six.write_text("".join(f"{p.parts[-4]}/{p.parts[-2]}/{p.stem}\n" for p in image_paths))
     common = [str(six) if a == "all" else a for a in reps["common"]]
     csv = tmp_path / "m.csv"
-    if mode == "scores":  # a --scores report of metric "err", replaced by one of "psnr"
+    if mode == "scores":  # a scores report of metric "err", replaced by one of "psnr"
         csv.write_text("path,err\n" + "".join(f"{p},{i}\n" for i, p in enumerate(image_paths)))
-        argv = ["--scores", str(csv), "--data", str(reps["root"]), "--bins", "2", "--bootstrap",
+        argv = ["scores", str(csv), "--data", str(reps["root"]), "--bins", "2", "--bootstrap",
                 "0", "-o", str(out)]  # fmt: skip
         assert main(argv) == 0
         old_own = ["err_per_bin.png", "err_vs_delent.png"]
@@ -263,7 +266,7 @@ def test_a_users_plots_in_a_report_folder_are_kept(reps, tmp_path, mode):
         argv = ["--predictions", str(reps["tmp"] / "pred_b"), *common, "-o", str(out)]
         assert main(argv) == 0
     elif mode == "merge":  # re-binned in place: the report's own folder
-        assert main(["--merge", str(out), "--bins", "2", "--bootstrap", "0", "-o", str(out)]) == 0
+        assert main(["merge", str(out), "--bins", "2", "--bootstrap", "0", "-o", str(out)]) == 0
     elif mode == "scores":
         csv.write_text("path,psnr\n" + "".join(f"{p},{i}\n" for i, p in enumerate(image_paths)))
         assert main(argv) == 0

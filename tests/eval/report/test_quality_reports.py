@@ -37,7 +37,7 @@ def test_merged_parts_equal_one_run_for_every_sum(model_files, tmp_path):
     for name, frames in (("p0", PART0), ("p1", PART1), ("whole", PART0 + PART1)):
         split = _split(tmp_path, name, frames)
         assert main([*common, "--split", split, "--output", str(tmp_path / name)]) == 0
-    assert main(["--merge", str(tmp_path / "p0"), str(tmp_path / "p1"), "--bins", "2",
+    assert main(["merge", str(tmp_path / "p0"), str(tmp_path / "p1"), "--bins", "2",
                  "--bootstrap", "100", "--output", str(tmp_path / "merged")]) == 0  # fmt: skip
     with (
         np.load(tmp_path / "merged" / "confusions.npz") as merged,
@@ -81,7 +81,7 @@ def test_compare_finds_worse_boundaries_per_bin(label_map_reports, tmp_path):
                 str(tmp_path / f"rep_{name}")]  # fmt: skip
         assert main(argv) == 0
     out = tmp_path / "cmp"
-    assert main(["--compare", str(tmp_path / "rep_inside"), str(tmp_path / "rep_edges"),
+    assert main(["compare", str(tmp_path / "rep_inside"), str(tmp_path / "rep_edges"),
                  "--bootstrap", "100", "--output", str(out)]) == 0  # fmt: skip
     comparison = json.loads((out / "compare.json").read_text())["comparisons"][0]
     boundary = comparison["quality"]["boundary_iou"]
@@ -153,7 +153,7 @@ def test_reports_before_the_measures_read_merge_and_compare(label_map_reports, t
     assert "written before" in result.quality.reasons["boundary_iou"]
 
     # Re-binned alone: mIoU as before, every new measure marked absent, with the reason.
-    assert main(["--merge", str(old), "--bins", "2", "--bootstrap", "100",
+    assert main(["merge", str(old), "--bins", "2", "--bootstrap", "100",
                  "--output", str(tmp_path / "rebinned")]) == 0  # fmt: skip
     rebinned = json.loads((tmp_path / "rebinned" / "report.json").read_text())
     assert {q["status"] for q in rebinned["quality"].values()} == {"absent"}
@@ -180,7 +180,7 @@ def test_reports_before_the_measures_read_merge_and_compare(label_map_reports, t
     )  # the same images: refused
     # Compared with a report that has them: mIoU compared, the rest named as missing.
     out = tmp_path / "cmp"
-    assert main(["--compare", str(old), str(tmp / "b"), "--bootstrap", "100",
+    assert main(["compare", str(old), str(tmp / "b"), "--bootstrap", "100",
                  "--output", str(out)]) == 0  # fmt: skip
     comparison = json.loads((out / "compare.json").read_text())["comparisons"][0]
     assert comparison["comparable"] and comparison["overall"]["gap"] < 0
@@ -202,7 +202,7 @@ def test_old_and_new_parts_merge_with_the_new_measures_marked(label_map_reports,
     argv[argv.index(split)] = _split(tmp_path, "p0", PART0)
     assert main([*argv, "--output", str(tmp_path / "first")]) == 0
     old = _old_schema(tmp_path / "first", tmp_path / "old")
-    assert main(["--merge", str(old), str(tmp_path / "new"), "--bins", "2", "--bootstrap", "100",
+    assert main(["merge", str(old), str(tmp_path / "new"), "--bins", "2", "--bootstrap", "100",
                  "--output", str(tmp_path / "merged")]) == 0  # fmt: skip
     merged = json.loads((tmp_path / "merged" / "report.json").read_text())
     assert merged["overall"]["num_images"] == 6

@@ -95,7 +95,7 @@ def test_refusal_below_min_agreement_leaves_no_file(tmp_path, capsys):
     ckpt = save_checkpoint(model, tmp_path / "m.pt")
     out = tmp_path / "q.onnx"
     argv = ["--checkpoint", str(ckpt), "-o", str(out), "--size", str(SIZE),
-            "--precision", "int8", "--min-agreement", "1"]  # fmt: skip
+            "--dtype", "int8", "--min-agreement", "1"]  # fmt: skip
     assert main(argv) == 1  # 99.96 % of pixels agree
     captured = capsys.readouterr()
     assert "agrees with PyTorch on 99.9" in captured.err
@@ -106,7 +106,7 @@ def test_refusal_below_min_agreement_leaves_no_file(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("args", "match"),
     [
-        (["--precision", "bf16"], "invalid choice: 'bf16'"),
+        (["--dtype", "bf16"], "invalid choice: 'bf16'"),
         (["--min-agreement", "1.5"], "expected a fraction in [0, 1], got '1.5'"),
         (["--min-agreement", "x"], "expected a fraction in [0, 1], got 'x'"),
         (["--calibration-images", "0"], "expected a positive integer, got '0'"),
@@ -122,10 +122,10 @@ def test_cli_rejects_bad_precision_flags(tmp_path, capsys, args, match):
 def test_cli_rejects_calibration_misuse(tmp_path, capsys):
     (tmp_path / "m.pt").write_bytes(b"")
     for args, match in [
-        (["--calibration", str(tmp_path)], "apply to --precision int8 only"),
-        (["--per-channel"], "apply to --precision int8 only"),
-        (["--precision", "int8", "--calibration-images", "8"], "does nothing without --calibr"),
-        (["--precision", "int8", "--calibration", str(tmp_path / "no")], "is not a folder"),
+        (["--calibration", str(tmp_path)], "apply to --dtype int8 only"),
+        (["--per-channel"], "apply to --dtype int8 only"),
+        (["--dtype", "int8", "--calibration-images", "8"], "does nothing without --calibr"),
+        (["--dtype", "int8", "--calibration", str(tmp_path / "no")], "is not a folder"),
     ]:
         ckpt = ["--checkpoint", str(tmp_path / "m.pt")]
         assert main([*ckpt, "-o", str(tmp_path / "x.onnx"), *args]) == 2
@@ -133,3 +133,12 @@ def test_cli_rejects_calibration_misuse(tmp_path, capsys):
         lines = [x for x in err.splitlines() if x.startswith("claravid-export: error:")]
         assert len(lines) == 1 and match in lines[0] and "Traceback" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.pt"]
+
+
+def test_cli_names_the_files_number_format_dtype_not_precision(tmp_path, capsys):
+    """One meaning per flag: ``--precision`` is an autocast on every other command, and an
+    export has none; the file's number format is ``--dtype``."""
+    with pytest.raises(SystemExit) as info:
+        main(["--checkpoint", "m.pt", "-o", str(tmp_path / "x.onnx"), "--precision", "int8"])
+    assert info.value.code == 2
+    assert "unrecognized arguments: --precision int8" in capsys.readouterr().err

@@ -182,7 +182,7 @@ def test_exports_fixed_and_dynamic_in_every_precision(head, tmp_path):
     for shape in [(1, 3, 48, 48), (2, 3, 64, 112), (1, 3, 112, 32)]:
         x = rng.standard_normal(shape).astype(np.float32)
         np.testing.assert_allclose(runner(x), _logits(model, torch.from_numpy(x)), atol=1e-4)
-    fp16 = ExportSettings(height=48, width=48, dynamic=True, precision="fp16")
+    fp16 = ExportSettings(height=48, width=48, dynamic=True, dtype="fp16")
     assert export_onnx(model, tmp_path / "h.onnx", fp16)["max_abs_diff"] < 5e-2
-    int8 = ExportSettings(height=48, width=80, precision="int8")
+    int8 = ExportSettings(height=48, width=80, dtype="int8")
     assert export_onnx(model, tmp_path / "q.onnx", int8)["agreement"] >= 0.97
