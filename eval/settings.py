@@ -145,6 +145,8 @@ class InferenceSettings:
         statistics: the input statistics of an ONNX file exported elsewhere, which records
             none: ``imagenet`` or ``sat493m`` (required for such a file, refused for any other:
             a checkpoint or a claravid export carries its own).
+        gsd: the data's ground sampling distance (metres per pixel): the images are resized to
+            the model's recorded GSD (scale = gsd / the model's), in place of ``scale``.
     """
 
     window: int | tuple[int, int] | None = None
@@ -155,9 +157,14 @@ class InferenceSettings:
     precision: str = "auto"
     provider: str | None = None
     statistics: str | None = None
+    gsd: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "window", _size(self.window, "--window"))
+        if self.gsd is not None and not (
+            isinstance(self.gsd, (int, float)) and math.isfinite(self.gsd) and self.gsd > 0
+        ):
+            raise ValueError(f"--gsd must be metres per pixel > 0, got {self.gsd!r}")
         object.__setattr__(self, "stride", _size(self.stride, "--stride"))
         if self.scale is not None and not (
             isinstance(self.scale, (int, float)) and math.isfinite(self.scale)

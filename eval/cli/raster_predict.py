@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -111,15 +112,36 @@ def list_rasters(inputs: list[Path]) -> tuple[list[Path], list[str]]:
     return list(inputs), keys
 
 
-def run_rasters(
-    args: argparse.Namespace, source: Any, settings: Any, colors: np.ndarray, out: Path
-) -> list[Any]:
-    """Predict every raster of ``args.images`` into ``out/<name>.tif``; the results."""
-    from claravid.eval.inference.raster_job import predict_raster
-    from claravid.io.raster import require_rasterio
+def check_rasters(args: argparse.Namespace) -> tuple[list[Path], list[str]]:
+    """The rasters of ``args.images`` and their output names, each opened and checked (bands,
+    samples, value range) before any model work.
 
-    require_rasterio()  # one line naming the extra, before any model work
+    Raises:
+        RasterError: rasterio missing, or a raster the flags cannot read (one line).
+    """
+    from claravid.io.raster import NoCrsWarning, RasterReader, require_rasterio
+
+    require_rasterio()  # one line naming the extra
     paths, keys = list_rasters(args.images)
+    for path in paths:
+        with warnings.catch_warnings():  # said once, when the raster is predicted
+            warnings.simplefilter("ignore", NoCrsWarning)
+            RasterReader(path, args.bands, args.value_range).close()
+    return paths, keys
+
+
+def run_rasters(
+    args: argparse.Namespace,
+    rasters: tuple[list[Path], list[str]],
+    source: Any,
+    settings: Any,
+    colors: np.ndarray,
+    out: Path,
+) -> list[Any]:
+    """Predict ``rasters`` (from :func:`check_rasters`) into ``out/<name>.tif``; the results."""
+    from claravid.eval.inference.raster_job import predict_raster
+
+    paths, keys = rasters
     results = []
     for path, key in zip(paths, keys, strict=True):
         target = out / f"{key}.tif"

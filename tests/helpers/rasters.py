@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -25,8 +26,7 @@ def write_raster(
 ) -> Path:
     """Write ``data`` [C, H, W] as a GeoTIFF (tiled in ``block``² tiles, None: stripped);
     ``alpha``: the last band is alpha; ``mask``: an internal per-dataset mask (True = data)."""
-    import rasterio
-    from rasterio.enums import ColorInterp
+    import rasterio.errors
     from rasterio.transform import from_origin
 
     count, height, width = data.shape
@@ -39,6 +39,17 @@ def write_raster(
         profile["nodata"] = nodata
     if block is not None:
         profile.update(tiled=True, blockxsize=block, blockysize=block, compress="deflate")
+    with warnings.catch_warnings():  # no CRS: what the tests make on purpose
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        _write(path, data, profile, alpha, mask)
+    return path
+
+
+def _write(path, data, profile, alpha, mask):
+    import rasterio
+    from rasterio.enums import ColorInterp
+
+    count = data.shape[0]
     with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True), rasterio.open(path, "w", **profile) as dst:
         dst.write(data)
         if alpha:
@@ -46,7 +57,6 @@ def write_raster(
             dst.colorinterp = interp[:count]
         if mask is not None:
             dst.write_mask(np.where(mask, 255, 0).astype(np.uint8))
-    return path
 
 
 def noise(count: int, height: int, width: int, seed: int = 0, dtype=np.uint8) -> np.ndarray:
