@@ -29,6 +29,10 @@ from claravid.eval.inference.windows import Model, WindowConfig
 from claravid.io.cog import CONFIDENCE_MAX, NODATA, ClassMapWriter
 from claravid.io.raster import RasterError, RasterInfo, RasterReader
 
+#: GDAL's block cache (MB) while a raster is predicted. Its default is 5 % of the machine's RAM,
+#: which the COG conversion of a large class map fills: peak memory then grows with the machine.
+GDAL_CACHE_MB = 256
+
 #: How far a stated --gsd may differ from the raster's own before a warning says so.
 GSD_TOLERANCE = 0.01
 
@@ -173,7 +177,7 @@ def predict_raster(
     config = config.for_model(model)
     if len(colors) > NODATA:
         raise RasterError(f"{len(colors)} classes do not fit a uint8 map beside nodata {NODATA}")
-    with RasterReader(source, bands, value_range) as reader:
+    with _gdal_cache(), RasterReader(source, bands, value_range) as reader:
         info = reader.info
         scale, raster_gsd = resolve_scale(info, model_gsd, gsd, config.scale)
         windows = window_count(*scaled_size(info, scale), config)
@@ -190,6 +194,12 @@ def predict_raster(
             bar.close()
     return RasterResult(path, info.width, info.height, windows, scale, raster_gsd, model_gsd,
                         time.perf_counter() - start)  # fmt: skip
+
+
+def _gdal_cache() -> Any:
+    from claravid.io.raster import require_rasterio
+
+    return require_rasterio().Env(GDAL_CACHEMAX=GDAL_CACHE_MB)
 
 
 def write_band(
