@@ -94,16 +94,14 @@ def stream_logits(
     capacity = min(ph, max(c[-1][0] - c[0][0] for c in chunks) + wh)
     row_hits, col_hits = _counts(ph, ys, wh), _counts(pw, xs, ww)
     device = _device(model)
-    band = torch.zeros((3, 0, pw), dtype=torch.float32, device=device)  # rows band_top ..
+    band = torch.zeros((3, 0, width), dtype=torch.uint8, device=device)  # rows band_top ..
     band_top = 0
     sums: torch.Tensor | None = None  # [K, capacity, pw], row r at r % capacity
     done = 0  # rows handed out
     for index, chunk in enumerate(chunks):
         first, last = chunk[0][0], chunk[-1][0]
-        band, band_top = _advance(band, band_top, first, last + wh, height, pw, read_rows, config)
-        batch = torch.stack(
-            [band[:, y - band_top : y - band_top + wh, x : x + ww] for y, x in chunk]
-        )
+        band, band_top = _advance(band, band_top, first, last + wh, height, read_rows)
+        batch = torch.stack([_window(band, band_top, y, x, (wh, ww), config) for y, x in chunk])
         out = _forward(model, batch.contiguous(), config)
         if sums is None:
             sums = torch.zeros((out.shape[1], capacity, pw), dtype=torch.float32, device=device)
@@ -137,34 +135,32 @@ def _average(
 
 
 def _advance(
-    band: torch.Tensor,
-    band_top: int,
-    first: int,
-    stop: int,
-    height: int,
-    padded_width: int,
-    read_rows: ReadRows,
-    config: WindowConfig,
+    band: torch.Tensor, band_top: int, first: int, stop: int, height: int, read_rows: ReadRows
 ) -> tuple[torch.Tensor, int]:
-    """The normalised band holding rows ``first .. stop`` (zeros past the image), dropping the
-    rows above ``first`` that no window still needs."""
+    """The uint8 band holding rows ``first .. stop`` (those inside the image), dropping the rows
+    above ``first`` that no window still needs."""
     band_stop = band_top + band.shape[1]
     if first > band_top:
         band = band[:, min(first, band_stop) - band_top :]
         band_top = first
         band_stop = max(band_stop, first)
+    stop = min(stop, height)
     if stop <= band_stop:
         return band, band_top
-    new: list[torch.Tensor] = []
-    if band_stop < height:
-        rows = read_rows(band_stop, min(stop, height) - band_stop).to(band.device)
-        rows = normalise(rows, config)
-        # Zeros after normalisation, as the in-memory path pads an image narrower than a window.
-        new.append(torch.nn.functional.pad(rows, (0, padded_width - rows.shape[-1])))
-    pad_rows = stop - max(band_stop, height)
-    if pad_rows > 0:
-        new.append(torch.zeros((3, pad_rows, padded_width), device=band.device))
-    return torch.cat([band, *new], 1), band_top
+    rows = read_rows(band_stop, stop - band_stop).to(band.device)
+    return torch.cat([band, rows], 1), band_top
+
+
+def _window(
+    band: torch.Tensor, top: int, y: int, x: int, size: tuple[int, int], config: WindowConfig
+) -> torch.Tensor:
+    """One window, normalised; past the image's bottom or right, zeros after normalisation (as
+    the in-memory path pads an image smaller than a window)."""
+    wh, ww = size
+    crop = normalise(band[:, y - top : y - top + wh, x : x + ww], config)
+    if crop.shape[1:] != (wh, ww):
+        crop = torch.nn.functional.pad(crop, (0, ww - crop.shape[2], 0, wh - crop.shape[1]))
+    return crop
 
 
 def _device(model: Any) -> torch.device:
