@@ -326,7 +326,7 @@ def _model_and_source(
     run = resolve_settings(
         model, window=inference.window, stride=inference.stride, scale=inference.scale,
         batch_size=inference.batch_size, palette=data.palette, precision=inference.precision,
-        statistics=inference.statistics, tta=inference.tta,
+        statistics=inference.statistics, tta=inference.tta, gsd=inference.gsd,
     )  # fmt: skip
     window = run.window
     assert window.size is not None and window.stride is not None  # resolved for the model

@@ -149,6 +149,8 @@ class InferenceSettings:
         tta: test-time augmentation (scales and mirror, e.g. ``TTAConfig.preset("dinov3")``);
             None: what the model file recorded (training's ``val.tta_*``), else none; False:
             none, whatever the file recorded.
+        gsd: the data's ground sampling distance (metres per pixel): the images are resized to
+            the model's recorded GSD (scale = gsd / the model's), in place of ``scale``.
     """
 
     window: int | tuple[int, int] | None = None
@@ -160,6 +162,7 @@ class InferenceSettings:
     provider: str | None = None
     statistics: str | None = None
     tta: TTAConfig | bool | None = None
+    gsd: float | None = None
 
     def __post_init__(self) -> None:
         if self.tta is not None and self.tta is not False and not isinstance(self.tta, TTAConfig):
@@ -168,6 +171,10 @@ class InferenceSettings:
                 f"None (the model file's), got {self.tta!r}"
             )
         object.__setattr__(self, "window", _size(self.window, "--window"))
+        if self.gsd is not None and not (
+            isinstance(self.gsd, (int, float)) and math.isfinite(self.gsd) and self.gsd > 0
+        ):
+            raise ValueError(f"--gsd must be metres per pixel > 0, got {self.gsd!r}")
         object.__setattr__(self, "stride", _size(self.stride, "--stride"))
         if self.scale is not None and not (
             isinstance(self.scale, (int, float)) and math.isfinite(self.scale)

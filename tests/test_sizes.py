@@ -19,9 +19,8 @@ LONGER = {
     "claravid/synth/scenery.py:props": 108,
     "claravid/data/blocks.py:deal_blocks": 108,
     "eval/measures/cross_view.py:cross_view": 97,
-    "models/export/onnx.py:export_onnx": 103,
+    "models/export/onnx.py:export_onnx": 90,
     "claravid/dsp/collection.py:compute_measures": 97,
-    "eval/inference/sources.py:resolve_settings": 84,
     "eval/inputs/metric_csv.py:read_metrics_csv": 94,
 }
 

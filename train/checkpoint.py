@@ -83,6 +83,7 @@ def save_training_checkpoint(
     best_step: int | None,
     metrics: dict[str, Any] | None,
     backbone_trained: bool,
+    gsd: dict[str, Any] | None = None,
     **records: Any,
 ) -> Path:
     """Write a complete, resumable checkpoint atomically (see the module docstring).
@@ -104,6 +105,7 @@ def save_training_checkpoint(
         best_miou=best_miou,
         best_step=best_step,
         metrics=metrics or {},
+        gsd=gsd,  # the training images' metres per pixel (claravid.data.gsd), or None
         **records,
     )
 

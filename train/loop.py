@@ -42,11 +42,13 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from claravid import models
+from claravid.data.gsd import claravid_gsd, gsd_record
 from claravid.data.ignore import IGNORE_INDEX
 from claravid.data.masks import check_palette_fit
 from claravid.data.palettes import load_palette
 from claravid.data.real_layouts import RealSegmentation
 from claravid.data.samples import normalise
+from claravid.data.segmentation import ClaraVidSegmentation
 from claravid.data.targets import UAVidSegmentation
 from claravid.eval.inference.augment import TTAConfig
 from claravid.eval.inference.windows import WindowConfig
@@ -154,6 +156,7 @@ class Run:
     # What every checkpoint records beside the weights: classes, label budget, init source.
     records: dict[str, Any] = field(default_factory=dict)
     store_backbone: bool = False  # a trained backbone, or one loaded by model.init
+    gsd: dict[str, Any] | None = None  # the training images' GSD record (claravid.data.gsd)
     images: int = 0  # images since the last log row (for images/s)
     tick: float = 0.0  # when the last log row was written
 
@@ -170,7 +173,7 @@ class Run:
             path, self.model, step=step, config=C.to_plain(self.cfg), optimizer=self.optimizer,
             scheduler=self.scheduler, scaler=self.scaler, frames_per_step=self.frames_per_step,
             best_miou=self.best_miou, best_step=self.best_step, metrics=self.last_val,
-            backbone_trained=self.store_backbone, **self.records,
+            backbone_trained=self.store_backbone, gsd=self.gsd, **self.records,
         )  # fmt: skip
 
 
@@ -288,6 +291,7 @@ def build_run(
         log=RunLog(out, start, cfg.log.tensorboard) if main else None,
         frames_per_step=frames_per_step, say=say, best_miou=best_miou, best_step=best_step,
         last_val=last_val, records=records, store_backbone=store,
+        gsd=ckpt.get("gsd") if ckpt else training_gsd(cfg, train_set),
     )  # fmt: skip
 
 
@@ -344,6 +348,16 @@ def _start_from(model: models.Segmenter, cfg: DictConfig, init: dict[str, Any], 
     say(f"model.init: {what} from {cfg.model.init} (step {init.get('step')} of that run); "
         "a fresh optimiser from step 0")  # fmt: skip
     return loaded
+
+
+def training_gsd(cfg: DictConfig, train_set: Any) -> dict[str, Any] | None:
+    """The GSD record a run's checkpoints carry: ``data.gsd`` when stated, else ClaraVid's
+    measured one (``claravid.data.gsd``), else None."""
+    if cfg.data.gsd is not None:
+        return gsd_record(float(cfg.data.gsd), "data.gsd")
+    if isinstance(train_set, ClaraVidSegmentation):
+        return claravid_gsd(train_set.root, train_set.frames)
+    return None
 
 
 def _claim_out_dir(

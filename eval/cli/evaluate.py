@@ -56,6 +56,7 @@ from claravid.infra.cli import (
     add_window_flags,
     add_workers_flag,
     non_negative_int,
+    positive_float,
     positive_int,
     run_cli,
 )
@@ -100,6 +101,11 @@ def build_parser() -> argparse.ArgumentParser:
     infer = p.add_argument_group("inference")
     add_window_flags(infer)
     add_tta_flags(infer)
+    infer.add_argument(
+        "--gsd", type=positive_float, metavar="METRES",
+        help="the data's ground sampling distance: images are resized to the model's recorded "
+        "GSD (instead of --scale)",
+    )  # fmt: skip
     add_statistics_flag(infer, NAMED_STATISTICS)
     add_device_flag(infer)
     add_precision_flag(infer)
@@ -297,7 +303,7 @@ def _inference(args: argparse.Namespace) -> InferenceSettings:
     return InferenceSettings(window=args.window, stride=args.stride, scale=args.scale,
                              batch_size=args.batch_size, device=args.device,
                              precision=args.precision, provider=args.provider,
-                             statistics=args.statistics,
+                             statistics=args.statistics, gsd=args.gsd,
                              tta=tta_from_flags(args.tta, args.tta_scales, args.flip,
                                                 args.tta_size))  # fmt: skip
 

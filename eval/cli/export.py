@@ -206,6 +206,7 @@ def _run(args: argparse.Namespace) -> int:
     width, height = input_size(args.size, model.patch_size)
     config = ckpt.get("config") if isinstance(ckpt.get("config"), dict) else None
     step = ckpt.get("step") if isinstance(ckpt.get("step"), int) else None
+    gsd = ckpt.get("gsd") if isinstance(ckpt.get("gsd"), dict) else None
     del ckpt
     palette = None
     data = config.get("data") if config else None
@@ -231,7 +232,7 @@ def _run(args: argparse.Namespace) -> int:
             min_agreement=args.min_agreement,
             per_channel=args.per_channel,
         )
-        record = Provenance(config=config, step=step, palette=palette)
+        record = Provenance(config=config, step=step, palette=palette, gsd=gsd)
         result = export_onnx(model, output, settings, provenance=record, calibration=calibration)
     except ExportCheckError as exc:
         print(f"{PROG}: error: {exc}; nothing was written", file=sys.stderr)

@@ -30,6 +30,12 @@ from torch.utils.data import DataLoader, Dataset
 from tqdm.auto import tqdm
 
 from claravid.data.palettes import Palette, load_palette
+from claravid.eval.cli.raster_predict import (
+    add_raster_flags,
+    check_raster_flags,
+    check_rasters,
+    run_rasters,
+)
 from claravid.eval.inference.augment import tta_from_flags
 from claravid.eval.inference.sources import RunSettings
 from claravid.eval.inference.windows import predict_labels
@@ -170,6 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--provider", choices=PROVIDERS, help="ONNX Runtime provider (--onnx)")
     add_workers_flag(p, "image decoding")
     p.add_argument("--no-overlays", action="store_true", help="label maps only")
+    add_raster_flags(p)
     add_progress_flag(p)
     p.add_argument("--overwrite", action="store_true", help="replace a foreign output folder")
     add_debug_flag(p)
@@ -183,7 +190,14 @@ def run(args: argparse.Namespace) -> int:
     if (args.checkpoint is None) == (args.onnx is None):
         raise UsageError("give exactly one of --checkpoint and --onnx")
     precision = flag_precision(args.precision, pytorch=args.checkpoint is not None)
+    check_raster_flags(args)
+    if args.raster and args.gsd is not None and args.scale is not None:
+        raise UsageError(
+            "give --gsd or --scale, not both (--gsd sets the scale to match the model)"
+        )
     out = check_output_dir(args.output, marker=MARKER, overwrite=args.overwrite)
+    if args.raster:
+        return _run_rasters(args, out, precision)
     paths, keys = list_images(args.images)
     check_device(args.device)  # one line, not CUDA's traceback
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
@@ -193,6 +207,7 @@ def run(args: argparse.Namespace) -> int:
         source, window=args.window, stride=args.stride, scale=args.scale,
         batch_size=args.batch_size, palette=args.palette, precision=precision,
         statistics=args.statistics,
+        gsd=args.gsd,
         tta=tta_from_flags(args.tta, args.tta_scales, args.flip, args.tta_size),
     )  # fmt: skip
     palette = _palette_for(settings, args.no_overlays, source.num_classes)
@@ -214,6 +229,34 @@ def run(args: argparse.Namespace) -> int:
     write_marker(out, palette, described, images=len(paths))  # type: ignore[arg-type]
     print(f"{len(paths)} label maps: {out}/<name>.png" + ("" if args.no_overlays else
           f"; overlays: {out / 'overlays'}"))  # fmt: skip
+    return 0
+
+
+def _run_rasters(args: argparse.Namespace, out: Path, precision: str) -> int:
+    """``--raster``: every input streamed into ``OUT/<name>.tif`` (a COG class map)."""
+    from claravid.eval.inference.sources import load_source, resolve_settings
+
+    rasters = check_rasters(args)  # each raster's problem in one line, before loading the model
+    check_device(args.device)
+    device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    source = load_source(args.checkpoint, args.onnx, device=device, provider=args.provider)
+    settings = resolve_settings(
+        source, window=args.window, stride=args.stride, scale=args.scale,
+        batch_size=args.batch_size, palette=args.palette, precision=precision,
+        statistics=args.statistics,
+    )  # fmt: skip
+    palette = _palette_for(settings, True, source.num_classes)
+    if palette is None:
+        raise UsageError(
+            "the model does not record its palette: pass --palette for the class map's colours"
+        )
+    results = run_rasters(args, rasters, source, settings, palette.colors, out)
+    described = {**source.describe(), "settings": settings.describe()}
+    write_marker(out, palette, described, images=len(results))  # type: ignore[arg-type]
+    for r in results:
+        gsd = "" if r.raster_gsd is None else f", GSD {r.raster_gsd[0]:.4g} m/px"
+        print(f"{r.path}: {r.width}x{r.height}{gsd}, {r.windows} windows in {r.seconds:.0f} s")
+    print(f"{len(results)} class map{'s' * (len(results) != 1)} (COG): {out}/<name>.tif")
     return 0
 
 

@@ -14,6 +14,7 @@ line gives ``--data`` and ``--palette``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -124,7 +125,19 @@ def checkpoint_defaults(checkpoint: Mapping[str, Any]) -> dict[str, Any]:
         # for a SAT backbone).
         stats = backbone_statistics(checkpoint.get("model_args"))
         out["normalisation"] = normalisation_from_config(config, stats)
+    gsd = model_gsd(checkpoint.get("gsd"))
+    if gsd is not None:
+        out["gsd"] = gsd
     return out
+
+
+def model_gsd(record: Any) -> float | None:
+    """Metres per pixel of a checkpoint's or ONNX file's ``gsd`` record; None when absent or
+    unusable."""
+    value = record.get("metres_per_pixel") if isinstance(record, Mapping) else None
+    if isinstance(value, int | float) and not isinstance(value, bool) and value > 0:
+        return float(value)
+    return None
 
 
 def onnx_defaults(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -146,6 +159,7 @@ def onnx_defaults(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
         out["palette_info"] = palette
     if metadata.get("normalisation"):
         out["normalisation"] = metadata["normalisation"]
+    out["gsd"] = model_gsd(metadata.get("gsd"))
     return {k: v for k, v in out.items() if v is not None}
 
 
@@ -158,7 +172,9 @@ class RunSettings:
         palette: a palette name or YAML path (None: the data's default, or none at all).
         palette_info: the palette recorded in an ONNX file (names, colours), when any.
         normalisation: ``{"mean", "std", ...}`` of the input.
-        origins: ``{setting: "flag" | "checkpoint" | "onnx" | "default"}``.
+        origins: ``{setting: "flag" | "checkpoint" | "onnx" | "default" | "gsd"}``.
+        gsd: metres per pixel of the model's training images (``model``, None: not recorded)
+            and of the evaluated data (``data``: stated with ``--gsd``, else None).
     """
 
     window: WindowConfig
@@ -166,6 +182,7 @@ class RunSettings:
     palette_info: dict[str, Any] | None
     normalisation: dict[str, Any]
     origins: dict[str, str]
+    gsd: dict[str, float | None] = field(default_factory=lambda: {"model": None, "data": None})
 
     def describe(self) -> dict[str, Any]:
         """The report's ``source["settings"]``: every value used and where it came from."""
@@ -179,6 +196,7 @@ class RunSettings:
             "palette": self.palette,
             "normalisation": {k: self.normalisation[k] for k in ("mean", "std")},
             "tta": None if w.tta is None else w.tta.describe(),
+            "gsd": dict(self.gsd),
             "from": dict(self.origins),
         }
 
@@ -200,6 +218,7 @@ def resolve_settings(
     precision: str = "auto",
     statistics: str | None = None,
     tta: TTAConfig | bool | None = None,
+    gsd: float | None = None,
 ) -> RunSettings:
     """Window, stride, scale, batch size, palette and normalisation: flag, else the model
     file's record, else the default. A ``--stride`` recorded for another window is dropped
@@ -208,13 +227,15 @@ def resolve_settings(
     normalisation is the model's own (a checkpoint's backbone statistics, an export's record).
     An ONNX file exported elsewhere records none of these: it needs ``palette``, ``window``
     (unless its input size is fixed) and ``statistics`` (a name of `NAMED_STATISTICS`), which
-    no other source takes.
+    no other source takes. ``gsd`` states the data's ground sampling distance (metres per
+    pixel): the images are then resized to the model's (scale = gsd / the model's recorded GSD).
 
     Raises:
         UsageError: a window other than a fixed-size ONNX file's input size; an ONNX file
             without claravid metadata and no ``--palette``/``--window``/``--statistics`` (the
             message names what is missing); ``--statistics`` for a file that records its own;
-            an unknown statistics name; a window that is not a multiple of the patch size.
+            an unknown statistics name; a window that is not a multiple of the patch size;
+            ``gsd`` with ``scale``, or for a model that records no GSD.
     """
     recorded = source.defaults
     kind = source.kind
@@ -242,17 +263,13 @@ def resolve_settings(
     step = pick("stride", _pair(stride), record_stride, None)
     name = pick("palette", palette, recorded.get("palette"), None)
     info = recorded.get("palette_info") if palette is None else None
-    default_norm = normalisation_from_config(None)
-    mean, std = model_statistics(source.model)
-    if mean is not None:  # the model's own: a checkpoint's backbone (the model owns them)
-        default_norm = {**default_norm, "mean": [float(v) for v in mean],
-                        "std": [float(v) for v in std]}  # fmt: skip
-    named = None
-    if statistics is not None:  # a foreign ONNX file: the user's word, never a guess
-        named = normalisation_from_config(None, default=NAMED_STATISTICS[statistics])
+    named, default_norm = _normalisations(source, statistics)
     normalisation = pick("normalisation", named, recorded.get("normalisation"), default_norm)
     recorded_tta = recorded.get("tta")
     chosen = pick("tta", tta, TTAConfig.from_record(recorded_tta) if recorded_tta else None, None)
+    model_gsd = recorded.get("gsd")
+    if gsd is not None:
+        scale = _gsd_scale(gsd, model_gsd, scale, source.path)
     config = WindowConfig(
         tta=chosen if isinstance(chosen, TTAConfig) else None,
         size=size,
@@ -263,16 +280,62 @@ def resolve_settings(
         mean=tuple(normalisation["mean"]),
         std=tuple(normalisation["std"]),
     )
-    if source.patch_size:
-        try:
-            config.check_patch(source.patch_size)
-            head = (getattr(source.model, "model_args", None) or {}).get("head")
-            if head in HEADS:  # an ONNX file's graph would fail inside ONNX Runtime
-                height, width = size
-                check_input_size(head, int(height), int(width), source.patch_size, "a window")
-        except ValueError as exc:
-            raise UsageError(f"{exc} ({_where(origins['window'], kind)})") from None
-    return RunSettings(config, name, info, normalisation, origins)
+    _check_window(source, config, origins["window"])
+    if gsd is not None:
+        origins["scale"] = "gsd"
+    return RunSettings(
+        config, name, info, normalisation, origins, {"model": model_gsd, "data": gsd}
+    )
+
+
+def _gsd_scale(gsd: float, model_gsd: float | None, scale: float | None, path: str) -> float:
+    """The resize that brings data of ``gsd`` metres per pixel to the model's GSD."""
+    if scale is not None:
+        raise UsageError(
+            "give --gsd or --scale, not both (--gsd sets the scale to match the model)"
+        )
+    if model_gsd is None:
+        raise UsageError(
+            f"{path} records no ground sampling distance (trained on data without one: set "
+            "data.gsd when training), so --gsd cannot match it; use --scale instead"
+        )
+    if not (gsd > 0 and math.isfinite(gsd)):
+        raise UsageError(f"--gsd must be metres per pixel > 0, got {gsd}")
+    return gsd / model_gsd
+
+
+def _normalisations(
+    source: ModelSource, statistics: str | None
+) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+    """(the named statistics of a foreign ONNX file, or None; the default: the model's own, a
+    checkpoint's backbone statistics, else ImageNet's)."""
+    default = normalisation_from_config(None)
+    mean, std = model_statistics(source.model)
+    if mean is not None:  # the model's own: a checkpoint's backbone (the model owns them)
+        default = {**default, "mean": [float(v) for v in mean], "std": [float(v) for v in std]}
+    named = None
+    if statistics is not None:  # a foreign ONNX file: the user's word, never a guess
+        named = normalisation_from_config(None, default=NAMED_STATISTICS[statistics])
+    return named, default
+
+
+def _check_window(source: ModelSource, config: WindowConfig, origin: str) -> None:
+    """The window on the model's patch grid and no smaller than its head takes.
+
+    Raises:
+        UsageError: one line, saying where the window came from (``origin``).
+    """
+    if not source.patch_size:
+        return
+    try:
+        config.check_patch(source.patch_size)
+        head = (getattr(source.model, "model_args", None) or {}).get("head")
+        if head in HEADS:  # an ONNX file's graph would fail inside ONNX Runtime
+            assert config.size is not None
+            height, width = config.size
+            check_input_size(head, int(height), int(width), source.patch_size, "a window")
+    except ValueError as exc:
+        raise UsageError(f"{exc} ({_where(origin, source.kind)})") from None
 
 
 def _check_foreign(source: ModelSource, palette: Any, window: Any, statistics: Any) -> None:

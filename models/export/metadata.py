@@ -13,7 +13,8 @@ named it `precision`)::
      "normalisation": {"mean", "std", "channels": "RGB", "value_range": [0, 255],
                        "formula": "(x / 255 - mean) / std"},
      "window": {"size": [h, w], "stride": [h, w], "scale", "batch_size", "tta"} (known keys only),
-     "training": {"step", "config_sha256"} (known keys only)}
+     "training": {"step", "config_sha256"} (known keys only),
+     "gsd": {"metres_per_pixel", "source"[, "frames"]} | null (the training images' scale)}
 
 Lists in the document are in tensor order ([h, w]); the readable ``claravid.input_size`` is
 ``WxH``, like every size the project prints or parses (version 1 wrote it ``HxW``:
@@ -157,6 +158,7 @@ def build_metadata(
     step: int | None = None,
     palette: Mapping[str, Any] | None = None,
     statistics: tuple[Any, Any] | None = None,
+    gsd: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The ``claravid`` document for an export.
 
@@ -172,6 +174,8 @@ def build_metadata(
         palette: ``{"name", "names", "colors", "ignore_index"}`` (plain lists), or None.
         statistics: ``(mean, std)`` the model normalises with when the config records none
             (a segmenter's ``mean``/``std``); None: its backbone's.
+        gsd: the checkpoint's ground sampling distance record (metres per pixel of the training
+            images, ``claravid.data.gsd``), or None when training recorded none.
     """
     if dtype not in DTYPES:
         raise ValueError(f"dtype must be one of {', '.join(DTYPES)}, got {dtype!r}")
@@ -196,6 +200,7 @@ def build_metadata(
         ),
         "window": window_from_config(config),
         "training": training,
+        "gsd": dict(gsd) if gsd is not None else None,
     }
 
 

@@ -114,11 +114,38 @@ class Provenance:
         config: the checkpoint's resolved training config (windows, normalisation, hash).
         step: the training step of the checkpoint.
         palette: ``{"name", "names", "colors", "ignore_index"}`` as plain lists.
+        gsd: the checkpoint's ground sampling distance record (``{"metres_per_pixel", ...}``).
     """
 
     config: dict[str, Any] | None = None
     step: int | None = None
     palette: dict[str, Any] | None = None
+    gsd: dict[str, Any] | None = None
+
+
+def _write_graph(
+    model: Segmenter, staged: Path, s: ExportSettings, calibration: Any
+) -> dict[str, Any] | None:
+    """The graph in ``s.dtype`` at ``staged``: exported in float32, then converted to float16
+    or quantised to int8 beside it; the conversion's counts (None for float32)."""
+    if s.dtype == "fp32":
+        _export(model, staged, s.height, s.width, s.dynamic)
+        return None
+    (staged.parent / "fp32").mkdir()
+    plain = staged.parent / "fp32" / staged.name
+    _export(model, plain, s.height, s.width, s.dynamic)
+    if s.dtype == "fp16":
+        from claravid.models.export.fp16 import convert_to_fp16
+
+        conversion = convert_to_fp16(str(plain), str(staged))
+    else:
+        from claravid.models.export.int8 import quantize_int8
+
+        conversion = quantize_int8(
+            plain, staged, calibration=calibration, per_channel=s.per_channel
+        )
+    shutil.rmtree(staged.parent / "fp32")
+    return conversion
 
 
 def export_onnx(
@@ -178,23 +205,9 @@ def export_onnx(
     try:
         staged = staging / path.name
         result: dict[str, Any] = {"path": path, "dtype": dtype}
-        if dtype == "fp32":
-            _export(model, staged, height, width, dynamic)
-        else:
-            (staging / "fp32").mkdir()
-            plain = staging / "fp32" / path.name
-            _export(model, plain, height, width, dynamic)
-            if dtype == "fp16":
-                from claravid.models.export.fp16 import convert_to_fp16
-
-                result["conversion"] = convert_to_fp16(str(plain), str(staged))
-            else:
-                from claravid.models.export.int8 import quantize_int8
-
-                result["conversion"] = quantize_int8(
-                    plain, staged, calibration=calibration, per_channel=per_channel
-                )
-            shutil.rmtree(staging / "fp32")
+        conversion = _write_graph(model, staged, s, calibration)
+        if conversion is not None:
+            result["conversion"] = conversion
         size = None if dynamic else (height, width)
         document = build_metadata(
             model.model_args,
@@ -206,6 +219,7 @@ def export_onnx(
             step=record.step,
             palette=record.palette,
             statistics=(model.mean, model.std),
+            gsd=record.gsd,
         )
         _write_metadata(staged, document)
         result.update(max_abs_diff=None, agreement=None, check_shape=None)

@@ -85,6 +85,10 @@ def _check_data(d: DictConfig) -> None:
     _require(d.num_workers >= 0, "data.num_workers", d.num_workers, ">= 0")
     _require(d.crops_per_frame >= 1, "data.crops_per_frame", d.crops_per_frame, ">= 1")
     _require(d.val_limit is None or d.val_limit >= 1, "data.val_limit", d.val_limit, ">= 1 or null")
+    _require(
+        d.gsd is None or (math.isfinite(d.gsd) and d.gsd > 0), "data.gsd", d.gsd,
+        "metres per pixel > 0, or null",
+    )  # fmt: skip
 
 
 def _check_train(t: DictConfig) -> None:

@@ -52,6 +52,10 @@ class DataConfig:
     val_dataset: str = "claravid"  # claravid | uavid | udd5 | udd6 | vdd | aeroscapes | icg
     val_root: str | None = None  # null: data.root
     val_limit: int | None = None  # validate on the first N images only (null: all)
+    # Metres per pixel of the training images, recorded in checkpoints and ONNX files (predict
+    # --gsd auto matches rasters to it). null: ClaraVid measures it (depth at the frame centre /
+    # fx, median over training frames); other datasets then record none.
+    gsd: float | None = None
     label_cache: bool = (
         True  # label codes kept as tiled TIFFs under $CLARAVID_CACHE, read by region
     )
