@@ -167,7 +167,7 @@ def test_reports_before_the_measures_read_merge_and_compare(label_map_reports, t
     assert (
         main(
             [
-                "--merge",
+                "merge",
                 str(old),
                 str(tmp / "b"),
                 "--bootstrap",
