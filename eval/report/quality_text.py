@@ -153,9 +153,14 @@ def _gap(row: dict[str, Any], digits: int = 3) -> str:
 def quality_gap_lines(comp: dict[str, Any], baseline: str) -> list[str]:
     """A comparison's gaps of the measures beyond mIoU, one table per measure, and what could
     not be compared."""
-    lines = []
+    lines, nothing = [], []
     for measure, gaps in (comp.get("quality") or {}).items():
         names = [n for n in gaps["overall"] if isinstance(gaps["overall"][n], dict)]
+        cells = [row[n] for row in (*gaps["bins"], gaps["overall"]) for n in names]
+        if all(cell.get("gap") is None for cell in cells):  # a table of dashes says nothing
+            nothing.append(f"- {TITLES[measure]} not compared: no bin has a value in both "
+                           "reports (no pair, or no pixel, measured in one of them)")  # fmt: skip
+            continue
         header = ["bin", *[f"{STATISTIC_NAMES[n][0]} gap ({STATISTIC_NAMES[n][1]})"
                            for n in names]]  # fmt: skip
         rows = [[b["name"], *[_gap(b[n]) for n in names]] for b in gaps["bins"]]
@@ -165,7 +170,8 @@ def quality_gap_lines(comp: dict[str, Any], baseline: str) -> list[str]:
         lines += md_table(header, rows)
     for measure, why in (comp.get("missing") or {}).items():
         lines.append(f"- {TITLES[measure]} not compared: {why}")
-    return [*lines, ""] if comp.get("missing") else lines
+    lines += nothing
+    return [*lines, ""] if comp.get("missing") or nothing else lines
 
 
 def missing_everywhere(reports: Sequence[dict[str, Any]], names: Sequence[str]) -> list[str]:
