@@ -8,8 +8,9 @@ import torch
 from claravid.models import build_backbone, load_checkpoint
 from claravid.train.cli import main as train_main
 from tests.helpers.files import use_hub_cache
+from tests.helpers.weights import saved
 from tests.models.weights.official_v3 import released_v3_state, to_timm
-from tests.models.weights.test_sources import _cached_repo, _save
+from tests.models.weights.test_sources import _cached_repo
 from tests.tiny import VIT, tiny_v3
 
 SAT = "dinov3_vitl16_sat"
@@ -36,7 +37,7 @@ def test_training_reads_a_hub_id_and_a_weights_folder(
     # prediction rebuild the backbone from the same source through load_checkpoint.
     checkpoint = torch.load(out / "last.pt", weights_only=True)
     assert checkpoint["model_args"]["weights"] == weights
-    official = build_backbone(SAT, weights=_save(state, tmp_path / "official.pth"), **VIT)
+    official = build_backbone(SAT, weights=saved(state, tmp_path / "official.pth"), **VIT)
     backbone = load_checkpoint(out / "last.pt").backbone
     x = torch.randn(1, 3, 32, 48, generator=torch.Generator().manual_seed(0))
     with torch.no_grad():

@@ -13,12 +13,11 @@ from safetensors.torch import save_file
 
 from claravid.models import WeightsError, build_backbone
 from tests.helpers.files import use_hub_cache
+from tests.helpers.weights import released_state, saved
 from tests.models.weights.test_sources import (
     TIMM_SAT,
     _cached_repo,
     _features,
-    _released,
-    _save,
     _transformers_folder,
 )
 from tests.tiny import TINY_V3
@@ -36,8 +35,8 @@ def _one_line(info):
 @pytest.fixture
 def sat(tmp_path):
     """A released-style SAT state and the backbone built from it as an official file."""
-    state = _released()
-    official = build_backbone(SAT, weights=_save(state, tmp_path / "o.pth"), **TINY_V3)
+    state = released_state(SAT, seed=3)
+    official = build_backbone(SAT, weights=saved(state, tmp_path / "o.pth"), **TINY_V3)
     return state, _features(official)
 
 
@@ -120,7 +119,7 @@ def test_a_config_json_that_says_nothing_usable_is_refused(tmp_path, config, say
     # Before: ignored silently (the docs say it is checked), or "hidden_size '64' (the model:
     # 64)", which reads as two equal values.
     name = "dinov3_vitl16"
-    folder = _transformers_folder(_released(name), tmp_path / "lvd1689m")
+    folder = _transformers_folder(released_state(name, seed=3), tmp_path / "lvd1689m")
     if isinstance(config, dict):
         config = json.dumps({**json.loads((folder / "config.json").read_text()), **config})
     (folder / "config.json").write_text(config)
