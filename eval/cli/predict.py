@@ -185,8 +185,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Predict every image and write its label map and overlay."""
-    from claravid.eval.inference.sources import load_source, resolve_settings
-
     if (args.checkpoint is None) == (args.onnx is None):
         raise UsageError("give exactly one of --checkpoint and --onnx")
     precision = flag_precision(args.precision, pytorch=args.checkpoint is not None)
@@ -199,17 +197,8 @@ def run(args: argparse.Namespace) -> int:
     if args.raster:
         return _run_rasters(args, out, precision)
     paths, keys = list_images(args.images)
-    check_device(args.device)  # one line, not CUDA's traceback
-    device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
-    source = load_source(args.checkpoint, args.onnx, device=device, provider=args.provider)
-    # The same decision as claravid-eval's: flags, else the model file's record, else defaults.
-    settings = resolve_settings(
-        source, window=args.window, stride=args.stride, scale=args.scale,
-        batch_size=args.batch_size, palette=args.palette, precision=precision,
-        statistics=args.statistics,
-        gsd=args.gsd,
-        tta=tta_from_flags(args.tta, args.tta_scales, args.flip, args.tta_size),
-    )  # fmt: skip
+    tta = tta_from_flags(args.tta, args.tta_scales, args.flip, args.tta_size)
+    device, source, settings = _model_and_settings(args, precision, gsd=args.gsd, tta=tta)
     palette = _palette_for(settings, args.no_overlays, source.num_classes)
     config = settings.window
     loader = DataLoader(ImageList(paths, keys), batch_size=None, num_workers=args.workers)
@@ -232,19 +221,30 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_rasters(args: argparse.Namespace, out: Path, precision: str) -> int:
-    """``--raster``: every input streamed into ``OUT/<name>.tif`` (a COG class map)."""
+def _model_and_settings(
+    args: argparse.Namespace, precision: str, **choices: Any
+) -> tuple[torch.device, Any, Any]:
+    """The device, the model and its run settings: the same decision as claravid-eval's (flags,
+    else the model file's record, else defaults); ``choices`` adds ``gsd`` and ``tta``."""
     from claravid.eval.inference.sources import load_source, resolve_settings
 
-    rasters = check_rasters(args)  # each raster's problem in one line, before loading the model
-    check_device(args.device)
+    check_device(args.device)  # one line, not CUDA's traceback
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     source = load_source(args.checkpoint, args.onnx, device=device, provider=args.provider)
     settings = resolve_settings(
         source, window=args.window, stride=args.stride, scale=args.scale,
         batch_size=args.batch_size, palette=args.palette, precision=precision,
-        statistics=args.statistics,
+        statistics=args.statistics, **choices,
     )  # fmt: skip
+    return device, source, settings
+
+
+def _run_rasters(args: argparse.Namespace, out: Path, precision: str) -> int:
+    """``--raster``: every input streamed into ``OUT/<name>.tif`` (a COG class map)."""
+    rasters = check_rasters(args)  # each raster's problem in one line, before loading the model
+    # One copy per window (a protocol a checkpoint records is not streamed); --gsd is the
+    # raster's own, resolved by run_rasters.
+    _, source, settings = _model_and_settings(args, precision, tta=False)
     palette = _palette_for(settings, True, source.num_classes)
     if palette is None:
         raise UsageError(

@@ -78,8 +78,16 @@ def add_raster_flags(parser: argparse.ArgumentParser) -> None:
 
 
 def check_raster_flags(args: argparse.Namespace) -> None:
-    """Refuse raster-only flags without ``--raster`` (and ``--gsd auto`` on images)."""
+    """Refuse raster-only flags without ``--raster`` (and ``--gsd auto`` on images), and
+    test-time augmentation with it (a raster is streamed in one copy)."""
     if args.raster:
+        augment = {"tta": args.tta not in (None, "none"), "tta_scales": bool(args.tta_scales),
+                   "flip": args.flip, "tta_size": args.tta_size is not None}  # fmt: skip
+        given = [name for name, on in augment.items() if on]
+        if given:
+            flags = ", ".join("--" + name.replace("_", "-") for name in given)
+            raise UsageError(f"{flags} do not apply to --raster: a raster is streamed window by "
+                             "window in one copy; drop them")  # fmt: skip
         return
     given = [name for name in ("bands", "value_range", "confidence") if getattr(args, name)]
     if given:

@@ -94,10 +94,15 @@ def test_bad_rasters_are_one_line_and_leave_nothing(model_files, with_gsd, tmp_p
     _fails(capsys, _predict(ckpt, rgb, tmp_path / "d", "--gsd", "auto"), "records no ground")
     _fails(capsys, main(["--checkpoint", str(ckpt), str(rgb), "-o", str(tmp_path / "e"),
                          "--bands", "1,2,3"]), "apply to rasters: add --raster")  # fmt: skip
+    # A raster is streamed in one copy: test-time augmentation is refused, not ignored.
+    _fails(capsys, _predict(ckpt, rgb, tmp_path / "g", "--tta", "dinov3"),
+           "--tta do not apply to --raster")  # fmt: skip
+    _fails(capsys, _predict(ckpt, rgb, tmp_path / "g", "--flip", "--tta-size", "512"),
+           "--flip, --tta-size do not apply to --raster")  # fmt: skip
     with pytest.raises(SystemExit) as exit_:  # argparse's own: exit 2, one line
         _predict(ckpt, rgb, tmp_path / "f", "--gsd", "-1")
     _fails(capsys, exit_.value.code, "--gsd takes 'auto'")
-    for folder in "abcdef":
+    for folder in "abcdefg":
         assert not list((tmp_path / folder).glob("*.tif")) if (tmp_path / folder).exists() else 1
 
 
